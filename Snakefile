@@ -1,0 +1,23 @@
+# r2s-eval: teleop data -> calibrated sim -> policies -> rollouts -> judge -> ranking.
+# Stages live in workflow/rules/ (one file each); configuration is Hydra's, under conf/.
+#   snakemake -j 2 reports/realsim_table.tex                       (default experiment: demo)
+#   snakemake -j 2 reports/realsim_table.tex --config experiment=smoke
+#   snakemake -j 2 ... --config overrides='[stats.n_boot=500]'     (any Hydra override)
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/real.smk"
+include: "workflow/rules/ingest.smk"
+include: "workflow/rules/init.smk"
+include: "workflow/rules/replay.smk"
+include: "workflow/rules/train.smk"
+include: "workflow/rules/rollout.smk"
+include: "workflow/rules/judge.smk"
+include: "workflow/rules/compare.smk"
+include: "workflow/rules/fit.smk"
+include: "workflow/rules/report.smk"
+
+
+rule all:
+    input:
+        "reports/realsim_table.tex",
+        "results/init/error_summary.json" if TWIN else [],

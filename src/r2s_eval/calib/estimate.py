@@ -1,0 +1,185 @@
+"""Initial object poses from one calibrated camera frame.
+
+1. segment each object and take its silhouette centroid and principal axis;
+2. back-project the centroid ray onto the horizontal plane at the object's centroid height
+   (calibrated intrinsics K and extrinsics T_world_from_cam);
+3. refine: render the simulator at the estimate from the same calibrated camera and move each
+   object until its rendered centroid lands on the observed one (Gauss-Newton on the pixel
+   reprojection error). This removes the perspective bias of step 2 (a silhouette centroid is
+   not the projection of the 3-D centre) and absorbs the object's shape;
+4. add the per-task offsets fitted on calibration episodes.
+Poses are planar: (x_m, y_m) of the object's bottom centre in the world frame, and yaw_rad.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from r2s_eval.calib.segment import Segmenter
+
+# rendered masks for a set of planar poses {name: (x_m, y_m, yaw_rad)}
+RenderMasks = Callable[[dict[str, tuple[float, float, float]]], dict[str, np.ndarray]]
+
+
+class InitEstimationError(RuntimeError):
+    """An object could not be located; the message names it (and the episode, via the caller)."""
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    K: np.ndarray  # 3x3 pinhole intrinsics, pixels
+    T_world_from_cam: np.ndarray  # 4x4, OpenCV camera frame (x right, y down, z forward)
+
+    def project(self, points_world_m: np.ndarray) -> np.ndarray:
+        pts = np.atleast_2d(points_world_m)
+        T_cam_from_world = np.linalg.inv(self.T_world_from_cam)
+        pts_cam = pts @ T_cam_from_world[:3, :3].T + T_cam_from_world[:3, 3]
+        uv = pts_cam @ self.K.T
+        return uv[:, :2] / uv[:, 2:3]
+
+    def backproject_to_plane(self, uv_px: Sequence[float], plane_z_m: float) -> np.ndarray:
+        """World point where the pixel's viewing ray meets the plane z = plane_z_m."""
+        ray_cam = np.linalg.solve(self.K, np.array([uv_px[0], uv_px[1], 1.0]))
+        ray_world = self.T_world_from_cam[:3, :3] @ ray_cam
+        origin = self.T_world_from_cam[:3, 3]
+        if abs(ray_world[2]) < 1e-9:
+            raise InitEstimationError(f"pixel {tuple(uv_px)} looks parallel to the table plane")
+        t = (plane_z_m - origin[2]) / ray_world[2]
+        if t <= 0:
+            raise InitEstimationError(f"pixel {tuple(uv_px)} does not look down at the table plane")
+        return origin + t * ray_world
+
+
+@dataclass(frozen=True)
+class ObjectGeometry:
+    name: str
+    centroid_height_m: float  # height above the table of the silhouette's 3-D centre (approx.)
+    yaw_symmetry: int = 0  # n-fold symmetry about z; 0 = rotationally symmetric (yaw unobservable)
+
+
+@dataclass
+class PoseEstimate:
+    name: str
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    reproj_error_px: float  # centroid distance after refinement (nan if not refined)
+    iterations: int
+    mask_area_px: int
+
+
+def _centroid_and_axis(mask: np.ndarray) -> tuple[np.ndarray, float]:
+    rows, cols = np.nonzero(mask)
+    u, v = cols.astype(float), rows.astype(float)
+    cu, cv_ = u.mean(), v.mean()
+    du, dv = u - cu, v - cv_
+    mu20, mu02, mu11 = (du * du).mean(), (dv * dv).mean(), (du * dv).mean()
+    angle = 0.5 * np.arctan2(2.0 * mu11, mu20 - mu02)
+    return np.array([cu, cv_]), angle
+
+
+def wrap_yaw(yaw_rad: float, symmetry: int) -> float:
+    """Yaw in [-period/2, period/2) for an object of n-fold symmetry (period 2*pi/n)."""
+    if symmetry == 0:
+        return 0.0
+    period = 2.0 * np.pi / symmetry
+    return float((yaw_rad + period / 2.0) % period - period / 2.0)
+
+
+def yaw_error_rad(estimate: float, truth: float, symmetry: int) -> float:
+    """Absolute yaw error modulo the object's symmetry (0 for rotationally symmetric objects)."""
+    if symmetry == 0:
+        return 0.0
+    return abs(wrap_yaw(estimate - truth, symmetry))
+
+
+def _pixel_jacobian(camera: CameraModel, point_world_m: np.ndarray, step_m: float = 1e-3) -> np.ndarray:
+    """d(u, v)/d(x, y) of a world point's projection (2x2), by central differences."""
+    J = np.zeros((2, 2))
+    for k in range(2):
+        delta = np.zeros(3)
+        delta[k] = step_m
+        J[:, k] = (camera.project(point_world_m + delta)[0] - camera.project(point_world_m - delta)[0]) / (2 * step_m)
+    return J
+
+
+def estimate_initial_poses(
+    image_rgb: np.ndarray,
+    segmenter: Segmenter,
+    camera: CameraModel,
+    table_z_m: float,
+    objects: Sequence[ObjectGeometry],
+    render_masks: RenderMasks | None = None,
+    max_iterations: int = 8,
+    tolerance_px: float = 0.25,
+    max_step_m: float = 0.03,
+    offsets: Mapping[str, Sequence[float]] | None = None,
+) -> dict[str, PoseEstimate]:
+    """Estimate each object's planar pose from `image_rgb`; see the module docstring."""
+    masks = segmenter.segment(image_rgb)
+    observed, poses, areas = {}, {}, {}
+    for obj in objects:
+        mask = masks.get(obj.name)
+        if mask is None or not mask.any():
+            raise InitEstimationError(f"object {obj.name!r} is not visible in the frame")
+        centroid, axis_angle = _centroid_and_axis(mask)
+        plane_z = table_z_m + obj.centroid_height_m
+        centre = camera.backproject_to_plane(centroid, plane_z)
+        yaw = 0.0
+        if obj.yaw_symmetry:
+            tip_px = centroid + 5.0 * np.array([np.cos(axis_angle), np.sin(axis_angle)])
+            tip = camera.backproject_to_plane(tip_px, plane_z)
+            yaw = wrap_yaw(float(np.arctan2(tip[1] - centre[1], tip[0] - centre[0])), obj.yaw_symmetry)
+        observed[obj.name] = centroid
+        poses[obj.name] = np.array([centre[0], centre[1], yaw])
+        areas[obj.name] = int(mask.sum())
+
+    errors = {name: float("nan") for name in poses}
+    iterations = 0
+    if render_masks is not None:
+        best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
+        for iterations in range(1, max_iterations + 1):
+            rendered = render_masks({n: tuple(p) for n, p in poses.items()})
+            residuals = {}
+            for obj in objects:
+                mask = rendered.get(obj.name)
+                if mask is None or not mask.any():
+                    continue  # rendered out of view or hidden: keep the back-projection
+                residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
+                err = float(np.linalg.norm(residuals[obj.name]))
+                if err < best[obj.name][0]:
+                    best[obj.name] = (err, poses[obj.name].copy())
+            if not residuals or max(np.linalg.norm(r) for r in residuals.values()) < tolerance_px:
+                break
+            for obj in objects:
+                if obj.name not in residuals:
+                    continue
+                x, y, _ = poses[obj.name]
+                point = np.array([x, y, table_z_m + obj.centroid_height_m])
+                step = np.linalg.lstsq(_pixel_jacobian(camera, point), residuals[obj.name], rcond=None)[0]
+                norm = np.linalg.norm(step)
+                if norm > max_step_m:
+                    step *= max_step_m / norm
+                poses[obj.name][:2] += step
+        for name, (err, pose) in best.items():
+            if np.isfinite(err):
+                poses[name], errors[name] = pose, err
+
+    offsets = offsets or {}
+    estimates = {}
+    for obj in objects:
+        dx, dy, dyaw = (list(offsets.get(obj.name, ())) + [0.0, 0.0, 0.0])[:3]
+        x, y, yaw = poses[obj.name]
+        estimates[obj.name] = PoseEstimate(
+            name=obj.name,
+            x_m=float(x + dx),
+            y_m=float(y + dy),
+            yaw_rad=wrap_yaw(float(yaw + dyaw), obj.yaw_symmetry) if obj.yaw_symmetry else float(yaw + dyaw),
+            reproj_error_px=errors[obj.name],
+            iterations=iterations,
+            mask_area_px=areas[obj.name],
+        )
+    return estimates

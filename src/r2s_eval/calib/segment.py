@@ -1,0 +1,86 @@
+"""Object segmentation of a camera frame. Pluggable: anything with `segment(image) -> masks`.
+
+The bundled HSV segmenter suits objects of distinct saturated colours (our suite); an
+open-vocabulary backend can implement the same protocol for cluttered real scenes.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+
+class Segmenter(Protocol):
+    def segment(self, image_rgb: np.ndarray) -> dict[str, np.ndarray]:
+        """Boolean HxW mask per object name (empty masks for objects not seen)."""
+
+
+@dataclass(frozen=True)
+class HueRange:
+    """OpenCV HSV thresholds (hue 0..179, wrapping when lo > hi)."""
+
+    hue_lo: int
+    hue_hi: int
+    sat_min: int = 90
+    val_min: int = 40
+
+    @classmethod
+    def around_rgb(cls, rgb: Sequence[float], hue_tol: int = 12, sat_min: int = 90, val_min: int = 40) -> HueRange:
+        hue = colorsys.rgb_to_hsv(*rgb[:3])[0] * 180.0
+        return cls(int(round(hue - hue_tol)) % 180, int(round(hue + hue_tol)) % 180, sat_min, val_min)
+
+    def mask(self, hsv: np.ndarray) -> np.ndarray:
+        h, s, v = hsv[..., 0].astype(int), hsv[..., 1], hsv[..., 2]
+        if self.hue_lo <= self.hue_hi:
+            in_hue = (h >= self.hue_lo) & (h <= self.hue_hi)
+        else:
+            in_hue = (h >= self.hue_lo) | (h <= self.hue_hi)
+        return in_hue & (s >= self.sat_min) & (v >= self.val_min)
+
+
+class HSVSegmenter:
+    """Colour thresholds per object, keeping the largest connected blob (drops speckle)."""
+
+    def __init__(self, ranges: Mapping[str, HueRange], min_area_px: int = 20):
+        self.ranges = dict(ranges)
+        self.min_area_px = min_area_px
+
+    def segment(self, image_rgb: np.ndarray) -> dict[str, np.ndarray]:
+        # A light blur makes thresholds robust to sensor noise.
+        hsv = cv2.cvtColor(cv2.GaussianBlur(image_rgb, (3, 3), 0), cv2.COLOR_RGB2HSV)
+        return {name: self._largest_blob(rng.mask(hsv)) for name, rng in self.ranges.items()}
+
+    def _largest_blob(self, mask: np.ndarray) -> np.ndarray:
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+        if n <= 1:
+            return np.zeros(mask.shape, bool)
+        best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        if stats[best, cv2.CC_STAT_AREA] < self.min_area_px:
+            return np.zeros(mask.shape, bool)
+        return labels == best
+
+
+def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> Segmenter:
+    """Build the configured segmenter. `object_rgba` gives nominal colours for defaults.
+
+    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40,
+          "objects": {name: {"hue_lo":..,"hue_hi":..,"sat_min":..,"val_min":..}}}  (objects optional)
+    """
+    kind = cfg.get("type", "hsv")
+    if kind != "hsv":
+        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv)")
+    explicit = cfg.get("objects") or {}
+    ranges = {}
+    for name, rgba in object_rgba.items():
+        if name in explicit:
+            ranges[name] = HueRange(**explicit[name])
+        else:
+            ranges[name] = HueRange.around_rgb(
+                rgba, cfg.get("hue_tol", 12), cfg.get("sat_min", 90), cfg.get("val_min", 40)
+            )
+    return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20))

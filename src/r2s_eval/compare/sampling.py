@@ -1,0 +1,119 @@
+"""Task-stratified, init-matched, side-balanced sampling of A/B comparisons.
+
+For every unordered policy pair one sequence of ``max(checkpoints)`` comparisons is drawn:
+
+* tasks come in shuffled blocks holding every task once, so in EVERY prefix the per-task counts
+  differ by at most one;
+* both sides of a comparison start from the same initial configuration (``init_id``), drawn with
+  replacement from the inits both policies have for that task;
+* sides come in shuffled blocks of two (policy i as A once, as B once), so in every prefix
+  policy i is A half of the time, +-1/2;
+* when a policy has several episodes for one (task, init), one is drawn at random.
+
+Checkpoint n is the first n comparisons of every pair: smaller checkpoints are prefixes of larger
+ones and no comparison is judged twice; sampling with a larger ``max(checkpoints)`` and the same
+seed extends the sequences without changing their beginnings. The random stream of a pair depends only on the seed and
+the two policy names, so adding a policy leaves the other pairs' sequences unchanged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from itertools import combinations
+
+import numpy as np
+import pandas as pd
+
+PAIR_COLUMNS = (
+    "pair_index", "policy_i", "policy_j", "task", "init_id",
+    "episode_a", "episode_b", "policy_a", "policy_b", "first_checkpoint",
+)
+_NEEDED = ("episode_id", "policy", "task", "init_id")
+
+
+def _pair_rng(seed: int, a: str, b: str) -> np.random.Generator:
+    lo, hi = sorted((a, b))
+    digest = hashlib.sha256(f"{lo}\x00{hi}".encode()).digest()
+    return np.random.default_rng([int(seed), int.from_bytes(digest[:8], "little")])
+
+
+def _check_checkpoints(checkpoints: Sequence[int]) -> list[int]:
+    ck = [int(c) for c in checkpoints]
+    if not ck or any(c <= 0 for c in ck) or any(c != x for c, x in zip(ck, checkpoints)):
+        raise ValueError(f"checkpoints must be a non-empty list of positive integers, got {list(checkpoints)}")
+    return sorted(set(ck))
+
+
+def sample_pairs(
+    episodes_df: pd.DataFrame,
+    policies: Sequence[str],
+    checkpoints: Sequence[int],
+    seed: int,
+) -> pd.DataFrame:
+    """Draw the nested comparison sequences of every policy pair.
+
+    `episodes_df` is the episode table of ONE arm (needs episode_id, policy, task, init_id); every
+    task that any of `policies` has is compared, so each pair must share an init on each of them.
+    Pairs are (policies[i], policies[j]) with i < j, in list order.
+
+    Returns one row per comparison, sorted by pair then ``pair_index``, columns ``PAIR_COLUMNS``:
+    pair_index (0-based position in the pair's sequence), policy_i, policy_j, task, init_id,
+    episode_a, episode_b, policy_a, policy_b, first_checkpoint (the smallest checkpoint that
+    includes the comparison).
+    """
+    lacking = [c for c in _NEEDED if c not in episodes_df.columns]
+    if lacking:
+        raise ValueError(f"episode table lacks columns {lacking}")
+    if "arm" in episodes_df.columns and episodes_df["arm"].nunique() > 1:
+        raise ValueError(f"episode table mixes arms {sorted(episodes_df['arm'].unique())}; sample one arm at a time")
+    policies = [str(p) for p in policies]
+    if len(policies) < 2 or len(set(policies)) != len(policies):
+        raise ValueError(f"need at least two distinct policies, got {policies}")
+    ck = _check_checkpoints(checkpoints)
+    n = ck[-1]
+
+    df = episodes_df[list(_NEEDED)].astype({"episode_id": str, "policy": str, "task": str})
+    absent = sorted(set(policies) - set(df["policy"]))
+    if absent:
+        raise ValueError(f"policies {absent} have no episodes in the episode table")
+    df = df[df["policy"].isin(policies)]
+    tasks = sorted(df["task"].unique())
+    # (policy, task) -> {init_id: sorted episode ids}; sorting makes the result row-order independent.
+    episodes: dict[tuple[str, str], dict[int, list[str]]] = {}
+    for (pol, task, init), ids in df.groupby(["policy", "task", "init_id"])["episode_id"]:
+        episodes.setdefault((pol, task), {})[int(init)] = sorted(ids)
+
+    first_ck = np.searchsorted(np.asarray(ck), np.arange(n) + 1)  # index of the first checkpoint >= k+1
+    frames = []
+    for pi, pj in combinations(policies, 2):
+        common = {}
+        for task in tasks:
+            inits = sorted(set(episodes.get((pi, task), {})) & set(episodes.get((pj, task), {})))
+            if not inits:
+                raise ValueError(
+                    f"policies {pi!r} and {pj!r} share no initial configuration (init_id) for task {task!r}"
+                )
+            common[task] = inits
+        rng = _pair_rng(seed, pi, pj)
+        first, second = sorted((pi, pj))
+
+        # Draws happen in sequence order, so a longer sequence extends a shorter one with the
+        # same seed (checkpoints can be added later without re-judging anything).
+        rows, task_block, side_block = [], [], np.zeros(0, dtype=bool)
+        for k in range(n):
+            if k % len(tasks) == 0:  # task-balanced: a new shuffled block holding every task once
+                task_block = [tasks[t] for t in rng.permutation(len(tasks))]
+            if k % 2 == 0:  # side-balanced: a new shuffled block (first-named policy as A, as B)
+                side_block = rng.permutation([True, False])
+            task, fa = task_block[k % len(tasks)], bool(side_block[k % 2])
+            inits = common[task]
+            init = inits[int(rng.integers(len(inits)))]
+            pa, pb = (first, second) if fa else (second, first)
+            ea_pool, eb_pool = episodes[(pa, task)][init], episodes[(pb, task)][init]
+            ea = ea_pool[int(rng.integers(len(ea_pool)))]
+            eb = eb_pool[int(rng.integers(len(eb_pool)))]
+            rows.append((k, pi, pj, task, init, ea, eb, pa, pb, ck[first_ck[k]]))
+        frames.append(pd.DataFrame(rows, columns=list(PAIR_COLUMNS)))
+    out = pd.concat(frames, ignore_index=True)
+    return out.astype({"pair_index": "int64", "init_id": "int64", "first_checkpoint": "int64"})

@@ -1,0 +1,66 @@
+"""Win counts per checkpoint from judged comparisons."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from r2s_eval.compare.sampling import _check_checkpoints
+
+_NEEDED = ("pair_index", "policy_i", "policy_j", "policy_a", "policy_b", "winner")
+
+
+def wins_at_checkpoints(
+    judged_pairs_df: pd.DataFrame,
+    policies: Sequence[str],
+    checkpoints: Sequence[int],
+) -> np.ndarray:
+    """``wins[c, i, j]`` = how often policies[i] was preferred over policies[j] in the first
+    ``checkpoints[c]`` comparisons of their pair (checkpoints in the order given).
+
+    `judged_pairs_df` is ``judge_pairs`` output. Every policy pair must have been judged on at
+    least ``max(checkpoints)`` comparisons (pair_index 0..n-1), otherwise the checkpoints would
+    silently compare pairs on different numbers of comparisons.
+    """
+    lacking = [c for c in _NEEDED if c not in judged_pairs_df.columns]
+    if lacking:
+        raise ValueError(f"judged pairs table lacks columns {lacking}")
+    policies = [str(p) for p in policies]
+    index = {p: k for k, p in enumerate(policies)}
+    if len(index) != len(policies):
+        raise ValueError(f"duplicate policies in {policies}")
+    _check_checkpoints(checkpoints)
+    ck = [int(c) for c in checkpoints]
+    df = judged_pairs_df[list(_NEEDED)].astype({c: str for c in _NEEDED[1:]})
+
+    unknown = sorted((set(df["policy_i"]) | set(df["policy_j"])) - set(index))
+    if unknown:
+        raise ValueError(f"judged pairs name policies {unknown} that are not in {policies}")
+    bad = df[(df["winner"] != df["policy_a"]) & (df["winner"] != df["policy_b"])]
+    if len(bad):
+        r = bad.iloc[0]
+        raise ValueError(f"pair {r.policy_i} vs {r.policy_j}, pair_index {r.pair_index}: winner {r.winner!r} is neither side")
+
+    wins = np.zeros((len(ck), len(policies), len(policies)), dtype=np.int64)
+    n_max = max(ck)
+    seen = set()
+    for (pi, pj), g in df.groupby(["policy_i", "policy_j"], sort=False):
+        seen.add(frozenset((pi, pj)))
+        idx = np.sort(g["pair_index"].to_numpy())
+        if len(idx) < n_max or not np.array_equal(idx[:n_max], np.arange(n_max)):
+            raise ValueError(
+                f"pair {pi} vs {pj}: checkpoints need judged comparisons with pair_index 0..{n_max - 1}, "
+                f"found {len(idx)} comparisons"
+            )
+        pos = g["pair_index"].to_numpy()
+        win_i = (g["winner"] == pi).to_numpy()
+        for c, n in enumerate(ck):
+            first = pos < n
+            wins[c, index[pi], index[pj]] = int(np.sum(first & win_i))
+            wins[c, index[pj], index[pi]] = int(np.sum(first & ~win_i))
+    missing = [(a, b) for k, a in enumerate(policies) for b in policies[k + 1:] if frozenset((a, b)) not in seen]
+    if missing:
+        raise ValueError(f"judged pairs lack policy pairs {missing}")
+    return wins

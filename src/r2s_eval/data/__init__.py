@@ -1,0 +1,31 @@
+"""Robot datasets: LeRobotDataset v3 recording, reading and validation (ingest)."""
+
+from r2s_eval.data.dataset import (
+    ACTION_KEY,
+    IMAGE_PREFIX,
+    STATE_KEY,
+    DatasetRecorder,
+    camera_key,
+    decode_frame,
+    episode_frames,
+    episode_table,
+    lerobot_features,
+    open_metadata,
+)
+from r2s_eval.data.ingest import DatasetValidationError, IngestSpec, ingest_dataset
+
+__all__ = [
+    "ACTION_KEY",
+    "IMAGE_PREFIX",
+    "STATE_KEY",
+    "DatasetRecorder",
+    "DatasetValidationError",
+    "IngestSpec",
+    "camera_key",
+    "decode_frame",
+    "episode_frames",
+    "episode_table",
+    "ingest_dataset",
+    "lerobot_features",
+    "open_metadata",
+]

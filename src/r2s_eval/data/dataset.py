@@ -1,0 +1,161 @@
+"""Thin layer over LeRobotDataset v3: the feature layout we record, and per-episode reads.
+
+Data files hold many episodes each; an episode is found through `meta/episodes` (its
+`dataset_from_index`/`dataset_to_index` rows and per-camera video timestamps).
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+IMAGE_PREFIX = "observation.images."
+
+log = logging.getLogger(__name__)
+
+
+def camera_key(camera: str) -> str:
+    return f"{IMAGE_PREFIX}{camera}"
+
+
+def lerobot_features(
+    state_names: Sequence[str],
+    action_names: Sequence[str],
+    cameras: Sequence[str],
+    image_hw: tuple[int, int],
+) -> dict:
+    """Feature spec of our robot datasets: joint state, joint-target action, one video per camera."""
+    height, width = image_hw
+    features = {
+        STATE_KEY: {"dtype": "float32", "shape": (len(state_names),), "names": list(state_names)},
+        ACTION_KEY: {"dtype": "float32", "shape": (len(action_names),), "names": list(action_names)},
+    }
+    for cam in cameras:
+        features[camera_key(cam)] = {
+            "dtype": "video",
+            "shape": (height, width, 3),
+            "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+class DatasetRecorder:
+    """Record episodes into a new LeRobotDataset that appears at `root` only when complete.
+
+    Frames go to a temporary sibling directory; `close()` finalises and renames it, so a
+    killed recording never leaves a dataset that looks whole.
+    """
+
+    def __init__(self, root: str | Path, repo_id: str, fps: int, features: dict, robot_type: str):
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        self.root = Path(root)
+        self.tmp_root = self.root.with_name(f".{self.root.name}.recording")
+        if self.tmp_root.exists():
+            shutil.rmtree(self.tmp_root)
+        self.root.parent.mkdir(parents=True, exist_ok=True)
+        self._dataset = LeRobotDataset.create(
+            repo_id,
+            fps=fps,
+            features=features,
+            root=self.tmp_root,
+            robot_type=robot_type,
+            use_videos=True,
+            video_backend="pyav",
+            streaming_encoding=True,  # encode while recording: no PNG round trip
+        )
+        self._image_keys = [k for k, f in features.items() if f["dtype"] == "video"]
+        self.num_episodes = 0
+
+    def add_episode(self, frames: Iterable[tuple[dict, np.ndarray]], task: str) -> int:
+        """Append one episode of (observation, action) pairs; returns its episode index."""
+        n = 0
+        for obs, action in frames:
+            frame = {
+                STATE_KEY: np.asarray(obs[STATE_KEY], dtype=np.float32),
+                ACTION_KEY: np.asarray(action, dtype=np.float32),
+                "task": task,
+            }
+            for key in self._image_keys:
+                frame[key] = obs[key]
+            self._dataset.add_frame(frame)
+            n += 1
+        if n == 0:
+            raise ValueError(f"episode {self.num_episodes} of {self.root} has no frames")
+        self._dataset.save_episode()
+        self.num_episodes += 1
+        return self.num_episodes - 1
+
+    def close(self) -> None:
+        self._dataset.finalize()
+        if self.num_episodes == 0:
+            raise ValueError(f"no episode was recorded into {self.root}")
+        if self.root.exists():
+            shutil.rmtree(self.root)
+        self.tmp_root.rename(self.root)
+        # Unused PNG staging folders would make the artefact depend on recording details.
+        images = self.root / "images"
+        if images.exists():
+            shutil.rmtree(images)
+
+    def abort(self) -> None:
+        shutil.rmtree(self.tmp_root, ignore_errors=True)
+
+    def __enter__(self) -> DatasetRecorder:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def open_metadata(root: str | Path, repo_id: str = "local/dataset"):
+    """Load a local dataset's metadata; never reaches for the hub."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    root = Path(root)
+    if not (root / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"{root} is not a LeRobotDataset v3 (no meta/info.json)")
+    return LeRobotDatasetMetadata(repo_id, root=root)
+
+
+def episode_table(meta) -> pd.DataFrame:
+    """One row per episode: index, task text, length and where its rows and videos live."""
+    episodes = meta.episodes.to_pandas()
+    episodes["task"] = [tasks[0] if len(tasks) else "" for tasks in episodes["tasks"]]
+    return episodes
+
+
+def episode_frames(root: str | Path, meta, episode_index: int) -> pd.DataFrame:
+    """The per-frame rows (state, action, timestamps) of one episode."""
+    row = meta.episodes[int(episode_index)]
+    path = Path(root) / meta.data_path.format(
+        chunk_index=row["data/chunk_index"], file_index=row["data/file_index"]
+    )
+    data = pd.read_parquet(path)
+    return data[data["episode_index"] == episode_index].sort_values("frame_index").reset_index(drop=True)
+
+
+def decode_frame(root: str | Path, meta, episode_index: int, camera: str, frame_index: int = 0) -> np.ndarray:
+    """Decode one frame of one camera as uint8 HxWx3."""
+    from lerobot.datasets.video_utils import decode_video_frames
+
+    key = camera if camera.startswith(IMAGE_PREFIX) else camera_key(camera)
+    row = meta.episodes[int(episode_index)]
+    path = Path(root) / meta.video_path.format(
+        video_key=key,
+        chunk_index=row[f"videos/{key}/chunk_index"],
+        file_index=row[f"videos/{key}/file_index"],
+    )
+    timestamp = row[f"videos/{key}/from_timestamp"] + frame_index / meta.fps
+    frames = decode_video_frames(path, [timestamp], tolerance_s=0.5 / meta.fps, backend="pyav")
+    return (frames[0].permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)

@@ -1,0 +1,250 @@
+"""The built-in offline kinematic judge (backend "kinematic").
+
+This judge is NOT a vision-language model. It never looks at the video: it reads the recorded
+trajectory (joint states, commanded actions, end-effector positions, contact force and the staged
+progress signal) and writes the same four-criterion description a VLM judge would, with the
+numbers behind every sentence. It is a deterministic, free baseline and a stand-in when no VLM
+is available.
+
+Describe (per rollout, from the trajectory only):
+  * motion smoothness: RMS end-effector jerk, RMS joint jerk, RMS action jitter (second
+    difference of the commanded targets);
+  * action continuity: fraction of idle steps mid-task, stop-and-go pauses per 10 s,
+    end-effector direction reversals per second;
+  * task progress: max and final progress, label "successful" (final progress reaches
+    ``success_progress``), "partially successful" (max progress >= ``partial_min_progress``)
+    or "failed". The episode table's success column is never read;
+  * force/effort control: peak contact force, mean force while in contact, impacts (force
+    rises of more than ``impact_jump_n`` within one step).
+
+Compare (from the two descriptions alone, deterministic, no position bias):
+  1. outcome label: successful > partially successful > failed;
+  2. final progress, then max progress, when they differ by more than ``progress_margin``;
+  3. weighted behaviour score: each criterion score is the geometric mean over its evidence
+     numbers x of 1 / (1 + x / ref[x]) (1 = perfect, 0.5 = at the reference level); the
+     criterion scores are averaged with ``weights`` (criteria absent from either side are skipped);
+     the higher score wins when the scores differ by more than ``score_tie_eps``;
+  4. exact tie: the description whose canonical-JSON sha256 is smaller wins, so swapping A and B
+     flips the letter; two identical descriptions get a letter from the parity of a hash of the
+     description and the instruction. Neither rule favours a position.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from r2s_eval.judge.base import Description, CriterionNote, Judge, RolloutInput, Verdict, register_judge
+from r2s_eval.judge import trajectory as T
+
+DEFAULTS: dict[str, Any] = {
+    "backend": "kinematic",
+    "name": "kinematic-trajectory-heuristic-not-vlm",
+    "joint_dims": None,  # state/action dims used for joint jerk, jitter and idleness; None = all 14
+    "idle_speed_rad_s": 0.05,  # joint-space speed below this is idle
+    "min_pause_steps": 3,  # an idle run this long, followed by motion, is a stop-and-go pause
+    "reversal_min_speed_m_s": 0.02,  # direction changes at lower end-effector speed are noise
+    "contact_threshold_n": 0.5,
+    "impact_jump_n": 15.0,
+    "success_progress": 1.0,
+    "partial_min_progress": 0.1,
+    "progress_margin": 0.05,
+    "score_tie_eps": 1e-9,
+    # Reference levels: an evidence number equal to its reference scores 0.5.
+    "ref": {
+        "ee_jerk_rms_m_s3": 5.0,
+        "joint_jerk_rms_rad_s3": 20.0,
+        "action_jitter_rms_rad": 0.02,
+        "idle_fraction": 0.2,
+        "pauses_per_10s": 1.0,
+        "reversals_per_s": 0.5,
+        "peak_force_n": 40.0,
+        "mean_contact_force_n": 15.0,
+        "impacts": 1.0,
+    },
+    "weights": {"motion_smoothness": 1.0, "action_continuity": 1.0, "force_control": 1.0},
+    # Score levels for the words in the text: >= good -> first word, >= fair -> second, else third.
+    "good_score": 0.67,
+    "fair_score": 0.4,
+}
+
+# Which evidence numbers make up each scored criterion.
+SCORED: dict[str, tuple[str, ...]] = {
+    "motion_smoothness": ("ee_jerk_rms_m_s3", "joint_jerk_rms_rad_s3", "action_jitter_rms_rad"),
+    "action_continuity": ("idle_fraction", "pauses_per_10s", "reversals_per_s"),
+    "force_control": ("peak_force_n", "mean_contact_force_n", "impacts"),
+}
+_WORDS = {
+    "motion_smoothness": ("smooth", "somewhat jerky", "jerky"),
+    "action_continuity": ("continuous", "hesitant at times", "stop-and-go"),
+    "force_control": ("gentle", "firm", "forceful"),
+}
+_OUTCOME_RANK = {"successful": 2, "partially successful": 1, "failed": 0}
+
+
+def _merge(defaults: dict[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
+    unknown = set(cfg) - set(defaults)
+    if unknown:
+        raise ValueError(f"kinematic judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
+    out = copy.deepcopy(defaults)
+    for k, v in cfg.items():
+        if isinstance(defaults[k], dict):
+            bad = set(v) - set(defaults[k])
+            if bad:
+                raise ValueError(f"kinematic judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
+            out[k].update(v)
+        else:
+            out[k] = v
+    return out
+
+
+def _num(x: Any) -> Any:
+    """Round evidence to 6 significant digits: readable and stable across platforms."""
+    if isinstance(x, float):
+        return float(f"{x:.6g}")
+    return x
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}"
+
+
+@register_judge("kinematic")
+class KinematicJudge(Judge):
+    """Offline trajectory-reading judge; NOT a VLM (see the module docstring for its rules)."""
+
+    prompt_version = "kinematic-v1"
+    inputs = ("trajectory",)
+
+    def __init__(self, cfg: Mapping[str, Any] | None = None):
+        super().__init__(cfg)
+        # Identity/caching hash the effective config, so changed defaults invalidate old answers.
+        self.cfg = _merge(DEFAULTS, self.cfg)
+        if self.cfg["backend"] != "kinematic":
+            raise ValueError(f"kinematic judge built with backend {self.cfg['backend']!r}")
+        bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
+        if bad_ref:
+            raise ValueError(f"kinematic judge: ref levels must be > 0, got {bad_ref}")
+        w = self.cfg["weights"]
+        if any(float(v) < 0 for v in w.values()) or not sum(float(v) for v in w.values()) > 0:
+            raise ValueError(f"kinematic judge: weights must be >= 0 and not all 0, got {w}")
+
+    # ---------------------------------------------------------------- describe
+    def describe(self, rollout: RolloutInput) -> Description:
+        if rollout.trajectory_path is None:
+            raise ValueError("the kinematic judge reads trajectories; the rollout input has no trajectory_path")
+        c = self.cfg
+        tr = T.load_trajectory(rollout.trajectory_path)
+        smooth = T.smoothness_metrics(tr, c["joint_dims"])
+        cont = T.continuity_metrics(
+            tr, c["joint_dims"], c["idle_speed_rad_s"], c["min_pause_steps"],
+            c["reversal_min_speed_m_s"], c["success_progress"],
+        )
+        prog = T.progress_metrics(tr, c["success_progress"], c["partial_min_progress"])
+        force = T.force_metrics(tr, c["contact_threshold_n"], c["impact_jump_n"])
+        label = prog.pop("label")
+
+        words = {k: self._word(k, ev) for k, ev in
+                 (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
+        s_text = (
+            f"Motion is {words['motion_smoothness']}: end-effector jerk RMS {_g(smooth['ee_jerk_rms_m_s3'])} m/s^3 "
+            f"(95th percentile {_g(smooth['ee_jerk_p95_m_s3'])}), joint jerk RMS "
+            f"{_g(smooth['joint_jerk_rms_rad_s3'])} rad/s^3, action jitter RMS {_g(smooth['action_jitter_rms_rad'])} rad."
+        )
+        c_text = (
+            f"Execution is {words['action_continuity']}: idle {100 * cont['idle_fraction']:.0f}% of mid-task steps "
+            f"(longest idle {_g(cont['longest_idle_s'])} s), {cont['pauses']} stop-and-go pauses, "
+            f"{cont['reversals']} end-effector direction reversals ({_g(cont['reversals_per_s'])}/s)."
+        )
+        when = (f"reached completion at {_g(prog['time_to_success_s'])} s"
+                if prog["time_to_success_s"] is not None else "never reached completion")
+        p_text = (
+            f"Task {label}: progress peaked at {prog['max_progress']:.2f} and ended at {prog['final_progress']:.2f} "
+            f"over {_g(prog['duration_s'])} s; it {when}."
+        )
+        f_text = (
+            f"Contact is {words['force_control']}: peak force {_g(force['peak_force_n'])} N, mean "
+            f"{_g(force['mean_contact_force_n'])} N while in contact ({100 * force['contact_fraction']:.0f}% of steps), "
+            f"{force['impacts']} impacts (largest rise {_g(force['max_force_rise_n_per_step'])} N in one step)."
+        )
+        summary = (
+            f"Kinematic trajectory analysis (not a VLM; video not viewed): {label} "
+            f"(final progress {prog['final_progress']:.2f}); {words['motion_smoothness']} motion, "
+            f"{words['action_continuity']}, {words['force_control']} contact."
+        )
+
+        def note(text: str, ev: dict[str, Any], lab: str | None = None) -> CriterionNote:
+            return CriterionNote(text=text, evidence={k: _num(v) for k, v in ev.items()}, label=lab)
+
+        return Description(
+            criteria={
+                "motion_smoothness": note(s_text, smooth),
+                "action_continuity": note(c_text, cont),
+                "task_progress": note(p_text, prog, label),
+                "force_control": note(f_text, force),
+            },
+            summary=summary,
+            judge=self.name,
+        )
+
+    # ---------------------------------------------------------------- scoring
+    def criterion_score(self, criterion: str, evidence: Mapping[str, Any]) -> float | None:
+        """Score in (0, 1] from a criterion's evidence numbers; None when a number is absent."""
+        ref = self.cfg["ref"]
+        vals = []
+        for key in SCORED[criterion]:
+            x = evidence.get(key)
+            if not isinstance(x, (int, float)) or isinstance(x, bool):
+                return None
+            vals.append(1.0 / (1.0 + max(float(x), 0.0) / float(ref[key])))
+        # Geometric mean: one bad number (e.g. a long stall) is not averaged away by two good ones.
+        return math.prod(vals) ** (1.0 / len(vals))
+
+    def _word(self, criterion: str, evidence: Mapping[str, Any]) -> str:
+        s = self.criterion_score(criterion, evidence) or 0.0
+        good, fair, bad = _WORDS[criterion]
+        return good if s >= self.cfg["good_score"] else fair if s >= self.cfg["fair_score"] else bad
+
+    def behaviour_scores(self, a: Description, b: Description) -> tuple[float, float]:
+        """Weighted behaviour score of both, over the scored criteria both descriptions carry."""
+        tot_a = tot_b = tot_w = 0.0
+        for crit, w in self.cfg["weights"].items():
+            na, nb = a.criteria.get(crit), b.criteria.get(crit)
+            sa = self.criterion_score(crit, na.evidence) if na else None
+            sb = self.criterion_score(crit, nb.evidence) if nb else None
+            if sa is None or sb is None or w <= 0:
+                continue
+            tot_a, tot_b, tot_w = tot_a + w * sa, tot_b + w * sb, tot_w + w
+        return (tot_a / tot_w, tot_b / tot_w) if tot_w else (0.0, 0.0)
+
+    # ---------------------------------------------------------------- compare
+    def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
+        la, lb = a.progress_label, b.progress_label
+        if la is not None and lb is not None and la != lb:
+            win = "A" if _OUTCOME_RANK[la] > _OUTCOME_RANK[lb] else "B"
+            return Verdict(win, f"outcome: A {la}, B {lb}")
+
+        margin = float(self.cfg["progress_margin"])
+        for key in ("final_progress", "max_progress"):
+            pa, pb = self._progress(a, key), self._progress(b, key)
+            if pa is not None and pb is not None and abs(pa - pb) > margin:
+                return Verdict("A" if pa > pb else "B", f"same outcome; {key.replace('_', ' ')} A {pa:.2f} vs B {pb:.2f}")
+
+        sa, sb = self.behaviour_scores(a, b)
+        if abs(sa - sb) > float(self.cfg["score_tie_eps"]):
+            return Verdict("A" if sa > sb else "B", f"same outcome and progress; behaviour score A {sa:.3f} vs B {sb:.3f}")
+
+        ha, hb = a.sha256(), b.sha256()
+        if ha != hb:
+            return Verdict("A" if ha < hb else "B", "exact tie; broken by the smaller description hash")
+        parity = int(hashlib.sha256((ha + "\n" + instruction).encode()).hexdigest(), 16) % 2
+        return Verdict("A" if parity == 0 else "B", "identical descriptions; letter from a hash parity")
+
+    @staticmethod
+    def _progress(d: Description, key: str) -> float | None:
+        note = d.criteria.get("task_progress")
+        x = note.evidence.get(key) if note else None
+        return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None

@@ -1,0 +1,244 @@
+"""Candidate policy configs: plain dicts validated here, turned into lerobot config classes.
+
+A policy config is a plain (JSON/Hydra-friendly) dict:
+
+    {"type": "act", "steps": 300, "batch_size": 16, "lr": 1e-4,
+     "image_keys": ["observation.images.head_left"], "image_size": [64, 64],
+     "chunk_size": 25, "n_action_steps": 5, "overrides": {"dim_model": 128}}
+
+Top-level keys are ours (training loop, receding horizon, camera selection); the keys under
+`overrides` go verbatim to the lerobot config class (`ACTConfig`, `DiffusionConfig`).
+Unknown keys at either level are an error that names the key.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from typing import Any
+
+SUPPORTED_TYPES = ("act", "diffusion")
+
+# Our top-level keys and their defaults (None = required or derived).
+TOP_LEVEL_DEFAULTS: dict[str, Any] = {
+    "type": None,  # "act" | "diffusion"
+    "name": None,  # candidate name, informational
+    "steps": 300,  # optimiser updates
+    "batch_size": 16,
+    "lr": 1e-4,
+    "weight_decay": None,  # None: the policy's optimiser preset
+    "grad_clip_norm": 10.0,  # lerobot's default
+    "warmup_steps": 0,  # linear LR warm-up, then constant (short runs: no cosine decay)
+    "threads": 1,  # torch.set_num_threads; training is budgeted per core
+    "log_every": 10,  # steps between logged losses
+    "image_keys": ["observation.images.head_left"],
+    "image_size": None,  # [H, W]: resize cameras inside the preprocessor; None = native size
+    "chunk_size": 25,  # actions predicted per model call
+    "n_action_steps": 5,  # actions executed before re-querying (receding horizon)
+    "overrides": {},
+}
+
+# Settings that keep every candidate offline and CPU-sized, whatever the overrides say last.
+_ALWAYS = {"pretrained_backbone_weights": None, "push_to_hub": False}
+
+
+class PolicyConfigError(ValueError):
+    """A policy config dict that cannot be turned into a lerobot policy config."""
+
+
+def validate_policy_cfg(policy_cfg: dict) -> dict:
+    """Return a completed copy of `policy_cfg` (defaults filled in); raise on unknown or bad keys."""
+    if not isinstance(policy_cfg, dict):
+        raise PolicyConfigError(f"policy config must be a dict, got {type(policy_cfg).__name__}")
+    unknown = sorted(set(policy_cfg) - set(TOP_LEVEL_DEFAULTS))
+    if unknown:
+        raise PolicyConfigError(
+            f"unknown policy config key(s) {unknown}; allowed: {sorted(TOP_LEVEL_DEFAULTS)}"
+        )
+    cfg = copy.deepcopy(TOP_LEVEL_DEFAULTS)
+    cfg.update(copy.deepcopy(policy_cfg))
+    if cfg["type"] not in SUPPORTED_TYPES:
+        raise PolicyConfigError(f"policy config 'type' must be one of {SUPPORTED_TYPES}, got {cfg['type']!r}")
+    if not cfg["image_keys"]:
+        raise PolicyConfigError("policy config 'image_keys' must list at least one camera")
+    if cfg["n_action_steps"] < 1 or cfg["n_action_steps"] > cfg["chunk_size"]:
+        raise PolicyConfigError(
+            f"policy config needs 1 <= n_action_steps <= chunk_size, got "
+            f"n_action_steps={cfg['n_action_steps']} chunk_size={cfg['chunk_size']}"
+        )
+    if cfg["image_size"] is not None:
+        cfg["image_size"] = [int(v) for v in cfg["image_size"]]
+        if len(cfg["image_size"]) != 2 or min(cfg["image_size"]) <= 0:
+            raise PolicyConfigError(f"policy config 'image_size' must be [H, W], got {cfg['image_size']}")
+    if not isinstance(cfg["overrides"], dict):
+        raise PolicyConfigError("policy config 'overrides' must be a dict")
+    return cfg
+
+
+def _config_class(policy_type: str):
+    if policy_type == "act":
+        from lerobot.policies.act.configuration_act import ACTConfig
+
+        return ACTConfig
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    return DiffusionConfig
+
+
+def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
+    """Build the lerobot config object (features are filled in later from the dataset)."""
+    cfg = validate_policy_cfg(policy_cfg)
+    cls = _config_class(cfg["type"])
+    field_names = {f.name for f in dataclasses.fields(cls) if f.init}
+    overrides = dict(cfg["overrides"])
+    unknown = sorted(set(overrides) - field_names)
+    if unknown:
+        raise PolicyConfigError(
+            f"unknown override key(s) {unknown} for {cls.__name__} (policy type {cfg['type']!r})"
+        )
+    # Chunking is ours: the model must predict `chunk_size` actions per call.
+    for key in ("chunk_size", "horizon", "n_action_steps", "device", "input_features", "output_features"):
+        if key in overrides:
+            raise PolicyConfigError(
+                f"override {key!r} is set by the pipeline (top-level 'chunk_size'/'n_action_steps', "
+                f"the dataset features or the device argument); remove it"
+            )
+    if overrides.get("pretrained_backbone_weights") is not None:
+        raise PolicyConfigError(
+            "override 'pretrained_backbone_weights' must be None: candidates train from scratch, offline"
+        )
+    kwargs = {"optimizer_lr": cfg["lr"], **overrides, **_ALWAYS, "device": device}
+    # Tuples in lerobot configs arrive as lists from YAML/JSON.
+    for key in ("down_dims", "resize_shape", "crop_shape", "optimizer_betas"):
+        if key in kwargs and isinstance(kwargs[key], list):
+            kwargs[key] = tuple(kwargs[key])
+    if cfg["type"] == "act":
+        # ACT returns its whole chunk from predict_action_chunk; n_action_steps here only
+        # matters to lerobot's own select_action, kept equal to ours for clarity.
+        kwargs.update(chunk_size=cfg["chunk_size"], n_action_steps=cfg["n_action_steps"])
+        kwargs.setdefault("optimizer_lr_backbone", cfg["lr"])
+    else:
+        # Diffusion predicts `horizon` steps starting n_obs_steps-1 in the past and its
+        # generate_actions keeps `n_action_steps` of them: ask it for the whole chunk.
+        n_obs = int(kwargs.get("n_obs_steps", 2))
+        horizon = _diffusion_horizon(cfg["chunk_size"], n_obs, len(kwargs.get("down_dims", (512, 1024, 2048))))
+        kwargs.update(horizon=horizon, n_action_steps=cfg["chunk_size"])
+        # lerobot's recipe: don't sample the last frames whose windows would be mostly padding.
+        kwargs.setdefault("drop_n_last_frames", horizon - cfg["chunk_size"] - n_obs + 1)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError, NotImplementedError) as exc:
+        raise PolicyConfigError(f"invalid {cls.__name__} settings {overrides}: {exc}") from exc
+
+
+def _diffusion_horizon(chunk_size: int, n_obs_steps: int, n_down: int) -> int:
+    """Smallest horizon covering the chunk that the UNet can downsample (multiple of 2**n_down)."""
+    need = chunk_size + n_obs_steps - 1
+    factor = 2**n_down
+    return -(-need // factor) * factor
+
+
+# ---------------------------------------------------------------------------------------------
+# The three candidates and their CPU budgets.
+#
+# All candidates see one head camera resized to 64x64 (ResNet18 cost scales with pixels; 64x64
+# is enough to localise objects that vary a few cm on a table) plus the 14-D joint state, predict
+# chunks of 25 actions (2.5 s at 10 fps) and execute 5 before re-querying.
+#
+#   act          ACT (transformer + CVAE), dim_model 128, 2 encoder / 1 decoder layers.
+#   diffusion    Diffusion Policy, UNet down_dims (64, 128, 256) -> horizon 32, DDIM 10 steps,
+#                2 observation frames.
+#   act_weak     Deliberately weak baseline: the `act` architecture trained for ~1/8 of the
+#                optimisation steps. Same inputs, same data, same inference path: it has learnt
+#                the average reaching motion but barely the image-conditioned correction, so it
+#                moves plausibly and succeeds only when objects sit near their nominal place.
+#                Under-training is a single, monotone knob, so the expected order is known.
+#
+# Budgets (one core, 128x128 source video; see PROFILES): "smoke" keeps each training <= ~25 s,
+# "demo" <= ~3 min.
+# ---------------------------------------------------------------------------------------------
+
+_ACT_OVERRIDES = {
+    "vision_backbone": "resnet18",
+    "dim_model": 128,
+    "n_heads": 4,
+    "dim_feedforward": 512,
+    "n_encoder_layers": 2,
+    "n_decoder_layers": 1,
+    "n_vae_encoder_layers": 2,
+    "latent_dim": 16,
+    "kl_weight": 10.0,
+    "dropout": 0.1,
+}
+
+CANDIDATES: dict[str, dict] = {
+    "act": {
+        "type": "act",
+        "lr": 3e-4,
+        "batch_size": 16,
+        "image_keys": ["observation.images.head_left"],
+        "image_size": [64, 64],
+        "chunk_size": 25,
+        "n_action_steps": 5,
+        "overrides": dict(_ACT_OVERRIDES),
+    },
+    "diffusion": {
+        "type": "diffusion",
+        "lr": 3e-4,
+        "batch_size": 16,
+        "warmup_steps": 20,
+        "image_keys": ["observation.images.head_left"],
+        "image_size": [64, 64],
+        "chunk_size": 25,
+        "n_action_steps": 5,
+        "overrides": {
+            "n_obs_steps": 2,
+            "vision_backbone": "resnet18",
+            "spatial_softmax_num_keypoints": 32,
+            "down_dims": [64, 128, 256],
+            "diffusion_step_embed_dim": 64,
+            "kernel_size": 5,
+            "n_groups": 8,
+            "noise_scheduler_type": "DDIM",
+            "num_train_timesteps": 100,
+            "num_inference_steps": 10,
+        },
+    },
+    "act_weak": {
+        "type": "act",
+        "lr": 3e-4,
+        "batch_size": 16,
+        "image_keys": ["observation.images.head_left"],
+        "image_size": [64, 64],
+        "chunk_size": 25,
+        "n_action_steps": 5,
+        "overrides": dict(_ACT_OVERRIDES),
+    },
+}
+
+# Optimiser steps per candidate and profile (batch_size as in CANDIDATES unless given here).
+PROFILES: dict[str, dict[str, dict]] = {
+    "smoke": {
+        "act": {"steps": 30, "batch_size": 8},
+        "diffusion": {"steps": 30, "batch_size": 8},
+        "act_weak": {"steps": 4, "batch_size": 8},
+    },
+    "demo": {
+        "act": {"steps": 600},
+        "diffusion": {"steps": 600},
+        "act_weak": {"steps": 75},
+    },
+}
+
+
+def candidate_config(name: str, profile: str = "demo", **changes: Any) -> dict:
+    """The plain config dict of candidate `name` under budget `profile`, with optional top-level changes."""
+    if name not in CANDIDATES:
+        raise KeyError(f"unknown candidate policy {name!r}; known: {sorted(CANDIDATES)}")
+    if profile not in PROFILES:
+        raise KeyError(f"unknown training profile {profile!r}; known: {sorted(PROFILES)}")
+    cfg = copy.deepcopy(CANDIDATES[name])
+    cfg.update(copy.deepcopy(PROFILES[profile][name]))
+    cfg["name"] = name
+    cfg.update(copy.deepcopy(changes))
+    return validate_policy_cfg(cfg)

@@ -1,0 +1,138 @@
+"""Training data: a LeRobotDataset whose camera frames are decoded once and served from memory.
+
+`LeRobotDataset.__getitem__` decodes every camera of the dataset for every sample, seeking in the
+video each time. On a CPU budget of minutes that dominates training, and most cameras are not
+policy inputs. `FrameCachedDataset` keeps lerobot's indexing (delta timestamps, padding masks,
+episode boundaries, stats) and only replaces the video query: the selected cameras are decoded
+sequentially once (PyAV), other cameras are never touched.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+
+class DatasetContractError(ValueError):
+    """The dataset on disk does not provide what the policy config asks for."""
+
+
+def open_metadata(dataset_root: str | Path, repo_id: str) -> LeRobotDatasetMetadata:
+    """Load local metadata only: a missing dataset must fail here, never fall back to a download."""
+    root = Path(dataset_root)
+    info = root / "meta" / "info.json"
+    if not info.is_file():
+        raise FileNotFoundError(f"no LeRobot dataset at {root} (missing {info})")
+    return LeRobotDatasetMetadata(repo_id, root=root)
+
+
+def check_features(meta: LeRobotDatasetMetadata, image_keys: list[str]) -> None:
+    """Raise `DatasetContractError` naming the dataset and the missing / malformed key."""
+    where = f"dataset {meta.repo_id!r} at {meta.root}"
+    for key in (OBS_STATE, ACTION):
+        if key not in meta.features:
+            raise DatasetContractError(f"{where} has no feature {key!r}")
+    for key in image_keys:
+        if key not in meta.features:
+            raise DatasetContractError(
+                f"{where} has no camera {key!r}; cameras present: {sorted(meta.camera_keys)}"
+            )
+        if key not in meta.camera_keys:
+            raise DatasetContractError(f"{where}: feature {key!r} is not an image/video stream")
+        if key not in meta.video_keys:
+            raise DatasetContractError(f"{where}: camera {key!r} is stored as images; expected a video stream")
+
+
+class FrameCachedDataset(LeRobotDataset):
+    """LeRobotDataset that returns only `camera_keys`, decoded once into memory (uint8)."""
+
+    def __init__(self, repo_id: str, root: str | Path, camera_keys: list[str], **kwargs):
+        super().__init__(repo_id, root=root, **kwargs)
+        self.camera_keys_used = list(camera_keys)
+        # (video file path) -> (frame times [s], frames uint8 (N, C, H, W))
+        self._decoded: dict[Path, tuple[np.ndarray, torch.Tensor]] = {}
+        # (episode, camera) -> (video file, start time of the episode in that file)
+        self._video_span: dict[tuple[int, str], tuple[Path, float]] = {}
+        episodes = self.episodes if self.episodes is not None else range(self.meta.total_episodes)
+        for ep_idx in episodes:
+            ep = self.meta.episodes[ep_idx]
+            for key in self.camera_keys_used:
+                path = self.root / self.meta.get_video_file_path(ep_idx, key)
+                self._video_span[(ep_idx, key)] = (path, float(ep[f"videos/{key}/from_timestamp"]))
+                if path not in self._decoded:
+                    self._decoded[path] = _decode_all_frames(path)
+        # Numeric columns queried through delta timestamps (action chunk, state history), held as
+        # tensors: row-wise Arrow access costs milliseconds per sample.
+        self._columns: dict[str, torch.Tensor] = {}
+        for key in self.delta_indices or {}:
+            if key not in self.meta.video_keys:
+                self._columns[key] = torch.from_numpy(np.stack(self.hf_dataset.with_format("numpy")[key]))
+
+    def _query_videos(self, query_timestamps: dict[str, list[float]], ep_idx: int) -> dict[str, torch.Tensor]:
+        item = {}
+        for key in self.camera_keys_used:
+            path, from_ts = self._video_span[(ep_idx, key)]
+            times, frames = self._decoded[path]
+            # Episodes share one video file; their frames start at `from_timestamp`.
+            wanted = from_ts + np.asarray(query_timestamps[key])
+            idx = np.abs(times[None, :] - wanted[:, None]).argmin(axis=1)
+            err = np.abs(times[idx] - wanted)
+            if (err > self.tolerance_s).any():
+                raise ValueError(
+                    f"camera {key!r} episode {ep_idx}: no video frame within {self.tolerance_s}s of "
+                    f"t={wanted[err.argmax()]:.4f}s in {path}"
+                )
+            # Same layout as lerobot's decoders: float32 in [0, 1], channel first.
+            item[key] = (frames[idx].float() / 255.0).squeeze(0)
+        return item
+
+
+    def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:
+        result = {}
+        for key, q_idx in query_indices.items():
+            if key in self.meta.video_keys:
+                continue
+            rel = q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+            result[key] = self._columns[key][rel]
+        return result
+
+
+def _decode_all_frames(path: Path) -> tuple[np.ndarray, torch.Tensor]:
+    import av
+
+    times, frames = [], []
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        for frame in container.decode(stream):
+            times.append(float(frame.time))
+            frames.append(frame.to_ndarray(format="rgb24"))
+    if not frames:
+        raise ValueError(f"video {path} has no decodable frames")
+    stacked = torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
+    return np.asarray(times, dtype=np.float64), stacked
+
+
+def make_training_dataset(
+    dataset_root: str | Path,
+    repo_id: str,
+    meta: LeRobotDatasetMetadata,
+    lerobot_cfg,
+    image_keys: list[str],
+) -> FrameCachedDataset:
+    """Dataset with the policy's delta timestamps (action chunk, observation history)."""
+    from lerobot.datasets.factory import resolve_delta_timestamps
+
+    delta = resolve_delta_timestamps(lerobot_cfg, meta) or {}
+    used = {OBS_STATE, ACTION, *image_keys}
+    delta = {k: v for k, v in delta.items() if k in used} or None
+    return FrameCachedDataset(
+        repo_id,
+        root=dataset_root,
+        camera_keys=image_keys,
+        delta_timestamps=delta,
+        video_backend="pyav",
+    )

@@ -1,0 +1,203 @@
+"""Compact, deterministic training loop built from lerobot's pieces.
+
+Mirrors `lerobot_train.py` (make_policy from dataset metadata, make_pre_post_processors with the
+dataset stats, delta timestamps from the policy config, the policy's optimiser preset, gradient
+clipping, EpisodeAwareSampler where the policy asks for it) without accelerate, hub or env eval.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from r2s_eval.policies.config import make_lerobot_config, validate_policy_cfg
+from r2s_eval.policies.data import check_features, make_training_dataset, open_metadata
+from r2s_eval.utils.io import atomic_dir
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_SUBDIR = "pretrained_model"
+TRAIN_LOG = "train_log.json"
+RUNNER_CONFIG = "runner_config.json"  # our receding-horizon settings, next to lerobot's files
+
+
+def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu"):
+    """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.datasets.utils import dataset_to_policy_features
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+    from lerobot.utils.constants import ACTION, OBS_STATE
+
+    cfg = validate_policy_cfg(policy_cfg)
+    check_features(meta, cfg["image_keys"])
+    lr_cfg = make_lerobot_config(cfg, device=device)
+
+    # Only the state and the listed cameras are policy inputs; make_policy keeps preset inputs.
+    features = dataset_to_policy_features(meta.features)
+    inputs = {OBS_STATE: features[OBS_STATE]}
+    for key in cfg["image_keys"]:
+        inputs[key] = PolicyFeature(type=FeatureType.VISUAL, shape=features[key].shape)
+    lr_cfg.input_features = inputs
+    lr_cfg.output_features = {ACTION: features[ACTION]}
+    if cfg["image_size"] is not None and cfg["type"] == "diffusion":
+        # Diffusion resizes inside its RGB encoder (handles the observation-history axis).
+        lr_cfg.resize_shape = tuple(cfg["image_size"])
+
+    policy = make_policy(lr_cfg, ds_meta=meta)
+    preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=meta.stats)
+    if cfg["image_size"] is not None and cfg["type"] == "act":
+        # ACT has no resize option: lerobot's registered resize step, before normalisation
+        # (it clamps to [0, 1]), so the saved pipeline reloads with stock lerobot.
+        from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep
+
+        at = next(i for i, s in enumerate(preprocessor.steps) if isinstance(s, NormalizerProcessorStep))
+        preprocessor.steps.insert(at, ImageCropResizeProcessorStep(resize_size=tuple(cfg["image_size"])))
+    return cfg, lr_cfg, policy, preprocessor, postprocessor
+
+
+def _make_optimizer(cfg: dict, lr_cfg, policy):
+    preset = lr_cfg.get_optimizer_preset()
+    preset.lr = cfg["lr"]
+    if cfg["weight_decay"] is not None:
+        preset.weight_decay = cfg["weight_decay"]
+    optimizer = preset.build(policy.get_optim_params())
+    scheduler = None
+    if cfg["warmup_steps"] > 0:
+        warm = cfg["warmup_steps"]
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: min(1.0, (s + 1) / warm))
+    return optimizer, scheduler
+
+
+def _make_loader(dataset, lr_cfg, batch_size: int, seed: int):
+    from lerobot.datasets.sampler import EpisodeAwareSampler
+
+    generator = torch.Generator().manual_seed(seed)
+    if hasattr(lr_cfg, "drop_n_last_frames"):
+        sampler = EpisodeAwareSampler(
+            dataset.meta.episodes["dataset_from_index"],
+            dataset.meta.episodes["dataset_to_index"],
+            episode_indices_to_use=dataset.episodes,
+            drop_n_last_frames=lr_cfg.drop_n_last_frames,
+            shuffle=True,  # draws from the global torch RNG, seeded by set_seed
+        )
+        return torch.utils.data.DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=0)
+    return torch.utils.data.DataLoader(
+        dataset, batch_size=batch_size, shuffle=True, generator=generator, num_workers=0
+    )
+
+
+def _cycle(loader):
+    while True:
+        yield from loader
+
+
+def train_policy(
+    dataset_root: str | Path,
+    repo_id: str,
+    policy_cfg: dict,
+    out_dir: str | Path,
+    seed: int,
+    device: str = "cpu",
+) -> dict[str, Any]:
+    """Train one policy on one dataset; write `out_dir/pretrained_model/` and `out_dir/train_log.json`.
+
+    The whole `out_dir` is written in a temporary sibling and renamed at the end, so an interrupted
+    run never leaves a checkpoint that looks complete. Returns the summary stored in the log.
+    """
+    from lerobot.utils.random_utils import set_seed
+
+    t_start = time.perf_counter()
+    cfg = validate_policy_cfg(policy_cfg)
+    torch.set_num_threads(int(cfg["threads"]))
+    set_seed(seed)
+
+    meta = open_metadata(dataset_root, repo_id)
+    cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device)
+    t_data = time.perf_counter()
+    dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"])
+    data_prep_s = time.perf_counter() - t_data
+    loader = _make_loader(dataset, lr_cfg, cfg["batch_size"], seed)
+    optimizer, scheduler = _make_optimizer(cfg, lr_cfg, policy)
+    grad_clip = float(cfg["grad_clip_norm"])
+
+    losses: list[dict[str, float]] = []
+    window: list[float] = []
+    batches = _cycle(loader)
+    policy.train()
+    t_loop = time.perf_counter()
+    for step in range(1, int(cfg["steps"]) + 1):
+        batch = preprocessor(next(batches))
+        loss, _ = policy.forward(batch)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite loss {loss.item()} at step {step} ({cfg['type']}, seed {seed})")
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), grad_clip)
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        if scheduler is not None:
+            scheduler.step()
+        window.append(loss.item())
+        if step % cfg["log_every"] == 0 or step == cfg["steps"] or step == 1:
+            losses.append(
+                {
+                    "step": step,
+                    "loss": sum(window) / len(window),  # mean over the steps since the last entry
+                    "grad_norm": float(grad_norm),
+                    "lr": optimizer.param_groups[0]["lr"],
+                    "elapsed_s": time.perf_counter() - t_loop,
+                }
+            )
+            window = []
+    loop_s = time.perf_counter() - t_loop
+    policy.eval()
+
+    n_params = sum(p.numel() for p in policy.parameters())
+    summary = {
+        "policy_type": cfg["type"],
+        "name": cfg["name"],
+        "repo_id": repo_id,
+        "dataset_root": str(dataset_root),
+        "num_frames": dataset.num_frames,
+        "num_episodes": dataset.num_episodes,
+        "seed": seed,
+        "device": device,
+        "threads": int(cfg["threads"]),
+        "steps": int(cfg["steps"]),
+        "batch_size": int(cfg["batch_size"]),
+        "num_params": n_params,
+        "first_loss": losses[0]["loss"] if losses else None,
+        "final_loss": losses[-1]["loss"] if losses else None,
+        "data_prep_s": data_prep_s,
+        "train_loop_s": loop_s,
+        "s_per_step": loop_s / max(1, int(cfg["steps"])),
+        "torch_version": torch.__version__,
+        "python": platform.python_version(),
+    }
+    out_dir = Path(out_dir)
+    with atomic_dir(out_dir) as tmp:
+        ckpt = tmp / CHECKPOINT_SUBDIR
+        policy.save_pretrained(ckpt)
+        preprocessor.save_pretrained(ckpt)
+        postprocessor.save_pretrained(ckpt)
+        runner_cfg = {
+            "chunk_size": cfg["chunk_size"],
+            "n_action_steps": cfg["n_action_steps"],
+            "image_keys": cfg["image_keys"],
+            "policy_type": cfg["type"],
+        }
+        (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
+        summary["wall_s"] = time.perf_counter() - t_start
+        train_log = {"summary": summary, "config": cfg, "losses": losses}
+        (tmp / TRAIN_LOG).write_text(json.dumps(train_log, indent=2, sort_keys=True) + "\n")
+    log.info(
+        "trained %s (%s) on %s: %d steps, loss %.4f -> %.4f, %.1fs",
+        cfg["name"] or cfg["type"], cfg["type"], repo_id, cfg["steps"],
+        summary["first_loss"], summary["final_loss"], summary["wall_s"],
+    )
+    return summary

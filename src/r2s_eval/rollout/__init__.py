@@ -1,0 +1,7 @@
+"""Closed-loop policy rollouts: seeded initial configurations, episode loop, video."""
+
+from r2s_eval.rollout.inits import sample_inits
+from r2s_eval.rollout.loop import EpisodeResult, episode_id, run_episode
+from r2s_eval.rollout.video import read_video, write_video
+
+__all__ = ["EpisodeResult", "episode_id", "read_video", "run_episode", "sample_inits", "write_video"]

@@ -1,0 +1,26 @@
+"""The seeded initial configurations every policy is evaluated from."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from r2s_eval.sim import TabletopEnv
+
+
+def sample_inits(tasks: list[str], inits_per_task: int, seed: int) -> pd.DataFrame:
+    """One row per (task, init_id, object) with a planar pose; the same for all policies."""
+    rows = []
+    for task_index, task in enumerate(tasks):
+        env = TabletopEnv(task, cameras=())
+        rng = np.random.default_rng([seed, task_index, 7])
+        for init_id in range(inits_per_task):
+            for name, (x, y, yaw) in env.sample_initial_poses(rng).items():
+                rows.append({"task": task, "init_id": init_id, "object": name, "x_m": x, "y_m": y, "yaw_rad": yaw})
+        env.close()
+    return pd.DataFrame(rows)
+
+
+def poses_of(inits: pd.DataFrame, task: str, init_id: int) -> dict[str, tuple[float, float, float]]:
+    rows = inits[(inits["task"] == task) & (inits["init_id"] == init_id)]
+    return {r.object: (float(r.x_m), float(r.y_m), float(r.yaw_rad)) for r in rows.itertuples()}

@@ -1,0 +1,343 @@
+"""``TabletopEnv``: the simulated dual-arm tabletop world used by every stage.
+
+Action (14-D float, also the layout of ``observation.state``)
+-------------------------------------------------------------
+=====  ======================  ===========================  =========
+index  component               joints                       dimension
+=====  ======================  ===========================  =========
+0-5    left arm joint targets  left_j1 ... left_j6 (rad)    6
+6      left gripper command    left_finger_a/_b             1
+7-12   right arm joint target  right_j1 ... right_j6 (rad)  6
+13     right gripper command   right_finger_a/_b            1
+=====  ======================  ===========================  =========
+
+Gripper command is normalised: 0 = fully open (each jaw 0.05 m from the
+centre), 1 = fully closed; in between maps linearly to the jaw target. In
+``observation.state`` the gripper entries are the *measured* opening in the
+same units (holding the cup reads about 0.3). Arm entries are measured joint
+angles (rad).
+
+Timing: physics step 2 ms; control at 10 Hz. ``step(action)`` holds the
+action (servo targets) for one control period = 50 physics steps.
+
+Observation: ``{"observation.state": float32[14],
+"observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera
+(``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
+H = W = 128. Images carry the world's additive noise (twin), ``render()``
+returns clean images unless asked.
+
+Frames: world x away from the robot across the table, y to the robot's
+left, z up; table top at z = 0.75 m. Object poses refer to the centre of the
+object's bottom face.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering unless the user chose otherwise
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from r2s_eval.sim import cameras as cam_geom  # noqa: E402
+from r2s_eval.sim import world  # noqa: E402
+from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
+from r2s_eval.sim.twin import CAMERA_NAMES, WorldParams  # noqa: E402
+
+ACTION_DIM = 14
+SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
+
+
+def _yaw_from_quat(quat_wxyz: np.ndarray) -> float:
+    w, x, y, z = quat_wxyz
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+class TabletopEnv:
+    """One task's world (nominal or twin). Build once, then reset/step many episodes."""
+
+    def __init__(
+        self,
+        task: str | Task = "cup_on_plate",
+        params: WorldParams | None = None,
+        image_size: tuple[int, int] = (128, 128),
+        cameras: tuple[str, ...] | list[str] = CAMERA_NAMES,
+    ):
+        self.task = get_task(task) if isinstance(task, str) else task
+        self.params = params or WorldParams()
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.cameras = tuple(cameras)
+        max_hw = (max(480, self.image_size[0]), max(640, self.image_size[1]))
+        self.model = world.build_model(self.task.objects, self.params, max_size_hw=max_hw)
+        self.data = mujoco.MjData(self.model)
+        self.table_top_z_m = world.TABLE_TOP_Z_M
+        self.control_dt_s = world.CONTROL_DT_S
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        self._noise_rng = np.random.default_rng(self.params.noise_seed)
+        self._index_model()
+        self.max_task_progress = 0.0
+        self.reset()
+
+    # ------------------------------------------------------------ indexing
+    def _index_model(self) -> None:
+        m = self.model
+        self._arm_qpos_adr, self._arm_dof_adr, self._finger_qpos_adr, self._finger_dof_adr = {}, {}, {}, {}
+        self._arm_act, self._grip_act = {}, {}
+        for arm in world.ARMS:
+            joints = [m.joint(f"{arm}_{j}") for j in world.ARM_JOINTS]
+            self._arm_qpos_adr[arm] = np.array([j.qposadr[0] for j in joints])
+            self._arm_dof_adr[arm] = np.array([j.dofadr[0] for j in joints])
+            finger = m.joint(f"{arm}_finger_a")
+            self._finger_qpos_adr[arm] = int(finger.qposadr[0])
+            self._finger_dof_adr[arm] = int(finger.dofadr[0])
+            self._arm_act[arm] = np.array([m.actuator(f"{arm}_{j}").id for j in world.ARM_JOINTS])
+            self._grip_act[arm] = m.actuator(f"{arm}_gripper").id
+        self._obj_body = {o.name: m.body(o.name).id for o in self.task.objects}
+        self._obj_qpos_adr = {o.name: int(m.joint(f"{o.name}_free").qposadr[0]) for o in self.task.objects}
+        self._obj_dof_adr = {o.name: int(m.joint(f"{o.name}_free").dofadr[0]) for o in self.task.objects}
+        self._obj_dims = {o.name: o.scaled_dims(self.params.size_scale(o.name)) for o in self.task.objects}
+
+        # Segmentation labels, one per geom, via each geom's root body.
+        self.segmentation_names = ["background", "table", "robot_left", "robot_right", *self.task.object_names]
+        label_of_root = {m.body("table").id: 1, m.body("left_base").id: 2, m.body("right_base").id: 3}
+        label_of_root.update({self._obj_body[n]: 4 + i for i, n in enumerate(self.task.object_names)})
+        root_of_geom = m.body_rootid[m.geom_bodyid]
+        self._geom_label = np.array([label_of_root.get(int(r), 0) for r in root_of_geom], dtype=np.int32)
+        self._robot_geoms = {arm: set(np.flatnonzero(self._geom_label == 2 + i)) for i, arm in enumerate(world.ARMS)}
+        self._finger_geoms = {}
+        for arm in world.ARMS:
+            fingers = {}
+            for side in ("a", "b"):
+                body_id = m.body(f"{arm}_finger_{side}").id
+                fingers[side] = set(np.flatnonzero(m.geom_bodyid == body_id))
+            self._finger_geoms[arm] = fingers
+        self._obj_geoms = {n: set(np.flatnonzero(m.geom_bodyid == b)) for n, b in self._obj_body.items()}
+        self._tcp_site = {arm: m.site(f"{arm}_tcp").id for arm in world.ARMS}
+
+    # ------------------------------------------------------------ episode
+    def reset(
+        self, object_poses: dict[str, tuple[float, float, float]] | None = None, seed: int | None = None
+    ) -> dict:
+        """Robot at home, objects resting upright at planar poses {name: (x_m, y_m, yaw_rad)}.
+
+        Without ``object_poses`` the task's nominal sampler is used with ``seed``.
+        ``seed`` also reseeds the image-noise generator (reproducible episodes).
+        """
+        m, d = self.model, self.data
+        if object_poses is None:
+            object_poses = self.sample_initial_poses(np.random.default_rng(seed))
+        self._noise_rng = np.random.default_rng([self.params.noise_seed, 0 if seed is None else seed])
+        mujoco.mj_resetData(m, d)
+        for arm in world.ARMS:
+            q_home = world.home_arm_q(arm)
+            d.qpos[self._arm_qpos_adr[arm]] = q_home
+            d.ctrl[self._arm_act[arm]] = q_home
+            d.qpos[self._finger_qpos_adr[arm]] = world.GRIPPER_OPEN_M
+            d.qpos[self._finger_qpos_adr[arm] + 1] = world.GRIPPER_OPEN_M  # finger_b follows finger_a
+            d.ctrl[self._grip_act[arm]] = world.GRIPPER_OPEN_M
+        for name in self.task.object_names:
+            x_m, y_m, yaw_rad = object_poses[name]
+            quat = np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
+            self.set_object_pose(name, [x_m, y_m, self.table_top_z_m + 0.0005], quat, forward=False)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_step(m, d, nstep=SETTLE_STEPS)
+        d.time = 0.0
+        self.max_task_progress = 0.0
+        return self.observation()
+
+    def step(self, action: np.ndarray) -> dict:
+        """Hold ``action`` (14-D, see module table) for one control period."""
+        self.apply_action(action)
+        mujoco.mj_step(self.model, self.data, nstep=world.N_SUBSTEPS)
+        self.max_task_progress = max(self.max_task_progress, self.task_progress())
+        return self.observation()
+
+    def apply_action(self, action: np.ndarray) -> None:
+        action = np.asarray(action, dtype=float).reshape(ACTION_DIM)
+        if not np.all(np.isfinite(action)):
+            raise ValueError("action contains non-finite values")
+        d = self.data
+        for i, arm in enumerate(world.ARMS):
+            ctrl_range = self.model.actuator_ctrlrange[self._arm_act[arm]]
+            d.ctrl[self._arm_act[arm]] = np.clip(action[7 * i : 7 * i + 6], ctrl_range[:, 0], ctrl_range[:, 1])
+            d.ctrl[self._grip_act[arm]] = world.GRIPPER_OPEN_M * (1.0 - np.clip(action[7 * i + 6], 0.0, 1.0))
+
+    @property
+    def time_s(self) -> float:
+        return float(self.data.time)
+
+    # ------------------------------------------------------------ observation
+    def state(self) -> np.ndarray:
+        """Measured 14-D state, same layout as the action."""
+        out = np.empty(ACTION_DIM, dtype=np.float32)
+        for i, arm in enumerate(world.ARMS):
+            out[7 * i : 7 * i + 6] = self.data.qpos[self._arm_qpos_adr[arm]]
+            opening = self.data.qpos[self._finger_qpos_adr[arm]] / world.GRIPPER_OPEN_M
+            out[7 * i + 6] = np.clip(1.0 - opening, 0.0, 1.0)
+        return out
+
+    def joint_velocities(self) -> np.ndarray:
+        """14-D velocities: arm joints (rad/s), grippers (normalised command units/s, + = closing)."""
+        out = np.empty(ACTION_DIM, dtype=np.float32)
+        for i, arm in enumerate(world.ARMS):
+            out[7 * i : 7 * i + 6] = self.data.qvel[self._arm_dof_adr[arm]]
+            out[7 * i + 6] = -self.data.qvel[self._finger_dof_adr[arm]] / world.GRIPPER_OPEN_M
+        return out
+
+    def observation(self) -> dict:
+        obs = {"observation.state": self.state()}
+        for cam in self.cameras:
+            obs[f"observation.images.{cam}"] = self.render(cam, add_noise=True)
+        return obs
+
+    def _renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
+        if size_hw not in self._renderers:
+            try:
+                self._renderers[size_hw] = mujoco.Renderer(self.model, height=size_hw[0], width=size_hw[1])
+            except Exception as err:  # GL backend is fixed when mujoco is first imported
+                raise RuntimeError(
+                    "could not create an offscreen GL context; set MUJOCO_GL=egl (or osmesa) before "
+                    "mujoco is first imported, e.g. import r2s_eval.sim first"
+                ) from err
+        return self._renderers[size_hw]
+
+    def render(
+        self, camera: str, size: tuple[int, int] | None = None, segmentation: bool = False, add_noise: bool = False
+    ):
+        """RGB uint8[H, W, 3], or with ``segmentation`` (labels int32[H, W], {label: name}).
+
+        Labels: 0 background, 1 table, 2 robot_left, 3 robot_right, 4+ task objects
+        in task order (see ``segmentation_names``).
+        """
+        size_hw = tuple(int(s) for s in (size or self.image_size))
+        renderer = self._renderer(size_hw)
+        renderer.update_scene(self.data, camera=camera)
+        if segmentation:
+            renderer.enable_segmentation_rendering()
+            try:
+                seg = renderer.render()
+            finally:
+                renderer.disable_segmentation_rendering()
+            geom_ids, obj_types = seg[..., 0], seg[..., 1]
+            is_geom = (obj_types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom_ids >= 0)
+            labels = np.where(is_geom, self._geom_label[np.clip(geom_ids, 0, None)], 0).astype(np.int32)
+            return labels, dict(enumerate(self.segmentation_names))
+        rgb = renderer.render()
+        if add_noise and self.params.image_noise_std > 0:
+            noise = self._noise_rng.normal(0.0, self.params.image_noise_std, rgb.shape)
+            rgb = np.clip(rgb + noise, 0, 255).astype(np.uint8)
+        return rgb
+
+    # ------------------------------------------------------------ cameras
+    def camera_K(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:
+        """3x3 intrinsics for ``camera`` rendered at ``size`` (H, W); OpenCV pixel convention."""
+        h, w = size or self.image_size
+        return cam_geom.intrinsics_K(float(self.model.cam_fovy[self.model.camera(camera).id]), h, w)
+
+    def camera_T_world_from_cam(self, camera: str) -> np.ndarray:
+        """4x4 pose of the OpenCV camera frame (x right, y down, z forward) in the world."""
+        return cam_geom.T_world_from_cam(self.model, self.data, camera)
+
+    # ------------------------------------------------------------ objects
+    def object_state(self, name: str) -> dict:
+        d = self.data
+        qadr, vadr = self._obj_qpos_adr[name], self._obj_dof_adr[name]
+        return dict(
+            pos_world_m=d.qpos[qadr : qadr + 3].copy(),
+            quat_wxyz=d.qpos[qadr + 3 : qadr + 7].copy(),
+            linvel_world_m_s=d.qvel[vadr : vadr + 3].copy(),
+            angvel_world_rad_s=d.qvel[vadr + 3 : vadr + 6].copy(),  # free joint: local frame; norm is what we use
+        )
+
+    def object_poses(self) -> dict[str, dict]:
+        """Ground-truth poses: {name: dict(pos_world_m, quat_wxyz, yaw_rad)} (bottom centre)."""
+        out = {}
+        for name in self.task.object_names:
+            s = self.object_state(name)
+            out[name] = dict(pos_world_m=s["pos_world_m"], quat_wxyz=s["quat_wxyz"], yaw_rad=_yaw_from_quat(s["quat_wxyz"]))
+        return out
+
+    def object_dims(self, name: str) -> dict:
+        """Object dimensions in this world (size scale applied)."""
+        return dict(self._obj_dims[name])
+
+    def set_object_pose(self, name: str, pos_world_m, quat_wxyz=(1.0, 0.0, 0.0, 0.0), forward: bool = True) -> None:
+        """Teleport an object (zero velocity); recomputes kinematics and contacts."""
+        qadr, vadr = self._obj_qpos_adr[name], self._obj_dof_adr[name]
+        quat = np.asarray(quat_wxyz, dtype=float)
+        self.data.qpos[qadr : qadr + 3] = pos_world_m
+        self.data.qpos[qadr + 3 : qadr + 7] = quat / np.linalg.norm(quat)
+        self.data.qvel[vadr : vadr + 6] = 0.0
+        if forward:
+            mujoco.mj_forward(self.model, self.data)
+
+    def sample_initial_poses(self, rng: np.random.Generator) -> dict[str, tuple[float, float, float]]:
+        """Random collision-free planar poses inside the task's regions (documented in tasks.py)."""
+        sizes = {n: self.params.size_scale(n) for n in self.task.object_names}
+        return sample_initial_poses(self.task, rng, sizes)
+
+    # ------------------------------------------------------------ robot
+    def ee_positions(self) -> dict[str, np.ndarray]:
+        """Grasp-centre (tcp) positions of both grippers, world frame (m)."""
+        return {arm: self.data.site_xpos[sid].copy() for arm, sid in self._tcp_site.items()}
+
+    def ee_rotations(self) -> dict[str, np.ndarray]:
+        """3x3 gripper frames in the world (x approach, y jaw closing axis)."""
+        return {arm: self.data.site_xmat[sid].reshape(3, 3).copy() for arm, sid in self._tcp_site.items()}
+
+    def arm_base_positions(self) -> dict[str, np.ndarray]:
+        return {arm: self.data.xpos[self.model.body(f"{arm}_base").id].copy() for arm in world.ARMS}
+
+    # ------------------------------------------------------------ contacts
+    def _contacts(self):
+        n = self.data.ncon
+        return self.data.contact.geom1[:n], self.data.contact.geom2[:n]
+
+    def _contacts_between(self, geoms_a: set, geoms_b: set) -> np.ndarray:
+        g1, g2 = self._contacts()
+        a = np.fromiter(geoms_a, int)
+        b = np.fromiter(geoms_b, int)
+        hit = (np.isin(g1, a) & np.isin(g2, b)) | (np.isin(g1, b) & np.isin(g2, a))
+        return np.flatnonzero(hit)
+
+    def robot_touches(self, name: str) -> bool:
+        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
+        return len(self._contacts_between(robot, self._obj_geoms[name])) > 0
+
+    def grasped(self, name: str) -> str | None:
+        """Arm whose two jaws both touch object ``name``, else None."""
+        for arm in world.ARMS:
+            fingers = self._finger_geoms[arm]
+            if all(len(self._contacts_between(fingers[s], self._obj_geoms[name])) for s in ("a", "b")):
+                return arm
+        return None
+
+    def contact_force_n(self) -> float:
+        """Total normal contact force (N) between the robot and all task objects."""
+        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
+        objects = set().union(*self._obj_geoms.values())
+        force = np.zeros(6)
+        total = 0.0
+        for i in self._contacts_between(robot, objects):
+            mujoco.mj_contactForce(self.model, self.data, int(i), force)
+            total += abs(force[0])
+        return float(total)
+
+    # ------------------------------------------------------------ task
+    def is_success(self) -> bool:
+        return bool(self.task.success(self))
+
+    def task_progress(self) -> float:
+        return float(self.task.progress(self))
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
+
+    def __del__(self):  # renderers hold GL contexts
+        try:
+            self.close()
+        except Exception:
+            pass

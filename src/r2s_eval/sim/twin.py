@@ -1,0 +1,111 @@
+"""The reality twin: world parameters and their seeded perturbation.
+
+The twin plays the physical robot. It is the same ``TabletopEnv`` built with
+perturbed ``WorldParams``; its true object poses are readable only through
+``env.object_poses()`` (as a person watching the scene would see them).
+
+Perturbations (``TwinMagnitudes`` defaults; each sampled uniformly in
+[-m, +m] around nominal unless noted):
+
+==========================  ===========================  ==================
+parameter                   effect                       default magnitude
+==========================  ===========================  ==================
+friction_scale              x all sliding friction       +-15 %
+object_mass_scale[obj]      x object mass and inertia    +-20 %
+actuator_kp_scale           x arm/gripper servo gains    +-10 %
+object_size_scale[obj]      x object dimensions          +-3 %
+camera_pos_offset_m[cam]    camera position shift        +-4 mm per axis
+camera_rot_offset_rad[cam]  camera rotation (rot. vec.)  +-1 deg per axis
+light_intensity_scale       x light diffuse              +-25 %
+light_dir_offset            added to light directions    +-0.2 per axis
+object_rgb_offset[obj]      added to object RGB          +-0.06
+table_rgb_offset            added to table RGB           +-0.05
+image_noise_std             additive Gaussian, 0-255     U(0, 3)
+==========================  ===========================  ==================
+
+``WorldParams()`` is the nominal world (no perturbation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
+
+
+@dataclass
+class WorldParams:
+    """Physics and rendering parameters of one world; defaults are nominal."""
+
+    friction_scale: float = 1.0
+    object_mass_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
+    actuator_kp_scale: float = 1.0
+    object_size_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
+    camera_pos_offset_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    camera_rot_offset_rad: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    light_intensity_scale: float = 1.0
+    light_dir_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    object_rgb_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    table_rgb_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    image_noise_std: float = 0.0  # in 0-255 intensity units
+    noise_seed: int = 0  # seeds the image-noise generator
+
+    def mass_scale(self, obj: str) -> float:
+        return float(self.object_mass_scale.get(obj, 1.0))
+
+    def size_scale(self, obj: str) -> float:
+        return float(self.object_size_scale.get(obj, 1.0))
+
+
+@dataclass(frozen=True)
+class TwinMagnitudes:
+    """Half-widths of the uniform perturbation ranges (see module table)."""
+
+    friction_rel: float = 0.15
+    mass_rel: float = 0.20
+    kp_rel: float = 0.10
+    size_rel: float = 0.03
+    camera_pos_m: float = 0.004
+    camera_rot_rad: float = float(np.deg2rad(1.0))
+    light_intensity_rel: float = 0.25
+    light_dir: float = 0.2
+    object_rgb: float = 0.06
+    table_rgb: float = 0.05
+    image_noise_std_max: float = 3.0
+
+    def scaled(self, factor: float) -> "TwinMagnitudes":
+        """All magnitudes multiplied by ``factor`` (0 gives the nominal world)."""
+        return TwinMagnitudes(**{k: v * factor for k, v in self.__dict__.items()})
+
+
+def sample_twin_params(
+    rng: np.random.Generator,
+    magnitudes: TwinMagnitudes | None = None,
+    object_names: tuple[str, ...] = ("cup", "plate"),
+    camera_names: tuple[str, ...] = CAMERA_NAMES,
+) -> WorldParams:
+    """Draw one perturbed world. Same rng state -> same parameters."""
+    m = magnitudes or TwinMagnitudes()
+
+    def u(half_width: float, size=None):
+        return rng.uniform(-half_width, half_width, size)
+
+    def vec3(half_width: float) -> tuple[float, float, float]:
+        return tuple(float(x) for x in u(half_width, 3))
+
+    return WorldParams(
+        friction_scale=1.0 + float(u(m.friction_rel)),
+        object_mass_scale={o: 1.0 + float(u(m.mass_rel)) for o in object_names},
+        actuator_kp_scale=1.0 + float(u(m.kp_rel)),
+        object_size_scale={o: 1.0 + float(u(m.size_rel)) for o in object_names},
+        camera_pos_offset_m={c: vec3(m.camera_pos_m) for c in camera_names},
+        camera_rot_offset_rad={c: vec3(m.camera_rot_rad) for c in camera_names},
+        light_intensity_scale=1.0 + float(u(m.light_intensity_rel)),
+        light_dir_offset=vec3(m.light_dir),
+        object_rgb_offset={o: vec3(m.object_rgb) for o in object_names},
+        table_rgb_offset=vec3(m.table_rgb),
+        image_noise_std=float(rng.uniform(0.0, m.image_noise_std_max)),
+        noise_seed=int(rng.integers(0, 2**31 - 1)),
+    )

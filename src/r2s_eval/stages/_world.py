@@ -1,0 +1,49 @@
+"""World construction shared by the sim-side stages (config slice -> environment)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from r2s_eval.calib import CameraModel, ObjectGeometry
+from r2s_eval.sim import TabletopEnv, WorldParams
+
+# Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric).
+YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2}
+
+
+def image_size(world_cfg: dict) -> tuple[int, int]:
+    return int(world_cfg["image_height"]), int(world_cfg["image_width"])
+
+
+def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, cameras=None) -> TabletopEnv:
+    return TabletopEnv(
+        task,
+        params=params,
+        image_size=image_size(world_cfg),
+        cameras=tuple(world_cfg["cameras"] if cameras is None else cameras),
+    )
+
+
+def load_world_params(path: str | Path) -> WorldParams:
+    raw = json.loads(Path(path).read_text())["params"]
+    tuples = {"light_dir_offset", "table_rgb_offset"}
+    return WorldParams(**{k: tuple(v) if k in tuples else v for k, v in raw.items()})
+
+
+def yaw_symmetry(env: TabletopEnv, name: str) -> int:
+    return YAW_SYMMETRY[env.task.object(name).kind]
+
+
+def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
+    """Approximate silhouette-centre heights; the render-based refinement removes the rest."""
+    geoms = []
+    for name in env.task.object_names:
+        dims = env.object_dims(name)
+        height = dims.get("height_m", dims.get("thickness_m", 0.01) + dims.get("rim_height_m", 0.0))
+        geoms.append(ObjectGeometry(name, centroid_height_m=0.5 * height, yaw_symmetry=yaw_symmetry(env, name)))
+    return geoms
+
+
+def camera_model(env: TabletopEnv, camera: str) -> CameraModel:
+    return CameraModel(K=env.camera_K(camera), T_world_from_cam=env.camera_T_world_from_cam(camera))

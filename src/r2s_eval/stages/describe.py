@@ -1,0 +1,26 @@
+"""Stage: the judge describes every sim rollout once (cached by content)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from r2s_eval.judge import describe_rollouts, make_judge
+from r2s_eval.stages import _cli
+from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.utils.io import write_parquet
+
+
+def main(args) -> None:
+    judge = make_judge(args.cfg["judge"])
+    episodes = load_episodes(args.rollouts)
+    out = Path(args.out)
+    descriptions = describe_rollouts(episodes, Path("."), judge, args.cache, stats_path=out.with_name("describe_stats.json"))
+    write_parquet(out, descriptions, metadata={"stage": "describe", "judge": args.cfg["name"]})
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--rollouts", nargs="+", required=True)
+    p.add_argument("--cache", required=True)
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

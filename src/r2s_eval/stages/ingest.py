@@ -1,0 +1,40 @@
+"""Stage: validate the teleop dataset and write the episode index and first frames."""
+
+from __future__ import annotations
+
+from r2s_eval.data import IngestSpec, ingest_dataset
+from r2s_eval.sim.env import ACTION_DIM
+from r2s_eval.sim.world import CONTROL_DT_S
+from r2s_eval.sim.tasks import get_task
+from r2s_eval.stages import _cli
+from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
+
+
+def main(args) -> None:
+    cfg = args.cfg
+    world, ingest = cfg["world"], cfg["ingest"]
+    spec = IngestSpec(
+        cameras=list(world["cameras"]),
+        state_dim=ACTION_DIM,
+        action_dim=ACTION_DIM,
+        fps=round(1 / CONTROL_DT_S),
+        tasks={get_task(key).instruction: key for key in cfg["tasks"]},
+        first_frame_camera=cfg["calib.camera"],
+        min_length=ingest["min_length"],
+        max_length=ingest["max_length"],
+        drop_bad_episodes=ingest["drop_bad_episodes"],
+        check_videos=ingest["check_videos"],
+    )
+    with atomic_dir(args.frames) as frames_dir:
+        index, report = ingest_dataset(args.dataset, ingest["repo_id"], spec, frames_dir)
+    write_parquet(args.index, index, metadata={"stage": "ingest", "dataset": str(args.dataset)})
+    write_json(args.report, report)
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--index", required=True)
+    p.add_argument("--report", required=True)
+    p.add_argument("--frames", required=True)
+    _cli.run(main, p)

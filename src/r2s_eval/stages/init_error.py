@@ -1,0 +1,57 @@
+"""Stage: score the initial-pose estimates against the reality twin's recorded truth.
+
+This is the only reader of the truth file; nothing downstream consumes its output.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from r2s_eval.calib import yaw_error_rad
+from r2s_eval.stages import _cli
+from r2s_eval.utils.io import write_json, write_parquet
+
+
+def score(estimates: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
+    merged = estimates.merge(truth, on=["episode_index", "object"], suffixes=("_est", "_true"), validate="one_to_one")
+    if len(merged) != len(estimates):
+        missing = set(zip(estimates["episode_index"], estimates["object"])) - set(zip(merged["episode_index"], merged["object"]))
+        raise ValueError(f"no true pose for (episode, object) {sorted(missing)[:5]}")
+    merged["error_xy_mm"] = 1000.0 * np.hypot(merged["x_m_est"] - merged["x_m_true"], merged["y_m_est"] - merged["y_m_true"])
+    merged["error_yaw_deg"] = [
+        np.rad2deg(yaw_error_rad(e, t, int(s)))
+        for e, t, s in zip(merged["yaw_rad_est"], merged["yaw_rad_true"], merged["yaw_symmetry"])
+    ]
+    return merged
+
+
+def summarise(errors: pd.DataFrame) -> dict:
+    out = {}
+    for (task, obj), group in errors.groupby(["task", "object"]):
+        out.setdefault(task, {})[obj] = {
+            "episodes": int(len(group)),
+            "xy_mm_median": float(group["error_xy_mm"].median()),
+            "xy_mm_p95": float(group["error_xy_mm"].quantile(0.95)),
+            "yaw_deg_median": float(group["error_yaw_deg"].median()),
+            "yaw_deg_p95": float(group["error_yaw_deg"].quantile(0.95)),
+            "yaw_symmetry": int(group["yaw_symmetry"].iloc[0]),
+        }
+    return out
+
+
+def main(args) -> None:
+    estimates = pd.read_parquet(args.estimates)
+    truth = pd.read_parquet(args.truth)[["episode_index", "object", "x_m", "y_m", "yaw_rad"]]
+    errors = score(estimates, truth)
+    write_parquet(args.table, errors)
+    write_json(args.summary, summarise(errors))
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__, cfg=False)
+    p.add_argument("--estimates", required=True)
+    p.add_argument("--truth", required=True)
+    p.add_argument("--table", required=True)
+    p.add_argument("--summary", required=True)
+    _cli.run(main, p)

@@ -1,0 +1,38 @@
+"""Stage: the real-to-sim validation table (one row per judge) and the printed ranking."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from r2s_eval.report import ranking_text, realsim_table
+from r2s_eval.stages import _cli
+from r2s_eval.stages.validate import reference_rates
+from r2s_eval.utils.io import atomic_path, read_json
+
+
+def _judge_name(path: str) -> str:
+    return Path(path).stem
+
+
+def main(args) -> None:
+    validations = {_judge_name(p): read_json(p) for p in args.validation}
+    fits = {_judge_name(p): pd.read_parquet(p) for p in args.fits}
+    reference = reference_rates(pd.read_parquet(args.reference))
+    with atomic_path(args.table) as tmp:
+        tmp.write_text(realsim_table(validations, decimals=int(args.cfg["report.realsim_table"]["decimals"])))
+    text = ranking_text(fits, reference.to_dict())
+    with atomic_path(args.ranking) as tmp:
+        tmp.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--validation", nargs="+", required=True)
+    p.add_argument("--fits", nargs="+", required=True)
+    p.add_argument("--reference", required=True)
+    p.add_argument("--table", required=True)
+    p.add_argument("--ranking", required=True)
+    _cli.run(main, p)

@@ -1,0 +1,22 @@
+"""Stage: fine-tune one candidate policy on one dataset (real -> pi^R, replayed sim -> pi^S)."""
+
+from __future__ import annotations
+
+import torch
+
+from r2s_eval.policies import train_policy
+from r2s_eval.stages import _cli
+
+
+def main(args) -> None:
+    torch.set_num_threads(args.threads)
+    policy_cfg = dict(args.cfg["policy"], threads=args.threads)
+    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]))
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--threads", type=int, default=1)
+    _cli.run(main, p)

@@ -1,0 +1,196 @@
+"""Train / save / reload / run the candidate policies on a tiny synthetic LeRobotDataset."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from r2s_eval.policies import (
+    CANDIDATES,
+    PROFILES,
+    DatasetContractError,
+    PolicyConfigError,
+    candidate_config,
+    load_policy,
+    make_lerobot_config,
+    train_policy,
+)
+
+pytestmark = pytest.mark.timeout(300)
+
+REPO_ID = "test/synthetic_bimanual"
+CAMS = ("observation.images.head_left", "observation.images.wrist_left")
+HEAD = "observation.images.head_left"
+
+
+def _synthetic():
+    # Imported by path: tests are collected with --import-mode=importlib (no package).
+    name = "policies_synthetic_dataset"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("synthetic_dataset.py"))
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+@pytest.fixture(scope="module")
+def dataset_root(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("policies_data") / "synthetic"
+    return _synthetic().build_dataset(root, REPO_ID, n_episodes=3, n_steps=20, image_hw=(32, 32), cameras=CAMS)
+
+
+def _tiny(name: str, **changes) -> dict:
+    """A candidate config shrunk to test size (small images, few steps)."""
+    base = {"steps": 6, "batch_size": 8, "log_every": 1, "image_size": [24, 24], "threads": 2}
+    base.update(changes)
+    return candidate_config(name, "smoke", **base)
+
+
+@pytest.fixture(scope="module")
+def trained(dataset_root, tmp_path_factory) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("policies_ckpt")
+    dirs = {}
+    dirs["act"] = out / "act"
+    train_policy(dataset_root, REPO_ID, _tiny("act", steps=40, lr=1e-3), dirs["act"], seed=0)
+    dirs["diffusion"] = out / "diffusion"
+    train_policy(dataset_root, REPO_ID, _tiny("diffusion", steps=6), dirs["diffusion"], seed=0)
+    return dirs
+
+
+def _obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    obs = {"observation.state": rng.normal(0, 0.1, size=14).astype(np.float32)}
+    for cam in CAMS:
+        obs[cam] = rng.integers(0, 255, size=(32, 32, 3), dtype=np.uint8)
+    return obs
+
+
+# -- configs ----------------------------------------------------------------------------------
+
+
+def test_policies_candidates_build_lerobot_configs():
+    assert set(CANDIDATES) == {"act", "diffusion", "act_weak"}
+    for profile in PROFILES:
+        for name in CANDIDATES:
+            cfg = candidate_config(name, profile)
+            lr_cfg = make_lerobot_config(cfg)
+            assert lr_cfg.pretrained_backbone_weights is None
+            if cfg["type"] == "diffusion":
+                assert lr_cfg.horizon % 2 ** len(lr_cfg.down_dims) == 0
+                assert lr_cfg.horizon - lr_cfg.n_obs_steps + 1 >= cfg["chunk_size"]
+                assert lr_cfg.noise_scheduler_type == "DDIM"
+            else:
+                assert lr_cfg.chunk_size == cfg["chunk_size"] == 25
+    # The weak baseline is the same architecture with far fewer optimisation steps.
+    assert PROFILES["demo"]["act_weak"]["steps"] * 4 <= PROFILES["demo"]["act"]["steps"]
+
+
+def test_policies_unknown_override_key_is_named():
+    cfg = candidate_config("act", "smoke")
+    cfg["overrides"]["dim_modle"] = 64
+    with pytest.raises(PolicyConfigError, match="dim_modle"):
+        make_lerobot_config(cfg)
+    with pytest.raises(PolicyConfigError, match="stepz"):
+        candidate_config("act", "smoke", stepz=3)
+    bad = candidate_config("diffusion", "smoke")
+    bad["overrides"]["horizon"] = 16
+    with pytest.raises(PolicyConfigError, match="horizon"):
+        make_lerobot_config(bad)
+
+
+def test_policies_missing_image_key_is_named(dataset_root, tmp_path):
+    cfg = _tiny("act", image_keys=["observation.images.head_right"])
+    with pytest.raises(DatasetContractError, match="observation.images.head_right"):
+        train_policy(dataset_root, REPO_ID, cfg, tmp_path / "run", seed=0)
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(FileNotFoundError, match="info.json"):
+        train_policy(tmp_path / "nowhere", REPO_ID, _tiny("act"), tmp_path / "run2", seed=0)
+    with pytest.raises(FileNotFoundError, match="config.json"):
+        load_policy(tmp_path / "no_checkpoint")
+
+
+# -- training ---------------------------------------------------------------------------------
+
+
+def test_policies_checkpoint_layout_and_loss_falls(trained):
+    for name, out in trained.items():
+        ckpt = out / "pretrained_model"
+        for f in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json"):
+            assert (ckpt / f).is_file(), f"{name}: missing {f}"
+        assert not [p for p in out.parent.iterdir() if p.name.startswith(".")], "temporary dir left behind"
+        log = json.loads((out / "train_log.json").read_text())
+        assert log["config"]["type"] == name
+        assert log["summary"]["wall_s"] > 0 and all(np.isfinite(e["loss"]) for e in log["losses"])
+    losses = [e["loss"] for e in json.loads((trained["act"] / "train_log.json").read_text())["losses"]]
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:3]), losses
+
+
+def test_policies_training_is_deterministic(dataset_root, tmp_path):
+    cfg = _tiny("act", steps=3, image_keys=list(CAMS))
+    a = train_policy(dataset_root, REPO_ID, cfg, tmp_path / "a", seed=7)
+    b = train_policy(dataset_root, REPO_ID, cfg, tmp_path / "b", seed=7)
+    la = json.loads((tmp_path / "a" / "train_log.json").read_text())["losses"]
+    lb = json.loads((tmp_path / "b" / "train_log.json").read_text())["losses"]
+    assert [e["loss"] for e in la] == [e["loss"] for e in lb]
+    assert a["final_loss"] == b["final_loss"]
+    obs = _obs(np.random.default_rng(0))
+    ra, rb = load_policy(tmp_path / "a"), load_policy(tmp_path / "b")
+    np.testing.assert_array_equal(ra.act(obs), rb.act(obs))
+
+
+# -- inference --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["act", "diffusion"])
+def test_policies_receding_horizon(trained, name):
+    runner = load_policy(trained[name])
+    assert (runner.chunk_size, runner.n_action_steps) == (25, 5)
+    rng = np.random.default_rng(1)
+    first_chunk = None
+    for t in range(12):
+        action = runner.act(_obs(rng))
+        assert action.shape == (14,) and action.dtype == np.float32 and np.isfinite(action).all()
+        if t == 0:
+            first_chunk = runner.last_chunk.copy()
+            assert first_chunk.shape == (25, 14)
+        if t < 5:
+            np.testing.assert_array_equal(action, first_chunk[t])
+        assert runner.model_calls == t // 5 + 1
+    assert runner.stats["model_calls"] == 3 and runner.stats["inference_s"] > 0
+    runner.reset()
+    assert runner.model_calls == 0
+
+    every_step = load_policy(trained[name], n_action_steps=1, chunk_size=10)
+    for _ in range(4):
+        every_step.act(_obs(rng))
+    assert every_step.model_calls == 4 and every_step.last_chunk.shape == (10, 14)
+
+
+def test_policies_inference_deterministic_for_seed(trained):
+    obs_seq = [_obs(np.random.default_rng(i)) for i in range(7)]
+    runs = []
+    for seed in (3, 3, 4):
+        runner = load_policy(trained["diffusion"], seed=seed)
+        runs.append(np.stack([runner.act(o) for o in obs_seq]))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0], runs[2])
+    # reset(seed) restarts the same noise stream
+    runner.reset(seed=3)
+    np.testing.assert_array_equal(np.stack([runner.act(o) for o in obs_seq]), runs[0])
+
+
+def test_policies_observation_errors(trained):
+    runner = load_policy(trained["act"])
+    obs = _obs(np.random.default_rng(0))
+    del obs[HEAD]
+    with pytest.raises(KeyError, match=HEAD):
+        runner.act(obs)
+    obs = _obs(np.random.default_rng(0))
+    obs[HEAD] = obs[HEAD].astype(np.float32)
+    with pytest.raises(ValueError, match="uint8"):
+        runner.act(obs)

@@ -1,0 +1,22 @@
+"""Shared fixtures for the simulation tests (headless rendering)."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported anywhere
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from r2s_eval.sim import TabletopEnv  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def nominal_env():
+    env = TabletopEnv("cup_on_plate")
+    yield env
+    env.close()
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(0)

@@ -1,0 +1,47 @@
+# Compose the Hydra configuration once and expose per-rule slices as plain JSON params.
+import json
+import sys
+from pathlib import Path
+
+from r2s_eval.config import compose_config, select, to_json
+
+CONF_DIR = Path(workflow.basedir) / "conf"
+EXPERIMENT = config.get("experiment", "demo")
+_overrides = config.get("overrides", [])
+OVERRIDES = [_overrides] if isinstance(_overrides, str) else list(_overrides)
+CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
+
+POLICIES = sorted(CFG["policies"])
+JUDGES = sorted(CFG["judges"])
+ARMS = ["real", "sim"]
+TWIN = CFG["real"]["source"] == "twin"
+PY = sys.executable
+ASSETS = str(Path(workflow.basedir) / "assets")
+
+
+wildcard_constraints:
+    policy="|".join(POLICIES),
+    judge="|".join(JUDGES),
+    arm="real|sim",
+
+
+def params_of(*paths):
+    """The config slice a rule reads, as one sorted JSON string (compared on rerun)."""
+    return to_json(select(CFG, *paths))
+
+
+def policy_params(wildcards):
+    return to_json({"policy": CFG["policies"][wildcards.policy], "seed": CFG["seed"], "name": wildcards.policy})
+
+
+def judge_params(wildcards):
+    return to_json({"judge": CFG["judges"][wildcards.judge], "name": wildcards.judge})
+
+
+REAL_DATASET = "results/real/dataset" if TWIN else CFG["real"]["dataset_root"]
+
+
+onsuccess:
+    ranking = Path("reports/ranking.txt")
+    if ranking.exists():
+        print(ranking.read_text())

@@ -1,0 +1,13 @@
+# Task-stratified A/B pairs at nested checkpoints, sampled once for every judge.
+rule compare_pairs:
+    input:
+        expand("results/rollout/sim/{policy}", policy=POLICIES),
+    output:
+        "results/compare/pairs.parquet",
+    params:
+        cfg=params_of("compare", "seed"),
+    log:
+        "logs/compare_pairs.log",
+    shell:
+        "{PY} -m r2s_eval.stages.compare_pairs --cfg {params.cfg:q} --rollouts {input}"
+        " --out {output} > {log} 2>&1"

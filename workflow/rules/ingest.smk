@@ -1,0 +1,15 @@
+# Validate the teleop dataset and index its episodes (task, length, first frame).
+rule ingest:
+    input:
+        dataset=REAL_DATASET,
+    output:
+        index="results/ingest/episodes.parquet",
+        report="results/ingest/report.json",
+        frames=directory("results/ingest/first_frames"),
+    params:
+        cfg=params_of("tasks", "world", "calib.camera", "ingest"),
+    log:
+        "logs/ingest.log",
+    shell:
+        "{PY} -m r2s_eval.stages.ingest --cfg {params.cfg:q} --dataset {input.dataset}"
+        " --index {output.index} --report {output.report} --frames {output.frames} > {log} 2>&1"

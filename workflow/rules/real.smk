@@ -1,0 +1,27 @@
+# The "real" side when the bundled reality twin stands in for the robot: sample the twin's
+# perturbations, then let the scripted operator record the teleop dataset in it.
+if TWIN:
+
+    rule twin:
+        output:
+            "results/real/twin_params.json",
+        params:
+            cfg=params_of("real.twin", "tasks"),
+        log:
+            "logs/twin.log",
+        shell:
+            "{PY} -m r2s_eval.stages.twin --cfg {params.cfg:q} --out {output} > {log} 2>&1"
+
+    rule teleop:
+        input:
+            twin="results/real/twin_params.json",
+        output:
+            dataset=directory("results/real/dataset"),
+            truth="results/real/init_truth.parquet",
+        params:
+            cfg=params_of("teleop", "tasks", "world", "seed"),
+        log:
+            "logs/teleop.log",
+        shell:
+            "{PY} -m r2s_eval.stages.teleop --cfg {params.cfg:q} --twin {input.twin}"
+            " --dataset {output.dataset} --truth {output.truth} > {log} 2>&1"

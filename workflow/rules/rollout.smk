@@ -1,0 +1,59 @@
+# Closed-loop rollouts from the same seeded initial configurations for every policy:
+# pi^S in the calibrated sim, pi^R on the real side (the twin) for the reference.
+rule rollout_inits:
+    output:
+        "results/rollout/inits.parquet",
+    params:
+        cfg=params_of("tasks", "rollout.inits_per_task", "seed"),
+    log:
+        "logs/rollout_inits.log",
+    shell:
+        "{PY} -m r2s_eval.stages.rollout_inits --cfg {params.cfg:q} --out {output} > {log} 2>&1"
+
+
+def rollout_inputs(wildcards):
+    inputs = {"policy": f"results/train/{wildcards.arm}/{wildcards.policy}", "inits": "results/rollout/inits.parquet"}
+    if wildcards.arm == "real":
+        inputs["twin"] = "results/real/twin_params.json"
+    return inputs
+
+
+rule rollout:
+    input:
+        unpack(rollout_inputs),
+    output:
+        directory("results/rollout/{arm}/{policy}"),
+    params:
+        cfg=lambda w: to_json({**select(CFG, "rollout", "world", "seed"), "arm": w.arm, "policy": w.policy}),
+        twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
+    threads: 1
+    log:
+        "logs/rollout/{arm}/{policy}.log",
+    shell:
+        "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
+        " --policy {input.policy} --inits {input.inits} {params.twin} --out {output} > {log} 2>&1"
+
+
+if TWIN:
+
+    rule reference:
+        input:
+            expand("results/rollout/real/{policy}", policy=POLICIES),
+        output:
+            "results/reference/success.parquet",
+        log:
+            "logs/reference.log",
+        shell:
+            "{PY} -m r2s_eval.stages.reference --rollouts {input} --out {output} > {log} 2>&1"
+
+else:
+
+    rule reference:
+        input:
+            CFG["real"]["reference_csv"],
+        output:
+            "results/reference/success.parquet",
+        log:
+            "logs/reference.log",
+        shell:
+            "{PY} -m r2s_eval.stages.reference --csv {input} --out {output} > {log} 2>&1"

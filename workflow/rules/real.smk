@@ -19,7 +19,7 @@ if TWIN:
             dataset=directory("results/real/dataset"),
             truth="results/real/init_truth.parquet",
         params:
-            cfg=params_of("teleop", "tasks", "world", "seed"),
+            cfg=params_of("teleop", "tasks", "suite", "world", "seed"),
         log:
             "logs/teleop.log",
         shell:

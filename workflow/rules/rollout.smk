@@ -4,7 +4,7 @@ rule rollout_inits:
     output:
         "results/rollout/inits.parquet",
     params:
-        cfg=params_of("tasks", "rollout.inits_per_task", "seed"),
+        cfg=params_of("tasks", "suite", "rollout.inits_per_task", "seed"),
     log:
         "logs/rollout_inits.log",
     shell:

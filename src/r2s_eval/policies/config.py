@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 SUPPORTED_TYPES = ("act", "diffusion")
@@ -46,8 +47,19 @@ class PolicyConfigError(ValueError):
     """A policy config dict that cannot be turned into a lerobot policy config."""
 
 
-def validate_policy_cfg(policy_cfg: dict) -> dict:
+def _plain(value: Any) -> Any:
+    """Deep copy into plain dicts / lists (accepts OmegaConf containers and other mappings)."""
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)) or (isinstance(value, Sequence) and not isinstance(value, str)):
+        return [_plain(v) for v in value]
+    return copy.deepcopy(value)
+
+
+def validate_policy_cfg(policy_cfg: Mapping) -> dict:
     """Return a completed copy of `policy_cfg` (defaults filled in); raise on unknown or bad keys."""
+    if isinstance(policy_cfg, Mapping):
+        policy_cfg = _plain(policy_cfg)
     if not isinstance(policy_cfg, dict):
         raise PolicyConfigError(f"policy config must be a dict, got {type(policy_cfg).__name__}")
     unknown = sorted(set(policy_cfg) - set(TOP_LEVEL_DEFAULTS))
@@ -56,7 +68,7 @@ def validate_policy_cfg(policy_cfg: dict) -> dict:
             f"unknown policy config key(s) {unknown}; allowed: {sorted(TOP_LEVEL_DEFAULTS)}"
         )
     cfg = copy.deepcopy(TOP_LEVEL_DEFAULTS)
-    cfg.update(copy.deepcopy(policy_cfg))
+    cfg.update(policy_cfg)
     if cfg["type"] not in SUPPORTED_TYPES:
         raise PolicyConfigError(f"policy config 'type' must be one of {SUPPORTED_TYPES}, got {cfg['type']!r}")
     if not cfg["image_keys"]:
@@ -192,7 +204,7 @@ CANDIDATES: dict[str, dict] = {
         "chunk_size": 25,
         "n_action_steps": 5,
         "overrides": {
-            "n_obs_steps": 2,
+            "n_obs_steps": 1,
             "vision_backbone": "resnet18",
             "spatial_softmax_num_keypoints": 32,
             "down_dims": [64, 128, 256],
@@ -219,14 +231,14 @@ CANDIDATES: dict[str, dict] = {
 # Optimiser steps per candidate and profile (batch_size as in CANDIDATES unless given here).
 PROFILES: dict[str, dict[str, dict]] = {
     "smoke": {
-        "act": {"steps": 30, "batch_size": 8},
-        "diffusion": {"steps": 30, "batch_size": 8},
-        "act_weak": {"steps": 4, "batch_size": 8},
+        "act": {"steps": 20, "batch_size": 8},
+        "diffusion": {"steps": 20, "batch_size": 8},
+        "act_weak": {"steps": 3, "batch_size": 8},
     },
     "demo": {
-        "act": {"steps": 600},
-        "diffusion": {"steps": 600},
-        "act_weak": {"steps": 75},
+        "act": {"steps": 280},
+        "diffusion": {"steps": 250},
+        "act_weak": {"steps": 35},
     },
 }
 

@@ -7,6 +7,7 @@ clipping, EpisodeAwareSampler where the policy asks for it) without accelerate, 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import platform
@@ -66,7 +67,16 @@ def _make_optimizer(cfg: dict, lr_cfg, policy):
     preset.lr = cfg["lr"]
     if cfg["weight_decay"] is not None:
         preset.weight_decay = cfg["weight_decay"]
-    optimizer = preset.build(policy.get_optim_params())
+    params = policy.get_optim_params()
+    classes = {"adamw": torch.optim.AdamW, "adam": torch.optim.Adam}
+    if preset.type in classes:
+        # Same hyper-parameters as preset.build(), but the fused kernel: on CPU the optimiser
+        # step over a ResNet18 costs ~5x less than the default for-each implementation.
+        kwargs = dataclasses.asdict(preset)
+        kwargs.pop("grad_clip_norm")
+        optimizer = classes[preset.type](params, **kwargs, fused=True)
+    else:
+        optimizer = preset.build(params)
     scheduler = None
     if cfg["warmup_steps"] > 0:
         warm = cfg["warmup_steps"]
@@ -112,7 +122,7 @@ def train_policy(
     """
     from lerobot.utils.random_utils import set_seed
 
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     cfg = validate_policy_cfg(policy_cfg)
     torch.set_num_threads(int(cfg["threads"]))
     set_seed(seed)
@@ -130,7 +140,7 @@ def train_policy(
     window: list[float] = []
     batches = _cycle(loader)
     policy.train()
-    t_loop = time.perf_counter()
+    t_loop, cpu_loop = time.perf_counter(), time.process_time()
     for step in range(1, int(cfg["steps"]) + 1):
         batch = preprocessor(next(batches))
         loss, _ = policy.forward(batch)
@@ -155,6 +165,7 @@ def train_policy(
             )
             window = []
     loop_s = time.perf_counter() - t_loop
+    loop_cpu_s = time.process_time() - cpu_loop
     policy.eval()
 
     n_params = sum(p.numel() for p in policy.parameters())
@@ -175,6 +186,7 @@ def train_policy(
         "final_loss": losses[-1]["loss"] if losses else None,
         "data_prep_s": data_prep_s,
         "train_loop_s": loop_s,
+        "train_loop_cpu_s": loop_cpu_s,  # wall time is inflated on a shared machine; CPU time is not
         "s_per_step": loop_s / max(1, int(cfg["steps"])),
         "torch_version": torch.__version__,
         "python": platform.python_version(),
@@ -193,6 +205,7 @@ def train_policy(
         }
         (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
         summary["wall_s"] = time.perf_counter() - t_start
+        summary["cpu_s"] = time.process_time() - cpu_start
         train_log = {"summary": summary, "config": cfg, "losses": losses}
         (tmp / TRAIN_LOG).write_text(json.dumps(train_log, indent=2, sort_keys=True) + "\n")
     log.info(

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim import TabletopEnv, Task
 
 
-def sample_inits(tasks: list[str], inits_per_task: int, seed: int) -> pd.DataFrame:
+def sample_inits(tasks: list[Task], inits_per_task: int, seed: int) -> pd.DataFrame:
     """One row per (task, init_id, object) with a planar pose; the same for all policies."""
     rows = []
     for task_index, task in enumerate(tasks):
@@ -16,7 +16,7 @@ def sample_inits(tasks: list[str], inits_per_task: int, seed: int) -> pd.DataFra
         rng = np.random.default_rng([seed, task_index, 7])
         for init_id in range(inits_per_task):
             for name, (x, y, yaw) in env.sample_initial_poses(rng).items():
-                rows.append({"task": task, "init_id": init_id, "object": name, "x_m": x, "y_m": y, "yaw_rad": yaw})
+                rows.append({"task": task.key, "init_id": init_id, "object": name, "x_m": x, "y_m": y, "yaw_rad": yaw})
         env.close()
     return pd.DataFrame(rows)
 

@@ -61,17 +61,26 @@ def run_episode(
 ) -> EpisodeResult:
     """Run until the success check has held for `success_hold_steps` steps, or `max_steps`.
 
+    The caller resets the policy (with the episode's seed) before calling.
+
     Holding success for a few steps keeps a cup that is let go mid-air from counting.
     """
+    video_key = f"observation.images.{video_camera}"
+
+    def frame(obs: dict) -> np.ndarray:
+        # The camera image the policy saw, when it watches the video camera; else a render.
+        if video_key in obs and video_size is None:
+            return obs[video_key]
+        return env.render(video_camera, size=video_size, add_noise=True)
+
     obs = env.reset(object_poses, seed=seed)
-    policy.reset()
-    frames = [env.render(video_camera, size=video_size)]
+    frames = [frame(obs)]
     rows, held = [], 0
     for step in range(max_steps):
         action = policy.act(obs)
         obs = env.step(action)
         rows.append(_record(env, step, obs, action))
-        frames.append(env.render(video_camera, size=video_size))
+        frames.append(frame(obs))
         held = held + 1 if rows[-1]["success"] else 0
         if held >= success_hold_steps:
             break

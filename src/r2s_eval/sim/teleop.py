@@ -9,8 +9,8 @@ list of ``(obs, action)`` pairs, ``obs`` being the observation the action was
 chosen from.
 
 What the operator uses: the measured robot state from ``obs`` and the scene
-as a person watching it would see it (true object poses via
-``env.object_poses()``-equivalent reads and object sizes). It commands one
+as a person watching it would see it (true object poses from
+``env.object_poses()``, object sizes, where its gripper is). It commands one
 arm (the task's ``arm`` rule), keeps the other at its home pose, and keeps
 its own commanded joint configuration as the IK seed, as a teleoperation
 rig does.
@@ -22,7 +22,9 @@ release -> retreat.
 
 Human-like variability (seeded by ``rng``): per-segment speed factor, short
 pauses, overshoot-and-correct on free-space moves, millimetre aiming error,
-and an occasional regrasp.
+and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps).
+
+Success rate: ``python -m r2s_eval.sim.teleop --episodes 20 [--twin]``.
 """
 
 from __future__ import annotations

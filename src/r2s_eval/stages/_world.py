@@ -5,8 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import dataclasses
+
+import numpy as np
+
 from r2s_eval.calib import CameraModel, ObjectGeometry
-from r2s_eval.sim import TabletopEnv, WorldParams
+from r2s_eval.sim import TabletopEnv, Task, WorldParams, get_task
+from r2s_eval.sim.tasks import Region
 
 # Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric).
 YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2}
@@ -16,9 +21,23 @@ def image_size(world_cfg: dict) -> tuple[int, int]:
     return int(world_cfg["image_height"]), int(world_cfg["image_width"])
 
 
-def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, cameras=None) -> TabletopEnv:
+def configured_task(key: str, suite_cfg: dict | None) -> Task:
+    """The suite's task with the experiment's start regions, if the config sets any."""
+    task = get_task(key)
+    regions = ((suite_cfg or {}).get(key) or {}).get("init_regions")
+    if not regions:
+        return task
+    new = dict(task.init_regions)
+    for name, r in regions.items():
+        if name not in new:
+            raise KeyError(f"suite.{key}.init_regions: task {key!r} has no object {name!r} (objects: {sorted(new)})")
+        new[name] = Region(tuple(r["x_range_m"]), tuple(r["y_range_m"]), tuple(r.get("yaw_range_rad", (-np.pi, np.pi))))
+    return dataclasses.replace(task, init_regions=new)
+
+
+def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, cameras=None, suite_cfg: dict | None = None) -> TabletopEnv:
     return TabletopEnv(
-        task,
+        configured_task(task, suite_cfg),
         params=params,
         image_size=image_size(world_cfg),
         cameras=tuple(world_cfg["cameras"] if cameras is None else cameras),

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 from r2s_eval.rollout import sample_inits
 from r2s_eval.stages import _cli
+from r2s_eval.stages._world import configured_task
 from r2s_eval.utils.io import write_parquet
 
 
 def main(args) -> None:
     cfg = args.cfg
-    inits = sample_inits(list(cfg["tasks"]), int(cfg["rollout.inits_per_task"]), int(cfg["seed"]))
+    inits = sample_inits(
+        [configured_task(t, cfg["suite"]) for t in cfg["tasks"]], int(cfg["rollout.inits_per_task"]), int(cfg["seed"])
+    )
     write_parquet(args.out, inits, metadata={"stage": "rollout_inits", "seed": cfg["seed"]})
 
 

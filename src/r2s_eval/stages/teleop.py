@@ -35,7 +35,7 @@ def main(args) -> None:
     truth, attempts = [], []
     with DatasetRecorder(args.dataset, "local/teleop", round(1 / CONTROL_DT_S), features, "r2s_dual_arm") as rec:
         for task_index, task in enumerate(cfg["tasks"]):
-            env = make_env(task, world, params)
+            env = make_env(task, world, params, suite_cfg=cfg["suite"])
             rng = np.random.default_rng([cfg["seed"], task_index, 11])
             kept = tries = 0
             progress = tqdm(total=teleop["episodes_per_task"], desc=f"teleop {task}", mininterval=5)

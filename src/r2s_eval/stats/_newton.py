@@ -25,7 +25,7 @@ from r2s_eval.stats._pairs import incidence, pair_index, policy_totals, transiti
 # where its Hessian was taken; ERROR_SCALE adds a safety factor.  TARGET_ERROR in
 # theta is far below the promised 1e-6 agreement with MM on the strengths.
 ERROR_SCALE = 10.0
-TARGET_ERROR = 1e-9
+TARGET_ERROR = 1e-8
 MAX_ITER = 100
 # Far from the optimum the likelihood is nearly flat in saturated directions and a
 # raw Newton step can overshoot; steps are scaled down to this max-norm in theta.
@@ -34,7 +34,8 @@ MAX_STEP = 2.0
 # strength cannot cost dozens of clipped steps.
 INIT_SPREAD = 30.0
 # Columns per block: one Newton step's temporaries then stay in cache.
-BLOCK = 4096
+BLOCK = 2048
+WORKSPACE_BYTES = 32 * 2**20
 
 
 def regular_columns(w_ij: np.ndarray, w_ji: np.ndarray, P: int) -> np.ndarray:
@@ -62,166 +63,246 @@ def regular_columns(w_ij: np.ndarray, w_ji: np.ndarray, P: int) -> np.ndarray:
     return regular
 
 
-def factor_spd(A: np.ndarray) -> np.ndarray:
+def factor_spd(A: np.ndarray, scratch: np.ndarray | None = None) -> np.ndarray:
     """LU-factor a (R, R, B) stack of symmetric positive-definite matrices in place.
 
     Gaussian elimination without pivoting (stable for SPD), vectorised over the
     batch axis: for the handful of policies of a ranking this is far faster than
     one LAPACK call per matrix.  Multipliers are stored below the diagonal.
+    ``scratch`` (at least (R-1, R-1, B)) avoids temporaries in the hot loop.
     """
     R = A.shape[0]
+    if scratch is None:
+        scratch = np.empty((max(R - 1, 1), max(R - 1, 1), A.shape[2]))
     for k in range(R - 1):
         A[k + 1 :, k] /= A[k, k]
-        A[k + 1 :, k + 1 :] -= A[k + 1 :, k][:, None] * A[k, k + 1 :][None]
+        update = scratch[: R - k - 1, : R - k - 1]
+        np.multiply(A[k + 1 :, k][:, None], A[k, k + 1 :][None], out=update)
+        A[k + 1 :, k + 1 :] -= update
     return A
 
 
-def solve_factored(LU: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Solve with factors from :func:`factor_spd`; ``g`` is (R, B)."""
-    R = g.shape[0]
-    x = g.copy()
+def solve_factored(LU: np.ndarray, x: np.ndarray, scratch: np.ndarray | None = None) -> np.ndarray:
+    """Solve in place with factors from :func:`factor_spd`; ``x`` (R, B) holds the right-hand side."""
+    R = LU.shape[0]
+    if scratch is None:
+        scratch = np.empty((max(R - 1, 1), LU.shape[2]))
     for k in range(R - 1):
-        x[k + 1 :] -= LU[k + 1 :, k] * x[k]
+        update = scratch[: R - k - 1]
+        np.multiply(LU[k + 1 :, k], x[k], out=update)
+        x[k + 1 :] -= update
+    row = scratch[0]
     for k in range(R - 1, -1, -1):
-        if k + 1 < R:
-            x[k] -= (LU[k, k + 1 :] * x[k + 1 :]).sum(axis=0)
+        for j in range(k + 1, R):
+            np.multiply(LU[k, j], x[j], out=row)
+            x[k] -= row
         x[k] /= LU[k, k]
     return x
 
 
 def solve_spd(A: np.ndarray, g: np.ndarray) -> np.ndarray:
     """Solve A x = g for a (R, R, B) stack of SPD matrices (overwrites A)."""
-    return solve_factored(factor_spd(A), g)
+    return solve_factored(factor_spd(A), g.copy())
 
 
-def _laplacian_factors(info: np.ndarray, P: int, held_out: np.ndarray | None) -> np.ndarray:
-    """Factors of the negative Hessian, the information-weighted graph Laplacian L.
+def _fill_laplacian(A: np.ndarray, info: np.ndarray, degree: np.ndarray, live: np.ndarray | None) -> None:
+    """Write the negative Hessian, the information-weighted graph Laplacian, into A.
 
     Theta is defined up to a shift and the gradient sums to zero.  Without held-out
-    policies the last policy's step is pinned to zero, leaving a (P-1)-dimensional
-    positive-definite system.  Otherwise a rank-one term on the live policies pins
-    the step to sum zero and held-out policies get a unit diagonal (zero step).
+    policies (``live is None``) A is (P-1, P-1): the last policy's step is pinned to
+    zero, leaving a positive-definite system.  Otherwise A is (P, P): a rank-one
+    term on the live policies pins the step to sum zero and held-out policies get a
+    unit diagonal, hence a zero step.
     """
+    R = A.shape[0]
+    P = degree.shape[0]
     I, J = pair_index(P)
-    B = info.shape[1]
-    degree = np.abs(incidence(P)).T @ info
-    if held_out is None:
-        R = P - 1
-        inner = J < R
-        A = np.zeros((R, R, B))
-        A[I[inner], J[inner]] = -info[inner]
-        A[J[inner], I[inner]] = -info[inner]
-        A[np.arange(R), np.arange(R)] = degree[:R]
-        return factor_spd(A)
-    A = np.empty((P, P, B))
-    A[I, J] = -info
-    A[J, I] = -info
-    A[np.arange(P), np.arange(P)] = degree
-    live = (~held_out).astype(np.float64)
-    A += (degree.sum(axis=0) / P) * live[:, None] * live[None, :]
-    A[np.arange(P), np.arange(P)] += held_out
-    return factor_spd(A)
+    for k in range(len(I)):
+        if J[k] < R:
+            np.negative(info[k], out=A[I[k], J[k]])
+            A[J[k], I[k]] = A[I[k], J[k]]
+    for i in range(R):
+        A[i, i] = degree[i]
+    if live is not None:
+        # Any positive weight pins the shift; +1 keeps it positive when a single
+        # live policy is left with no comparisons.
+        shift = degree.sum(axis=0) / P + 1.0
+        for i in range(P):
+            for j in range(P):
+                A[i, j] += shift * live[i] * live[j]
+            A[i, i] += 1.0 - live[i]
 
 
-def _laplacian_solve(LU: np.ndarray, grad: np.ndarray) -> np.ndarray:
-    R, P = LU.shape[0], grad.shape[0]
-    if R == P:
-        return solve_factored(LU, grad)
-    step = np.zeros_like(grad)
-    step[:R] = solve_factored(LU, grad[:R])
-    return step
-
-
-def _clip_step(step: np.ndarray) -> np.ndarray:
+def _step_size(step: np.ndarray) -> np.ndarray:
     """Max-norm of each column's step, scaling down the steps that exceed MAX_STEP."""
-    size = np.abs(step).max(axis=0)
+    size = np.maximum(step.max(axis=0), -step.min(axis=0))
     big = size > MAX_STEP
     if big.any():
         step[:, big] *= MAX_STEP / size[big]
     return size
 
 
+def block_size(P: int) -> int:
+    """Columns per block for P policies: BLOCK, or fewer when many policies make a
+    column's workspace large."""
+    return int(min(BLOCK, max(64, WORKSPACE_BYTES // (8 * Workspace.rows_per_column(P)))))
+
+
 def newton(
-    w_ij: np.ndarray, w_ji: np.ndarray, P: int, theta0: np.ndarray | None = None
+    w_ij: np.ndarray,
+    w_ji: np.ndarray,
+    P: int,
+    theta0: np.ndarray | None = None,
+    work: "Workspace | None" = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Strengths (P, B) of regular columns and a converged flag (B,)."""
     B = w_ij.shape[1]
+    block = block_size(P)
     strengths = np.empty((P, B))
     converged = np.empty(B, dtype=bool)
-    for start in range(0, B, BLOCK):
-        cols = slice(start, min(start + BLOCK, B))
+    if work is None or work.P != P:
+        work = Workspace(P)
+    for start in range(0, B, block):
+        cols = slice(start, min(start + block, B))
         init = None if theta0 is None else theta0[:, cols]
-        strengths[:, cols], converged[cols] = _newton_block(w_ij[:, cols], w_ji[:, cols], P, init)
+        strengths[:, cols], converged[cols] = _newton_block(
+            w_ij[:, cols], w_ji[:, cols], P, init, work
+        )
     return strengths, converged
 
 
+class Workspace:
+    """Flat buffers reused by every block and Newton iteration of one thread.
+
+    Large temporaries come from fresh memory on each allocation, and the page
+    faults cost more than the arithmetic; so the hot loop writes into these
+    buffers instead.  Per-column state lives in one (rows, m) array that is
+    compacted into its twin when columns converge.
+    """
+
+    def __init__(self, P: int):
+        K = P * (P - 1) // 2
+        block = block_size(P)
+        self.P, self.K, self.block = P, K, block
+        self.state_rows = 2 * P + 2 * K + 2 + P * P  # theta, w_ij, n, last step, column, live, LU
+        self.state = [np.empty(self.state_rows * block), np.empty(self.state_rows * block)]
+        self.pairs = np.empty(3 * K * block)
+        self.policies = np.empty(3 * P * block)
+        self.solve = np.empty((P * P + P) * block)
+
+    @staticmethod
+    def rows_per_column(P: int) -> int:
+        K = P * (P - 1) // 2
+        return 2 * (2 * P + 2 * K + 2 + P * P) + 3 * K + 3 * P + P * P + P
+
+    def views(self, m: int, R: int, which: int) -> dict[str, np.ndarray]:
+        P, K = self.P, self.K
+        state = self.state[which][: self.state_rows * m].reshape(self.state_rows, m)
+        rows = np.cumsum([0, P, K, K, 1, 1, P, R * R])
+        names = ["theta", "w", "n", "last", "column", "live", "LU"]
+        view = {name: state[rows[i] : rows[i + 1]] for i, name in enumerate(names)}
+        view["LU"] = view["LU"].reshape(R, R, m)
+        view["state"] = state[: rows[-1]]
+        pairs = self.pairs[: 3 * K * m].reshape(3, K, m)
+        policies = self.policies[: 3 * P * m].reshape(3, P, m)
+        view.update(p=pairs[0], expected=pairs[1], tmp=pairs[2])
+        view.update(grad=policies[0], step=policies[1], degree=policies[2])
+        view["factor_scratch"] = self.solve[: P * P * m].reshape(P, P, m)[: max(R - 1, 1), : max(R - 1, 1)]
+        view["solve_scratch"] = self.solve[P * P * m : (P * P + P) * m].reshape(P, m)
+        return view
+
+
 def _newton_block(
-    w_ij: np.ndarray, w_ji: np.ndarray, P: int, theta0: np.ndarray | None
+    w_ij: np.ndarray, w_ji: np.ndarray, P: int, theta0: np.ndarray | None, work: Workspace
 ) -> tuple[np.ndarray, np.ndarray]:
     I, J = pair_index(P)
     D = incidence(P)
+    D_neg, D_t, D_abs_t = -D, D.T, np.abs(D).T
     B = w_ij.shape[1]
     wins = policy_totals(w_ij, w_ji, P)
     # Never-winning policies are held out (their pairs removed, strength exactly
     # zero), as MM does in its first step.
-    zero = zero_all = wins == 0
-    held_out = None
-    if zero.any():
-        held_out = zero
+    zero = wins == 0
+    has_zero = bool(zero.any())
+    R = P if has_zero else P - 1
+    if has_zero:
         pair_out = zero[I] | zero[J]
         w_ij = np.where(pair_out, 0.0, w_ij)
         w_ji = np.where(pair_out, 0.0, w_ji)
-    n = w_ij + w_ji
 
+    which, m = 0, B
+    v = work.views(m, R, which)
+    v["w"][...] = w_ij
+    np.add(w_ij, w_ji, out=v["n"])
+    v["column"][0] = np.arange(B)
+    v["live"][...] = ~zero
     if theta0 is None:
         # Log-odds of each policy's win rate: close to the optimum for balanced designs.
         losses = policy_totals(w_ji, w_ij, P)
-        theta = np.log((wins + 0.5) / (losses + 0.5))
+        v["theta"][...] = np.log((wins + 0.5) / (losses + 0.5))
     else:
-        theta = np.array(theta0, dtype=np.float64, copy=True)
-    if held_out is not None:
-        theta[held_out] = 0.0
-    theta = np.maximum(theta, theta.max(axis=0) - INIT_SPREAD)
+        v["theta"][...] = theta0
+    theta = v["theta"]
+    if has_zero:
+        theta[zero] = 0.0
+    np.maximum(theta, theta.max(axis=0) - INIT_SPREAD, out=theta)
 
     out_theta = np.empty((P, B))
     converged = np.zeros(B, dtype=bool)
-    active = np.arange(B)
-    LU = None
+    finished = np.zeros(m, dtype=bool)
     for iteration in range(MAX_ITER):
+        theta, p, expected, tmp = v["theta"], v["p"], v["expected"], v["tmp"]
+        np.matmul(D_neg, theta, out=p)
         with np.errstate(over="ignore"):
-            p = np.exp(-(D @ theta))
+            np.exp(p, out=p)
         p += 1.0
         np.reciprocal(p, out=p)  # P(policy I[k] beats J[k])
-        expected = n * p
-        grad = D.T @ (w_ij - expected)
+        np.multiply(v["n"], p, out=expected)
+        np.subtract(v["w"], expected, out=tmp)
+        np.matmul(D_t, tmp, out=v["grad"])
         # Full Newton steps alternate with chord steps that reuse the last factors:
         # near the optimum a chord step costs half as much and gains nearly as much.
         full = iteration % 2 == 0
         if full:
-            expected -= expected * p  # now the Fisher information n p (1 - p)
-            LU = _laplacian_factors(expected, P, held_out)
-        step = _laplacian_solve(LU, grad)
-        size = _clip_step(step)
+            np.multiply(expected, p, out=tmp)
+            np.subtract(expected, tmp, out=tmp)  # Fisher information n p (1 - p)
+            np.matmul(D_abs_t, tmp, out=v["degree"])
+            _fill_laplacian(v["LU"], tmp, v["degree"], v["live"] if has_zero else None)
+            factor_spd(v["LU"], v["factor_scratch"])
+        step = v["step"]
+        step[...] = v["grad"]
+        if not has_zero:
+            step[R:] = 0.0
+        solve_factored(v["LU"], step[:R], v["solve_scratch"])
+        size = _step_size(step)
         theta += step
         if full:
-            last_full = size
+            v["last"][0] = size
             error = ERROR_SCALE * size * size
         else:
-            # The chord Hessian is off by about the last full step.
-            error = ERROR_SCALE * last_full * size
-        done = error < TARGET_ERROR
-        if done.any():
-            out_theta[:, active[done]] = theta[:, done]
-            converged[active[done]] = True
-            keep = ~done
-            active, theta, w_ij, n = active[keep], theta[:, keep], w_ij[:, keep], n[:, keep]
-            LU, last_full = LU[:, :, keep], last_full[keep]
-            if held_out is not None:
-                held_out = held_out[:, keep]
-            if active.size == 0:
+            # The chord Hessian was taken one full step away.
+            error = ERROR_SCALE * v["last"][0] * size
+        finished |= error < TARGET_ERROR
+        # Converged columns may take further (harmless) steps until enough of them
+        # have finished to make compacting the state worth its copy.
+        n_finished = int(finished.sum())
+        if n_finished == m or (n_finished and 2 * n_finished >= m):
+            columns = v["column"][0, finished].astype(np.int64)
+            out_theta[:, columns] = theta[:, finished]
+            converged[columns] = True
+            keep = np.flatnonzero(~finished)
+            if keep.size == 0:
                 break
-    out_theta[:, active] = theta
-    return to_strengths(out_theta, zero_all), converged
+            old = v["state"]
+            which, m = 1 - which, keep.size
+            v = work.views(m, R, which)
+            np.take(old, keep, axis=1, out=v["state"], mode="clip")
+            finished = np.zeros(m, dtype=bool)
+    else:
+        columns = v["column"][0].astype(np.int64)
+        out_theta[:, columns] = v["theta"]
+        converged[columns] = finished
+    return to_strengths(out_theta, zero), converged
 
 
 def to_strengths(theta: np.ndarray, zero: np.ndarray | None = None) -> np.ndarray:
@@ -244,28 +325,36 @@ def shared_first_step(
     per matrix instead of a factorisation per replicate.
 
     theta0: (P, G) point estimates in log space (never-winners at any value);
-    n, w_point: (K, G) counts and point-estimate wins[I, J]; w_boot: (K, G, R).
-    Returns theta after the step, (P, G, R).
+    n, w_point: (K, G) counts and point-estimate wins[I, J]; w_boot: (G, K, R)
+    resampled wins[I, J].  Returns theta after the step as (P, G * R), replicate
+    ``r`` of matrix ``g`` in column ``g * R + r``.
     """
     I, J = pair_index(P)
     D = incidence(P)
-    G = n.shape[1]
+    G, R = n.shape[1], w_boot.shape[2]
     w_ji_point = n - w_point
     zero = policy_totals(w_point, w_ji_point, P) == 0  # (P, G)
     theta0 = np.where(zero, 0.0, theta0)
     keep = ~(zero[I] | zero[J])  # pairs that take part once never-winners are held out
-    p0 = 1.0 / (1.0 + np.exp(-(D @ theta0)))
+    with np.errstate(over="ignore"):
+        p0 = 1.0 / (1.0 + np.exp(-(D @ theta0)))
     n_kept = np.where(keep, n, 0.0)
     info = n_kept * p0 * (1.0 - p0)
     # Invert the gauge-fixed Hessian of every matrix (G of them, not G * R).
     live = (~zero).astype(np.float64)
     A = np.einsum("kp,kq,kg->gpq", D, D, info)
     degree_mean = np.einsum("gpp->g", A) / P
-    A += degree_mean[:, None, None] * live.T[:, :, None] * live.T[:, None, :]
+    A += (degree_mean + 1.0)[:, None, None] * live.T[:, :, None] * live.T[:, None, :]
     A[:, np.arange(P), np.arange(P)] += zero.T
-    gain = np.linalg.solve(A, np.broadcast_to(D.T, (G, P, len(I))) * keep.T[:, None, :])  # (G, P, K)
-    resid = (w_boot - (n_kept * p0)[:, :, None]) * keep[:, :, None]  # (K, G, R)
-    step = np.matmul(gain, resid.transpose(1, 0, 2)).transpose(1, 0, 2)  # (P, G, R)
-    flat = step.reshape(P, -1)
-    _clip_step(flat)
-    return theta0[:, :, None] + flat.reshape(step.shape)
+    # Where the point estimate has no finite maximum the Hessian can be singular:
+    # those replicates simply start from the point estimate.
+    regular = regular_columns(w_point, w_ji_point, P)
+    A[~regular] = np.eye(P)
+    # gain @ (w - n p0): pairs with a never-winner (and irregular matrices) get no weight.
+    gain = np.linalg.solve(A, np.broadcast_to(D.T, (G, P, len(I))) * (keep & regular).T[:, None, :])
+    step = np.matmul(gain, w_boot)  # (G, P, R)
+    step -= np.matmul(gain, (n_kept * p0).T[:, :, None])
+    theta = np.ascontiguousarray(step.transpose(1, 0, 2)).reshape(P, G * R)
+    _step_size(theta)
+    theta += np.repeat(theta0, R, axis=1)
+    return theta

@@ -47,17 +47,24 @@ def from_pairs(w_ij: np.ndarray, w_ji: np.ndarray, P: int) -> np.ndarray:
     return out
 
 
-def policy_totals(x_ij: np.ndarray, x_ji: np.ndarray, P: int) -> np.ndarray:
-    """Per-policy sums ``sum_j x[i, j]`` of a pair quantity given both orientations: (P, B).
-
-    Accumulates pair by pair in a fixed order, so a column's result does not
-    depend on the other columns in the batch.
-    """
+@lru_cache(maxsize=None)
+def _role_matrices(P: int) -> tuple[np.ndarray, np.ndarray]:
+    """(P, K) indicators of the pairs where each policy is I, and where it is J."""
     I, J = pair_index(P)
-    out = np.zeros((P, x_ij.shape[1]))
-    for k in range(len(I)):
-        out[I[k]] += x_ij[k]
-        out[J[k]] += x_ji[k]
+    as_i = np.zeros((P, len(I)))
+    as_j = np.zeros((P, len(I)))
+    as_i[I, np.arange(len(I))] = 1.0
+    as_j[J, np.arange(len(I))] = 1.0
+    as_i.flags.writeable = False
+    as_j.flags.writeable = False
+    return as_i, as_j
+
+
+def policy_totals(x_ij: np.ndarray, x_ji: np.ndarray, P: int) -> np.ndarray:
+    """Per-policy sums ``sum_j x[i, j]`` of a pair quantity given both orientations: (P, B)."""
+    as_i, as_j = _role_matrices(P)
+    out = as_i @ x_ij
+    out += as_j @ x_ji
     return out
 
 

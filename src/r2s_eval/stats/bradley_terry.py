@@ -18,8 +18,11 @@ vectorised operation runs over a long contiguous batch axis.
 
 from __future__ import annotations
 
+import os
+import queue
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -181,6 +184,7 @@ def _fit_pairs(
     P: int,
     theta0: np.ndarray | None = None,
     method: str = "newton",
+    work: _newton.Workspace | None = None,
 ) -> tuple[np.ndarray, int]:
     """Strengths (P, B) for connected pair-form columns; also the count of MM fits
     that hit the iteration limit."""
@@ -194,17 +198,48 @@ def _fit_pairs(
     regular = _newton.regular_columns(w_ij, w_ji, P)
     solved = regular.copy()
     if regular.all():
-        strengths, solved = _newton.newton(w_ij, w_ji, P, theta0)
+        strengths, solved = _newton.newton(w_ij, w_ji, P, theta0, work)
     elif regular.any():
         idx = np.flatnonzero(regular)
         init = None if theta0 is None else theta0[:, idx]
-        strengths[:, idx], solved[idx] = _newton.newton(w_ij[:, idx], w_ji[:, idx], P, init)
+        strengths[:, idx], solved[idx] = _newton.newton(w_ij[:, idx], w_ji[:, idx], P, init, work)
     rest = np.flatnonzero(~solved)
     not_converged = 0
     if rest.size:
         strengths[:, rest], converged = _mm_pairs(w_ij[:, rest], w_ji[:, rest], P)
         not_converged = int((~converged).sum())
     return strengths, not_converged
+
+
+def _run_units(task, n_units: int, P: int, n_threads: int | None) -> int:
+    """Run ``task(unit, workspace)`` for every unit, on up to ``n_threads`` threads.
+
+    Units are fixed by the data, not by the thread count, and each writes its own
+    slice of the output, so results do not depend on ``n_threads``.  NumPy
+    releases the GIL inside its loops, so threads share out the arithmetic.
+    Returns the sum of the tasks' return values.
+    """
+    if n_threads is None:
+        n_threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if int(n_threads) != n_threads or n_threads < 1:
+        raise ValueError(f"n_threads must be a positive integer or None, got {n_threads!r}")
+    n_threads = min(int(n_threads), n_units)
+    if n_threads <= 1:
+        work = _newton.Workspace(P)
+        return sum(task(unit, work) for unit in range(n_units))
+    pool: queue.SimpleQueue = queue.SimpleQueue()
+    for _ in range(n_threads):
+        pool.put(_newton.Workspace(P))
+
+    def run(unit: int) -> int:
+        work = pool.get()
+        try:
+            return task(unit, work)
+        finally:
+            pool.put(work)
+
+    with ThreadPoolExecutor(max_workers=n_threads) as executor:
+        return sum(executor.map(run, range(n_units)))
 
 
 def _warn_not_converged(count: int, total: int) -> None:
@@ -254,6 +289,7 @@ def fit_bradley_terry_batch(
     *,
     names: Sequence[str] | None = None,
     method: str = "newton",
+    n_threads: int | None = None,
 ) -> np.ndarray:
     """Fit every (P, P) matrix of a ``(..., P, P)`` stack; returns ``(..., P)`` strengths.
 
@@ -266,10 +302,14 @@ def fit_bradley_terry_batch(
     ``init``: optional starting strengths broadcastable to ``(..., P)`` (e.g. the
     point estimate when fitting bootstrap replicates).  It only speeds Newton up: the
     answer does not depend on it, and MM always starts from uniform strengths.
+    ``n_threads``: threads to share the work (default: all usable CPUs); the
+    result does not depend on it.
     """
     arr = _as_wins(wins_batch)
     batch_shape, P = arr.shape[:-2], arr.shape[-1]
     _check_names(names, P)
+    if method not in ("newton", "mm"):
+        raise ValueError(f"method must be 'newton' or 'mm', got {method!r}")
     _check_connected(arr, names)
     flat = arr.reshape(-1, P, P)
     if P == 1:
@@ -281,8 +321,18 @@ def fit_bradley_terry_batch(
             raise ValueError("init must hold finite, non-negative strengths")
         theta0 = np.log(np.maximum(start.reshape(-1, P).T, 1e-300))
     w_ij, w_ji = to_pairs(flat)
-    strengths, not_converged = _fit_pairs(w_ij, w_ji, P, theta0, method)
-    _warn_not_converged(not_converged, flat.shape[0])
+    B = w_ij.shape[1]
+    strengths = np.empty((P, B))
+    chunk = _newton.block_size(P)
+
+    def task(unit: int, work: _newton.Workspace) -> int:
+        cols = slice(unit * chunk, min((unit + 1) * chunk, B))
+        init_cols = None if theta0 is None else theta0[:, cols]
+        strengths[:, cols], count = _fit_pairs(w_ij[:, cols], w_ji[:, cols], P, init_cols, method, work)
+        return count
+
+    not_converged = _run_units(task, -(-B // chunk), P, n_threads)
+    _warn_not_converged(not_converged, B)
     return strengths.T.reshape(batch_shape + (P,))
 
 
@@ -295,17 +345,26 @@ def _check_n_boot(n_boot) -> int:
     return int(n_boot)
 
 
-def _resample(w_ij: np.ndarray, n: np.ndarray, n_boot: int, seed) -> np.ndarray:
-    """Binomial draws of wins[I, J] for each pair and matrix: (K, G, n_boot) floats.
+def _resample(w_ij: np.ndarray, n: np.ndarray, n_boot: int, seeds: list) -> np.ndarray:
+    """Binomial draws of wins[I, J]: (G, K, n_boot) floats, matrix g drawn from seeds[g].
 
-    ``w_ij``, ``n``: (K, G) observed wins[I, J] and comparison counts.
+    ``w_ij``, ``n``: (K, G) observed wins[I, J] and comparison counts.  Each matrix
+    has its own random stream, so its replicates do not depend on how the stack is
+    split into units of work.
     """
     p = np.divide(w_ij, n, out=np.zeros_like(w_ij), where=n > 0)
-    rng = np.random.default_rng(seed)
-    # Replicates on the last axis: consecutive draws share (n, p), which lets the
-    # binomial generator reuse its set-up (several times faster than pairs last).
-    draws = rng.binomial(n.astype(np.int64)[:, :, None], p[:, :, None], size=n.shape + (n_boot,))
-    return draws.astype(np.float64)
+    counts = n.astype(np.int64)
+    out = np.empty((n.shape[1], n.shape[0], n_boot))
+    for g, seed in enumerate(seeds):
+        rng = np.random.default_rng(seed)
+        # Replicates on the last axis: consecutive draws share (n, p), which lets the
+        # binomial generator reuse its set-up (several times faster than pairs last).
+        out[g] = rng.binomial(counts[:, g, None], p[:, g, None], size=(len(n), n_boot))
+    return out
+
+
+def _matrix_seeds(seed, n_matrices: int) -> list:
+    return np.random.SeedSequence(seed).spawn(n_matrices)
 
 
 def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
@@ -320,25 +379,36 @@ def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
     batch_shape, P = arr.shape[:-2], arr.shape[-1]
     w_ij, w_ji = to_pairs(arr.reshape(-1, P, P))
     n = w_ij + w_ji
-    draws = _resample(w_ij, n, n_boot, seed).reshape(len(n), -1)
+    draws = _resample(w_ij, n, n_boot, _matrix_seeds(seed, n.shape[1]))
+    draws = draws.transpose(1, 0, 2).reshape(len(n), -1)
     boot = from_pairs(draws, np.repeat(n, n_boot, axis=1) - draws, P)
     return boot.reshape(batch_shape + (n_boot, P, P))
 
 
 def bootstrap_bradley_terry(
-    wins, n_boot: int = 1000, seed=0, *, names: Sequence[str] | None = None
+    wins,
+    n_boot: int = 1000,
+    seed=0,
+    *,
+    names: Sequence[str] | None = None,
+    n_threads: int | None = None,
 ) -> np.ndarray:
     """Bootstrap Bradley-Terry strengths: ``(n_boot, P)`` for one matrix.
 
     Each replicate resamples every compared pair binomially with its observed win
     rate and fixed count (see :func:`bootstrap_wins`) and is refitted.  A
     ``(..., P, P)`` stack (e.g. checkpoints x judges) is resampled and fitted in one
-    vectorised pass and gives ``(..., n_boot, P)``.  Deterministic for a given seed;
-    a stack draws different replicates than fitting its matrices one by one.
+    vectorised pass and gives ``(..., n_boot, P)``.
+
+    Deterministic for a given ``seed`` (an int or a ``numpy.random.SeedSequence``):
+    matrix ``g`` of the flattened stack draws from child ``g`` of
+    ``SeedSequence(seed)``, so the first matrix of a stack gets the same replicates
+    as when bootstrapped alone.  ``n_threads`` (default: all usable CPUs) does not
+    change the result.
 
     Every replicate agrees with :func:`fit_bradley_terry` on its resampled matrix:
     replicates start from their matrix's point estimate, take one Newton step that
-    they share the Hessian of, and finish with :func:`fit_bradley_terry_batch`'s
+    shares that matrix's Hessian, and finish with :func:`fit_bradley_terry_batch`'s
     Newton/MM scheme.
     """
     arr = _as_wins(wins, integer=True)
@@ -346,19 +416,30 @@ def bootstrap_bradley_terry(
     batch_shape, P = arr.shape[:-2], arr.shape[-1]
     _check_names(names, P)
     _check_connected(arr, names)
-    w_ij, w_ji = to_pairs(arr.reshape(-1, P, P))
-    n = w_ij + w_ji
-    draws = _resample(w_ij, n, n_boot, seed)  # (K, G, n_boot)
     if P == 1:
         return np.ones(batch_shape + (n_boot, 1))
+    w_ij, w_ji = to_pairs(arr.reshape(-1, P, P))
+    n = w_ij + w_ji
+    G = n.shape[1]
+    seeds = _matrix_seeds(seed, G)
     point, _ = _fit_pairs(w_ij, w_ji, P)
     theta0 = np.log(np.maximum(point, 1e-300))
-    theta1 = _newton.shared_first_step(theta0, n, w_ij, draws, P).reshape(P, -1)
-    boot_ij = draws.reshape(len(n), -1)
-    boot_ji = np.repeat(n, n_boot, axis=1) - boot_ij
-    strengths, not_converged = _fit_pairs(boot_ij, boot_ji, P, theta1)
-    _warn_not_converged(not_converged, boot_ij.shape[1])
-    return strengths.T.reshape(batch_shape + (n_boot, P))
+    strengths = np.empty((G, n_boot, P))
+    per_unit = max(1, _newton.block_size(P) // n_boot)  # matrices per unit of work
+
+    def task(unit: int, work: _newton.Workspace) -> int:
+        gs = slice(unit * per_unit, min((unit + 1) * per_unit, G))
+        draws = _resample(w_ij[:, gs], n[:, gs], n_boot, seeds[gs])  # (g, K, n_boot)
+        theta1 = _newton.shared_first_step(theta0[:, gs], n[:, gs], w_ij[:, gs], draws, P)
+        boot_ij = np.ascontiguousarray(draws.transpose(1, 0, 2)).reshape(len(n), -1)
+        boot_ji = np.repeat(n[:, gs], n_boot, axis=1) - boot_ij
+        fitted, count = _fit_pairs(boot_ij, boot_ji, P, theta1, work=work)
+        strengths[gs] = fitted.T.reshape(-1, n_boot, P)
+        return count
+
+    not_converged = _run_units(task, -(-G // per_unit), P, n_threads)
+    _warn_not_converged(not_converged, G * n_boot)
+    return strengths.reshape(batch_shape + (n_boot, P))
 
 
 # -------------------------------------------------------------------- reporting

@@ -1,0 +1,117 @@
+"""Ingest: a good dataset is indexed; every kind of bad input fails naming the episode."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from r2s_eval.data import DatasetRecorder, DatasetValidationError, IngestSpec, ingest_dataset, lerobot_features
+
+INSTRUCTION = "Pick the Cup and Place it on the Plate"
+NAMES = [f"j{i}" for i in range(14)]
+
+
+def make_dataset(root: Path, episodes: int = 3, length: int = 12) -> Path:
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    rng = np.random.default_rng(0)
+    with DatasetRecorder(root, "local/test", 10, features, "test_robot") as rec:
+        for _ in range(episodes):
+            frames = []
+            for t in range(length):
+                image = np.full((32, 32, 3), 40, np.uint8)
+                image[8:16, 4 + t : 12 + t] = (200, 30, 30)
+                obs = {"observation.state": rng.normal(size=14), "observation.images.head_left": image}
+                frames.append((obs, rng.normal(size=14)))
+            rec.add_episode(frames, INSTRUCTION)
+    return root
+
+
+def spec(**changes) -> IngestSpec:
+    base = dict(cameras=["head_left"], state_dim=14, action_dim=14, fps=10, tasks={INSTRUCTION: "cup_on_plate"},
+                first_frame_camera="head_left", min_length=5)
+    base.update(changes)
+    return IngestSpec(**base)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    return make_dataset(tmp_path_factory.mktemp("ds") / "teleop")
+
+
+@pytest.fixture
+def dataset_copy(dataset, tmp_path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(dataset, tmp_path / "teleop"))
+
+
+def test_good_dataset_is_indexed(dataset, tmp_path):
+    index, report = ingest_dataset(dataset, "local/test", spec(), tmp_path / "frames")
+    assert list(index["episode_index"]) == [0, 1, 2]
+    assert set(index["task"]) == {"cup_on_plate"} and (index["length"] == 12).all()
+    assert report["episodes_usable"] == 3 and report["frames_usable"] == 36
+    first = tmp_path / "frames" / index["first_frame"][0]
+    assert first.stat().st_size > 0
+
+
+def test_recorder_leaves_nothing_when_aborted(tmp_path):
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    with pytest.raises(RuntimeError):
+        with DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot"):
+            raise RuntimeError("operator interrupted")
+    assert not (tmp_path / "ds").exists() and not any(tmp_path.iterdir())
+
+
+def test_not_a_dataset(tmp_path):
+    with pytest.raises(DatasetValidationError, match="no meta/info.json"):
+        ingest_dataset(tmp_path, "local/test", spec(), tmp_path / "frames")
+
+
+def test_nan_action_names_episode(dataset_copy, tmp_path):
+    path = next((dataset_copy / "data").rglob("*.parquet"))
+    data = pd.read_parquet(path)
+    row = data.index[(data["episode_index"] == 1) & (data["frame_index"] == 4)][0]
+    action = np.array(data.at[row, "action"], dtype=np.float32)
+    action[3] = np.nan
+    data.at[row, "action"] = action
+    data.to_parquet(path)
+    with pytest.raises(DatasetValidationError, match=r"episode 1: action has NaN/inf in 1 frame\(s\), first at frame 4"):
+        ingest_dataset(dataset_copy, "local/test", spec(), tmp_path / "frames")
+
+
+def test_drop_bad_episodes_keeps_the_rest(dataset_copy, tmp_path):
+    path = next((dataset_copy / "data").rglob("*.parquet"))
+    data = pd.read_parquet(path)
+    rows = data.index[data["episode_index"] == 2]
+    data.loc[rows, "observation.state"] = pd.Series([np.full(14, np.inf, np.float32)] * len(rows), index=rows)
+    data.to_parquet(path)
+    index, report = ingest_dataset(dataset_copy, "local/test", spec(drop_bad_episodes=True), tmp_path / "frames")
+    assert list(index["episode_index"]) == [0, 1]
+    assert "observation.state has NaN/inf" in report["dropped"]["2"][0]
+
+
+def test_wrong_fps_and_missing_camera(dataset, tmp_path):
+    with pytest.raises(DatasetValidationError, match="fps is 10, expected 30"):
+        ingest_dataset(dataset, "local/test", spec(fps=30), tmp_path / "frames")
+    with pytest.raises(DatasetValidationError, match="camera feature 'observation.images.wrist_left' is missing"):
+        ingest_dataset(dataset, "local/test", spec(cameras=["head_left", "wrist_left"]), tmp_path / "frames")
+    with pytest.raises(DatasetValidationError, match=r"feature 'action' has shape \(14,\), expected \(7,\)"):
+        ingest_dataset(dataset, "local/test", spec(action_dim=7), tmp_path / "frames")
+
+
+def test_unknown_task_and_short_episodes(dataset, tmp_path):
+    with pytest.raises(DatasetValidationError, match="episode 0: task 'Pick the Cup and Place it on the Plate' is not one of"):
+        ingest_dataset(dataset, "local/test", spec(tasks={"Stack the Two Blocks": "stack_blocks"}), tmp_path / "f")
+    with pytest.raises(DatasetValidationError, match=r"episode 2: length 12 outside \[20, 10000\]"):
+        ingest_dataset(dataset, "local/test", spec(min_length=20), tmp_path / "f")
+
+
+def test_corrupt_video_names_camera_and_episode(dataset_copy, tmp_path):
+    video = next((dataset_copy / "videos").rglob("*.mp4"))
+    blob = video.read_bytes()
+    video.write_bytes(blob[: len(blob) // 3])
+    with pytest.raises(DatasetValidationError, match=r"episode \d+: camera head_left: frame \d+ does not decode"):
+        ingest_dataset(dataset_copy, "local/test", spec(), tmp_path / "frames")

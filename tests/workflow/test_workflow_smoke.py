@@ -1,0 +1,101 @@
+"""The smoke experiment end to end: outputs, rerun scope of config changes, kill and resume."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from collections import Counter
+
+import pandas as pd
+import pytest
+
+from .conftest import finished_rules, planned_jobs, snakemake
+
+pytestmark = pytest.mark.slow
+
+
+def test_report_has_real_numbers(smoke_run):
+    table = (smoke_run.workdir / "reports" / "realsim_table.tex").read_text()
+    assert r"\toprule" in table and "kinematic" in table
+    validation = json.loads((smoke_run.workdir / "results" / "validate" / "kinematic.json").read_text())
+    for metric in ("spearman", "pearson", "mmrv", "ci_width"):
+        assert metric in validation["average"]
+    ranking = (smoke_run.workdir / "reports" / "ranking.txt").read_text()
+    assert "act_weak" in ranking and "real success %" in ranking
+    reference = pd.read_parquet(smoke_run.workdir / "results" / "reference" / "success.parquet")
+    assert set(reference["policy"]) == {"act", "diffusion", "act_weak"}
+    assert (reference["trials"] > 0).all()
+
+
+def test_each_stage_contract(smoke_run):
+    results = smoke_run.workdir / "results"
+    index = pd.read_parquet(results / "ingest" / "episodes.parquet")
+    assert len(index) == 8 and set(index["task"]) == {"cup_on_plate"}
+    estimates = pd.read_parquet(results / "init" / "estimates.parquet")
+    assert set(estimates["object"]) == {"cup", "plate"} and len(estimates) == 2 * len(index)
+    replay = pd.read_parquet(results / "replay" / "log.parquet")
+    assert replay["attempts"].between(1, 9).all() and replay["success"].any()
+    for arm in ("real", "sim"):
+        for policy in ("act", "diffusion", "act_weak"):
+            folder = results / "rollout" / arm / policy
+            episodes = pd.read_parquet(folder / "episodes.parquet")
+            assert len(episodes) == 4
+            for ep in episodes.itertuples():
+                assert (folder / ep.video_path).stat().st_size > 0
+                assert len(pd.read_parquet(folder / ep.trajectory_path)) == ep.length
+    pairs = pd.read_parquet(results / "compare" / "pairs.parquet")
+    assert (pairs.groupby(["policy_i", "policy_j"]).size() == 30).all()
+    verdicts = pd.read_parquet(results / "judge" / "kinematic" / "verdicts.parquet")
+    assert set(verdicts["verdict"]) <= {"A", "B"} and len(verdicts) == len(pairs)
+
+
+def test_kill_and_resume_redoes_only_unfinished_jobs(smoke_run):
+    assert smoke_run.killed_after, "nothing had finished before the kill"
+    redone = Counter(finished_rules(smoke_run.resumed_output))
+    for rule in set(smoke_run.killed_after) - {"train", "rollout"}:
+        assert redone[rule] == 0, f"{rule} finished before the kill but ran again"
+    # No half-written artefact is left where a finished one belongs.
+    for leftover in smoke_run.workdir.joinpath("results").rglob("*.tmp"):
+        assert leftover.name.startswith("."), leftover
+
+
+def test_second_invocation_plans_nothing(smoke_run):
+    proc = snakemake(smoke_run.workdir, "-n")
+    assert planned_jobs(proc.stdout) == [], proc.stdout[-2000:]
+
+
+def test_statistics_change_reruns_only_fit_onward(smoke_run):
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
+    rules = {rule for rule, _ in planned_jobs(proc.stdout)}
+    assert rules == {"fit", "validate", "realsim_table"}, rules
+
+
+def test_judge_change_reruns_describe_onward(smoke_run):
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
+    rules = {rule for rule, _ in planned_jobs(proc.stdout)}
+    assert rules == {"describe", "judge_pairs", "fit", "validate", "realsim_table"}, rules
+
+
+def test_policy_change_reruns_only_that_policy(smoke_run):
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["policies.act_weak.lr=0.0002"])
+    jobs = planned_jobs(proc.stdout)
+    per_policy = {(rule, wc.get("policy")) for rule, wc in jobs if "policy" in wc}
+    assert per_policy == {("train", "act_weak"), ("rollout", "act_weak")}, per_policy
+    assert not {rule for rule, _ in jobs} & {"twin", "teleop", "ingest", "init_estimate", "replay", "rollout_inits"}
+
+
+def test_dvc_round_trip_plans_nothing(smoke_run, tmp_path):
+    wd = smoke_run.workdir
+    subprocess.run(["dvc", "init", "--no-scm", "-q"], cwd=wd, check=True)
+    subprocess.run(["dvc", "remote", "add", "-d", "store", str(tmp_path / "remote")], cwd=wd, check=True)
+    run = [sys.executable, "-m", "r2s_eval.artifacts"]
+    subprocess.run([*run, "push", "--root", str(wd)], check=True, capture_output=True)
+    shutil.rmtree(wd / "results" / "real" / "dataset")
+    shutil.rmtree(wd / "results" / "train")
+    (wd / "reports" / "realsim_table.tex").unlink()
+    subprocess.run([*run, "pull", "--root", str(wd)], check=True, capture_output=True)
+    assert (wd / "reports" / "realsim_table.tex").exists()
+    proc = snakemake(wd, "-n")
+    assert planned_jobs(proc.stdout) == [], proc.stdout[-2000:]

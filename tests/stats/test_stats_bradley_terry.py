@@ -168,10 +168,14 @@ def test_batch_matches_plain_mm_per_matrix():
         warnings.simplefilter("ignore", RuntimeWarning)  # boundary cases end at the MM limit
         plain = np.array([fit_bradley_terry(m) for m in stack])
         batched = fit_bradley_terry_batch(stack)
-        single_thread = fit_bradley_terry_batch(stack, n_threads=1)
+        # 2400 matrices make two units of work, so two threads really share them.
+        big = np.concatenate([stack] * 60)
+        threaded = fit_bradley_terry_batch(big, n_threads=2)
+        unthreaded = fit_bradley_terry_batch(big, n_threads=1)
         via_mm = fit_bradley_terry_batch(stack, method="mm")
     np.testing.assert_allclose(batched, plain, atol=TOL)
-    np.testing.assert_array_equal(batched, single_thread)
+    np.testing.assert_array_equal(threaded, unthreaded)
+    np.testing.assert_allclose(threaded[:40], batched, rtol=1e-12, atol=0)  # same up to rounding
     np.testing.assert_allclose(via_mm, plain, atol=1e-15)
     np.testing.assert_allclose(batched.sum(axis=1), 1.0, atol=1e-12)
 
@@ -242,13 +246,21 @@ def test_bootstrap_resampling_is_binomial_per_pair():
 def test_bootstrap_is_deterministic_and_thread_invariant():
     rng = np.random.default_rng(1)
     stack = np.stack([simulate([0.4, 0.35, 0.25], full_counts(3, 80), rng) for _ in range(3)])
-    a = bootstrap_bradley_terry(stack, n_boot=300, seed=12)
-    b = bootstrap_bradley_terry(stack, n_boot=300, seed=12, n_threads=1)
-    c = bootstrap_bradley_terry(stack, n_boot=300, seed=13)
+    # 1200 replicates per matrix: one unit of work per matrix, shared by two threads.
+    a = bootstrap_bradley_terry(stack, n_boot=1200, seed=12)
+    b = bootstrap_bradley_terry(stack, n_boot=1200, seed=12, n_threads=2)
+    c = bootstrap_bradley_terry(stack, n_boot=1200, seed=13)
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
     # The first matrix of a stack draws the same replicates as on its own.
-    np.testing.assert_array_equal(bootstrap_bradley_terry(stack[0], n_boot=300, seed=12), a[0])
+    np.testing.assert_array_equal(bootstrap_bradley_terry(stack[0], n_boot=1200, seed=12), a[0])
+    # Seeds may be sequences of ints or a SeedSequence, which is not consumed.
+    pair_seed = bootstrap_bradley_terry(stack[0], n_boot=50, seed=[12, 500])
+    np.testing.assert_array_equal(pair_seed, bootstrap_bradley_terry(stack[0], n_boot=50, seed=[12, 500]))
+    sequence = np.random.SeedSequence(12)
+    first = bootstrap_bradley_terry(stack[0], n_boot=50, seed=sequence)
+    np.testing.assert_array_equal(first, bootstrap_bradley_terry(stack[0], n_boot=50, seed=sequence))
+    np.testing.assert_array_equal(first, bootstrap_bradley_terry(stack[0], n_boot=50, seed=12))
 
 
 def test_bootstrap_intervals_cover_known_strengths():

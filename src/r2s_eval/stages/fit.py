@@ -15,11 +15,12 @@ from r2s_eval.utils.io import write_parquet
 def fit_checkpoints(verdicts: pd.DataFrame, checkpoints: list[int], n_boot: int, level: float, seed: int) -> pd.DataFrame:
     policies = sorted(set(verdicts["policy_i"]) | set(verdicts["policy_j"]))
     wins = wins_at_checkpoints(verdicts, policies, checkpoints)
+    # All checkpoints in one batched bootstrap: (checkpoint, replicate, policy).
+    boots = bootstrap_bradley_terry(wins, n_boot=n_boot, seed=seed, names=policies)
     rows = []
     for k, n in enumerate(checkpoints):
         strengths = fit_bradley_terry(wins[k], names=policies)
-        boot = bootstrap_bradley_terry(wins[k], n_boot=n_boot, seed=[seed, n])
-        low, high = bt_confidence_intervals(boot, level=level)
+        low, high = bt_confidence_intervals(boots[k], level=level)
         for p, name in enumerate(policies):
             rows.append({
                 "checkpoint": n, "policy": name, "strength": strengths[p], "score": bt_scores(strengths)[p],

@@ -100,11 +100,6 @@ def solve_factored(LU: np.ndarray, x: np.ndarray, scratch: np.ndarray | None = N
     return x
 
 
-def solve_spd(A: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Solve A x = g for a (R, R, B) stack of SPD matrices (overwrites A)."""
-    return solve_factored(factor_spd(A), g.copy())
-
-
 def _fill_laplacian(A: np.ndarray, info: np.ndarray, degree: np.ndarray, live: np.ndarray | None) -> None:
     """Write the negative Hessian, the information-weighted graph Laplacian, into A.
 

@@ -289,7 +289,7 @@ def fit_bradley_terry_batch(
     *,
     names: Sequence[str] | None = None,
     method: str = "newton",
-    n_threads: int | None = None,
+    n_threads: int | None = 1,
 ) -> np.ndarray:
     """Fit every (P, P) matrix of a ``(..., P, P)`` stack; returns ``(..., P)`` strengths.
 
@@ -302,8 +302,9 @@ def fit_bradley_terry_batch(
     ``init``: optional starting strengths broadcastable to ``(..., P)`` (e.g. the
     point estimate when fitting bootstrap replicates).  It only speeds Newton up: the
     answer does not depend on it, and MM always starts from uniform strengths.
-    ``n_threads``: threads to share the work (default: all usable CPUs); the
-    result does not depend on it.
+    ``n_threads``: threads to share the work (``None``: all usable CPUs); the
+    result does not depend on it.  One by default, as pipeline jobs already run
+    side by side.
     """
     arr = _as_wins(wins_batch)
     batch_shape, P = arr.shape[:-2], arr.shape[-1]
@@ -364,7 +365,15 @@ def _resample(w_ij: np.ndarray, n: np.ndarray, n_boot: int, seeds: list) -> np.n
 
 
 def _matrix_seeds(seed, n_matrices: int) -> list:
-    return np.random.SeedSequence(seed).spawn(n_matrices)
+    """Child g of ``SeedSequence(seed)`` for each matrix g, built without spawning so a
+    SeedSequence passed in is not advanced (the same seed object, the same draws)."""
+    if isinstance(seed, np.random.Generator):
+        raise TypeError("seed must be an int, a sequence of ints or a SeedSequence, not a Generator")
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    return [
+        np.random.SeedSequence(root.entropy, spawn_key=root.spawn_key + (g,), pool_size=root.pool_size)
+        for g in range(n_matrices)
+    ]
 
 
 def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
@@ -391,7 +400,7 @@ def bootstrap_bradley_terry(
     seed=0,
     *,
     names: Sequence[str] | None = None,
-    n_threads: int | None = None,
+    n_threads: int | None = 1,
 ) -> np.ndarray:
     """Bootstrap Bradley-Terry strengths: ``(n_boot, P)`` for one matrix.
 
@@ -400,11 +409,12 @@ def bootstrap_bradley_terry(
     ``(..., P, P)`` stack (e.g. checkpoints x judges) is resampled and fitted in one
     vectorised pass and gives ``(..., n_boot, P)``.
 
-    Deterministic for a given ``seed`` (an int or a ``numpy.random.SeedSequence``):
+    Deterministic for a given ``seed`` (an int, a sequence of ints such as
+    ``[seed, checkpoint]``, or a ``numpy.random.SeedSequence``):
     matrix ``g`` of the flattened stack draws from child ``g`` of
     ``SeedSequence(seed)``, so the first matrix of a stack gets the same replicates
-    as when bootstrapped alone.  ``n_threads`` (default: all usable CPUs) does not
-    change the result.
+    as when bootstrapped alone.  ``n_threads`` (``None``: all usable CPUs; one by
+    default, as pipeline jobs already run side by side) does not change the result.
 
     Every replicate agrees with :func:`fit_bradley_terry` on its resampled matrix:
     replicates start from their matrix's point estimate, take one Newton step that

@@ -71,6 +71,7 @@ def checkpoint_metrics(
     level: float = 0.95,
     names: Sequence[str] | None = None,
     checkpoints: Sequence | None = None,
+    n_threads: int | None = 1,
 ) -> CheckpointMetrics:
     """Fit, bootstrap and score the ranking at every checkpoint.
 
@@ -80,7 +81,8 @@ def checkpoint_metrics(
     ``n_boot`` replicates (one vectorised bootstrap over all checkpoints), the mean
     interval width and Spearman, Pearson and MMRV of the scores against
     ``reference`` (MMRV in the units of ``reference``).  ``average`` is the mean
-    over checkpoints, ``last`` the final checkpoint.
+    over checkpoints, ``last`` the final checkpoint.  ``n_threads``: see
+    :func:`bootstrap_bradley_terry` (``None`` uses all CPUs; same result).
     """
     arr = np.asarray(wins, dtype=np.float64)
     if arr.ndim == 2:
@@ -99,7 +101,7 @@ def checkpoint_metrics(
         raise ValueError(f"checkpoints must have {C} labels, got shape {labels.shape}")
 
     strengths = fit_bradley_terry_batch(arr, names=names)
-    boot = bootstrap_bradley_terry(arr, n_boot=n_boot, seed=seed, names=names)
+    boot = bootstrap_bradley_terry(arr, n_boot=n_boot, seed=seed, names=names, n_threads=n_threads)
     lower, upper = bt_confidence_intervals(boot, level)
     scores = bt_scores(strengths)
     per_checkpoint = pd.DataFrame(

@@ -43,7 +43,9 @@ def _synthetic():
 @pytest.fixture(scope="module")
 def dataset_root(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("policies_data") / "synthetic"
-    return _synthetic().build_dataset(root, REPO_ID, n_episodes=3, n_steps=20, image_hw=(32, 32), cameras=CAMS)
+    return _synthetic().build_dataset(
+        root, REPO_ID, n_episodes=3, n_steps=20, image_hw=(32, 32), cameras=CAMS
+    )
 
 
 def _tiny(name: str, **changes) -> dict:
@@ -125,6 +127,9 @@ def test_policies_checkpoint_layout_and_loss_falls(trained):
         ckpt = out / "pretrained_model"
         for f in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json"):
             assert (ckpt / f).is_file(), f"{name}: missing {f}"
+        # ACT resizes in its (saved, reloadable) preprocessor; Diffusion inside the model.
+        has_resize = "image_crop_resize_processor" in (ckpt / "policy_preprocessor.json").read_text()
+        assert has_resize == (name == "act")
         assert not [p for p in out.parent.iterdir() if p.name.startswith(".")], "temporary dir left behind"
         log = json.loads((out / "train_log.json").read_text())
         assert log["config"]["type"] == name

@@ -10,18 +10,12 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
 import pandas as pd
 
-from r2s_eval.data.dataset import (
-    ACTION_KEY,
-    STATE_KEY,
-    camera_key,
-    decode_frame,
-    episode_table,
-    open_metadata,
-)
+from r2s_eval.data.dataset import ACTION_KEY, STATE_KEY, camera_key, decode_frame, episode_table, open_metadata
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +59,7 @@ def _dataset_problems(meta, spec: IngestSpec) -> list[str]:
     return problems
 
 
-def _episode_problems(root: Path, meta, ep: pd.Series, frames: pd.DataFrame, spec: IngestSpec) -> list[str]:
+def _episode_problems(ep: pd.Series, frames: pd.DataFrame, spec: IngestSpec) -> list[str]:
     problems = []
     length = int(ep["length"])
     if len(frames) != length:
@@ -86,21 +80,66 @@ def _episode_problems(root: Path, meta, ep: pd.Series, frames: pd.DataFrame, spe
         steps = np.diff(frames["timestamp"].to_numpy(dtype=float))
         if np.any(np.abs(steps - 1.0 / spec.fps) > 0.25 / spec.fps):
             problems.append(f"timestamps are not spaced 1/fps={1.0 / spec.fps:.4f} s apart")
-    if spec.check_videos and length > 0:
-        for cam in spec.cameras:
-            if camera_key(cam) not in meta.features:
-                continue
-            for frame_index in (0, length - 1):
-                try:
-                    image = decode_frame(root, meta, int(ep["episode_index"]), cam, frame_index)
-                except Exception as exc:  # any decoder failure is a data problem here
-                    problems.append(f"camera {cam}: frame {frame_index} does not decode ({type(exc).__name__}: {exc})")
-                    break
-                expected = tuple(meta.features[camera_key(cam)]["shape"])
-                if image.shape != expected:
-                    problems.append(f"camera {cam}: frame shape {image.shape}, expected {expected}")
-                    break
     return problems
+
+
+@dataclass
+class _VideoScan:
+    """Every frame time that decodes in one video file, and the images asked for."""
+
+    times_s: np.ndarray
+    error: str | None
+    images: dict[float, np.ndarray]
+
+
+def _scan_video(path: Path, keep_times_s: list[float], tolerance_s: float) -> _VideoScan:
+    """Decode a whole file once (files hold many episodes): cheaper than a seek per episode."""
+    times, images, error = [], {}, None
+    wanted = np.array(sorted(keep_times_s))
+    try:
+        with av.open(str(path)) as container:
+            for frame in container.decode(video=0):
+                t = float(frame.time)
+                times.append(t)
+                if len(wanted) and np.min(np.abs(wanted - t)) < tolerance_s:
+                    images[float(wanted[np.argmin(np.abs(wanted - t))])] = frame.to_ndarray(format="rgb24")
+    except (av.error.FFmpegError, OSError) as exc:
+        error = f"{type(exc).__name__}: {exc}"
+    return _VideoScan(np.array(times), error, images)
+
+
+def _video_problems(root: Path, meta, episodes: pd.DataFrame, spec: IngestSpec, first_frame_key: str):
+    """Per-episode video problems and first frames, from one sequential decode per file."""
+    problems: dict[int, list[str]] = {}
+    first_frames: dict[int, np.ndarray] = {}
+    tol = 0.5 / meta.fps
+    for cam in spec.cameras:
+        key = camera_key(cam)
+        if key not in meta.features:
+            continue
+        loc = [f"videos/{key}/chunk_index", f"videos/{key}/file_index"]
+        for (chunk, file), group in episodes.groupby(loc):
+            path = root / meta.video_path.format(video_key=key, chunk_index=chunk, file_index=file)
+            starts = group[f"videos/{key}/from_timestamp"].astype(float).tolist()
+            scan = _scan_video(path, starts if key == first_frame_key else [], tol)
+            for _, ep in group.iterrows():
+                idx, t0 = int(ep["episode_index"]), float(ep[f"videos/{key}/from_timestamp"])
+                n = int(ep["length"])
+                decoded = int(np.sum((scan.times_s > t0 - tol) & (scan.times_s < t0 + (n - 0.5) / meta.fps)))
+                if decoded < n:
+                    reason = f" ({scan.error})" if scan.error else ""
+                    problems.setdefault(idx, []).append(
+                        f"camera {cam}: only {decoded} of {n} frames decode from {path.name}{reason}"
+                    )
+                elif key == first_frame_key:
+                    image = scan.images.get(t0)
+                    expected = tuple(meta.features[key]["shape"])
+                    if image is None or image.shape != expected:
+                        got = None if image is None else image.shape
+                        problems.setdefault(idx, []).append(f"camera {cam}: first frame is {got}, expected {expected}")
+                    else:
+                        first_frames[idx] = image
+    return problems, first_frames
 
 
 def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frames_dir: str | Path) -> tuple[pd.DataFrame, dict]:
@@ -120,8 +159,13 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
         raise DatasetValidationError(f"dataset {root}: " + "; ".join(problems))
 
     episodes = episode_table(meta)
+    first_key = camera_key(spec.first_frame_camera)
+    if spec.check_videos:
+        bad, first_frames = _video_problems(root, meta, episodes, spec, first_key)
+    else:
+        bad, first_frames = {}, {}
     data_cache: dict[Path, pd.DataFrame] = {}
-    rows, bad = [], {}
+    rows = []
     first_frames_dir.mkdir(parents=True, exist_ok=True)
     for _, ep in episodes.iterrows():
         idx = int(ep["episode_index"])
@@ -130,11 +174,11 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
             data_cache[path] = pd.read_parquet(path)
         data = data_cache[path]
         frames = data[data["episode_index"] == idx].sort_values("frame_index")
-        ep_problems = _episode_problems(root, meta, ep, frames, spec)
+        ep_problems = _episode_problems(ep, frames, spec) + bad.get(idx, [])
         if ep_problems:
             bad[idx] = ep_problems
             continue
-        image = decode_frame(root, meta, idx, spec.first_frame_camera, 0)
+        image = first_frames[idx] if idx in first_frames else decode_frame(root, meta, idx, spec.first_frame_camera, 0)
         frame_path = first_frames_dir / f"episode_{idx:06d}.png"
         cv2.imwrite(str(frame_path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         rows.append(

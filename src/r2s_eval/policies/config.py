@@ -133,7 +133,8 @@ def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
         # Diffusion predicts `horizon` steps starting n_obs_steps-1 in the past and its
         # generate_actions keeps `n_action_steps` of them: ask it for the whole chunk.
         n_obs = int(kwargs.get("n_obs_steps", 2))
-        horizon = _diffusion_horizon(cfg["chunk_size"], n_obs, len(kwargs.get("down_dims", (512, 1024, 2048))))
+        n_down = len(kwargs.get("down_dims", (512, 1024, 2048)))
+        horizon = _diffusion_horizon(cfg["chunk_size"], n_obs, n_down)
         kwargs.update(horizon=horizon, n_action_steps=cfg["chunk_size"])
         # lerobot's recipe: don't sample the last frames whose windows would be mostly padding.
         kwargs.setdefault("drop_n_last_frames", horizon - cfg["chunk_size"] - n_obs + 1)
@@ -153,9 +154,10 @@ def _diffusion_horizon(chunk_size: int, n_obs_steps: int, n_down: int) -> int:
 # ---------------------------------------------------------------------------------------------
 # The three candidates and their CPU budgets.
 #
-# All candidates see one head camera resized to 64x64 (ResNet18 cost scales with pixels; at 64x64
-# both act and diffusion learn the image-dependent target in the demo budget) plus the 14-D joint state, predict
-# chunks of 25 actions (2.5 s at 10 fps) and execute 5 before re-querying.
+# All candidates see one head camera resized to 64x64 (ResNet18 cost scales with pixels; at
+# 64x64 both act and diffusion learn the image-dependent target within the demo budget) plus
+# the 14-D joint state, predict chunks of 25 actions (2.5 s at 10 fps) and execute 5 before
+# re-querying.
 #
 #   act          ACT (transformer + CVAE), dim_model 128, 2 encoder / 1 decoder layers.
 #   diffusion    Diffusion Policy, UNet down_dims (64, 128, 256) -> horizon 32, x0 prediction,

@@ -44,7 +44,9 @@ def check_features(meta: LeRobotDatasetMetadata, image_keys: list[str]) -> None:
         if key not in meta.camera_keys:
             raise DatasetContractError(f"{where}: feature {key!r} is not an image/video stream")
         if key not in meta.video_keys:
-            raise DatasetContractError(f"{where}: camera {key!r} is stored as images; expected a video stream")
+            raise DatasetContractError(
+                f"{where}: camera {key!r} is stored as images; expected a video stream"
+            )
 
 
 class FrameCachedDataset(LeRobotDataset):
@@ -96,7 +98,8 @@ class FrameCachedDataset(LeRobotDataset):
         for key, q_idx in query_indices.items():
             if key in self.meta.video_keys:
                 continue
-            rel = q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+            to_rel = self._absolute_to_relative_idx
+            rel = q_idx if to_rel is None else [to_rel[i] for i in q_idx]
             result[key] = self._columns[key][rel]
         return result
 

@@ -145,7 +145,9 @@ def train_policy(
         batch = preprocessor(next(batches))
         loss, _ = policy.forward(batch)
         if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite loss {loss.item()} at step {step} ({cfg['type']}, seed {seed})")
+            raise FloatingPointError(
+                f"non-finite loss {loss.item()} at step {step} ({cfg['type']}, seed {seed}, data {repo_id})"
+            )
         loss.backward()
         grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), grad_clip)
         optimizer.step()

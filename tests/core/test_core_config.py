@@ -1,0 +1,57 @@
+"""Hydra composition, config slices and atomic artefact writes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from r2s_eval.artifacts import record_mtimes, restore_mtimes
+from r2s_eval.config import compose_config, select, to_json
+from r2s_eval.utils.io import atomic_dir, atomic_path, read_json, write_json
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+
+
+def test_experiments_compose():
+    smoke = compose_config(CONF, "smoke")
+    demo = compose_config(CONF, "demo")
+    assert smoke["teleop"]["episodes_per_task"] < demo["teleop"]["episodes_per_task"]
+    assert set(smoke["policies"]) == {"act", "diffusion", "act_weak"}
+    assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
+    assert "experiment" not in smoke
+
+
+def test_overrides_and_slices():
+    cfg = compose_config(CONF, "smoke", ["stats.n_boot=17"])
+    assert select(cfg, "stats")["stats"]["n_boot"] == 17
+    assert list(select(cfg, "stats", "seed")) == ["seed", "stats"]
+    with pytest.raises(KeyError, match="no field 'stats.nope'"):
+        select(cfg, "stats.nope")
+    assert to_json({"b": 1, "a": {"d": 2, "c": 3}}) == '{"a":{"c":3,"d":2},"b":1}'
+
+
+def test_atomic_writes_leave_nothing_on_failure(tmp_path):
+    with pytest.raises(RuntimeError):
+        with atomic_path(tmp_path / "x.json") as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("killed")
+    with pytest.raises(RuntimeError):
+        with atomic_dir(tmp_path / "d") as tmp:
+            (tmp / "f").write_text("half")
+            raise RuntimeError("killed")
+    assert list(tmp_path.iterdir()) == []
+    write_json(tmp_path / "y.json", {"a": 1})
+    assert read_json(tmp_path / "y.json") == {"a": 1}
+
+
+def test_mtimes_round_trip(tmp_path):
+    folder = tmp_path / "results" / "train"
+    (folder / "m").mkdir(parents=True)
+    (folder / "m" / "w.bin").write_bytes(b"1")
+    recorded = record_mtimes(tmp_path, [folder])
+    for path in [folder, folder / "m", folder / "m" / "w.bin"]:
+        os.utime(path, ns=(1, 1))
+    assert restore_mtimes(tmp_path, recorded) == 3
+    assert record_mtimes(tmp_path, [folder]) == recorded

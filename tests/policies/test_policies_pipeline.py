@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 
 from r2s_eval.policies import (
-    CANDIDATES,
-    PROFILES,
     DatasetContractError,
     PolicyConfigError,
     candidate_config,
+    candidate_configs,
     load_policy,
     make_lerobot_config,
     train_policy,
@@ -52,7 +51,7 @@ def _tiny(name: str, **changes) -> dict:
     """A candidate config shrunk to test size (small images, few steps)."""
     base = {"steps": 6, "batch_size": 8, "log_every": 1, "image_size": [24, 24], "threads": 1}
     base.update(changes)
-    return candidate_config(name, "smoke", **base)
+    return candidate_config(name, "paper", **base)
 
 
 @pytest.fixture(scope="module")
@@ -79,10 +78,10 @@ def _obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
 
 
 def test_policies_candidates_build_lerobot_configs():
-    assert set(CANDIDATES) == {"act", "diffusion", "act_weak"}
-    for profile in PROFILES:
-        for name in CANDIDATES:
-            cfg = candidate_config(name, profile)
+    for experiment in ("smoke", "demo", "paper"):
+        candidates = candidate_configs(experiment)
+        assert "act_weak" in candidates and len(candidates) >= 3
+        for name, cfg in candidates.items():
             lr_cfg = make_lerobot_config(cfg)
             assert lr_cfg.pretrained_backbone_weights is None
             if cfg["type"] == "diffusion":
@@ -91,8 +90,8 @@ def test_policies_candidates_build_lerobot_configs():
                 assert lr_cfg.noise_scheduler_type == "DDIM"
             else:
                 assert lr_cfg.chunk_size == cfg["chunk_size"] == 25
-    # The weak baseline is the same architecture with far fewer optimisation steps.
-    assert PROFILES["demo"]["act_weak"]["steps"] * 4 <= PROFILES["demo"]["act"]["steps"]
+        # The weak baseline is the same architecture with far fewer optimisation steps.
+        assert candidates["act_weak"]["steps"] * 4 <= candidates["act"]["steps"]
 
 
 def test_policies_unknown_override_key_is_named():
@@ -102,7 +101,7 @@ def test_policies_unknown_override_key_is_named():
         make_lerobot_config(cfg)
     with pytest.raises(PolicyConfigError, match="stepz"):
         candidate_config("act", "smoke", stepz=3)
-    bad = candidate_config("diffusion", "smoke")
+    bad = candidate_config("diffusion", "paper")
     bad["overrides"]["horizon"] = 16
     with pytest.raises(PolicyConfigError, match="horizon"):
         make_lerobot_config(bad)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from pathlib import Path
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -151,111 +152,24 @@ def _diffusion_horizon(chunk_size: int, n_obs_steps: int, n_down: int) -> int:
     return -(-need // factor) * factor
 
 
-# ---------------------------------------------------------------------------------------------
-# The three candidates and their CPU budgets.
-#
-# All candidates see one head camera resized to 64x64 (ResNet18 cost scales with pixels; at
-# 64x64 both act and diffusion learn the image-dependent target within the demo budget) plus
-# the 14-D joint state, predict chunks of 25 actions (2.5 s at 10 fps) and execute 5 before
-# re-querying.
-#
-#   act          ACT (transformer + CVAE), dim_model 128, 2 encoder / 1 decoder layers.
-#   diffusion    Diffusion Policy, UNet down_dims (64, 128, 256) -> horizon 32, x0 prediction,
-#                DDIM 10 inference steps, 1 observation frame (2 would double the vision cost).
-#   act_weak     Deliberately weak baseline: the `act` architecture trained for ~1/8 of the
-#                optimisation steps. Same inputs, same data, same inference path: it has learnt
-#                the average reaching motion but barely the image-conditioned correction, so it
-#                moves plausibly and succeeds only when objects sit near their nominal place.
-#                Under-training is a single, monotone knob, so the expected order is known.
-#
-# Budgets (one core, 128x128 source video; see PROFILES): "smoke" keeps each training <= ~25 s,
-# "demo" <= ~3 min.
-# ---------------------------------------------------------------------------------------------
-
-_ACT_OVERRIDES = {
-    "vision_backbone": "resnet18",
-    "dim_model": 128,
-    "n_heads": 4,
-    "dim_feedforward": 512,
-    "n_encoder_layers": 2,
-    "n_decoder_layers": 1,
-    "n_vae_encoder_layers": 2,
-    "latent_dim": 16,
-    "kl_weight": 10.0,
-    "dropout": 0.1,
-}
-
-CANDIDATES: dict[str, dict] = {
-    "act": {
-        "type": "act",
-        "lr": 3e-4,
-        "batch_size": 16,
-        "image_keys": ["observation.images.head_left"],
-        "image_size": [64, 64],
-        "chunk_size": 25,
-        "n_action_steps": 5,
-        "overrides": dict(_ACT_OVERRIDES),
-    },
-    "diffusion": {
-        "type": "diffusion",
-        "lr": 3e-4,
-        "batch_size": 16,
-        "warmup_steps": 20,
-        "image_keys": ["observation.images.head_left"],
-        "image_size": [64, 64],
-        "chunk_size": 25,
-        "n_action_steps": 5,
-        "overrides": {
-            "n_obs_steps": 1,
-            "vision_backbone": "resnet18",
-            "spatial_softmax_num_keypoints": 32,
-            "down_dims": [64, 128, 256],
-            "diffusion_step_embed_dim": 64,
-            "kernel_size": 5,
-            "n_groups": 8,
-            # x0 ("sample") prediction: under a few hundred CPU steps it fits the action chunk far
-            # sooner than epsilon prediction (chunk error at episode start 0.03 vs 0.13-0.16, see README).
-            "prediction_type": "sample",
-            "noise_scheduler_type": "DDIM",
-            "num_train_timesteps": 100,
-            "num_inference_steps": 10,
-        },
-    },
-    "act_weak": {
-        "type": "act",
-        "lr": 3e-4,
-        "batch_size": 16,
-        "image_keys": ["observation.images.head_left"],
-        "image_size": [64, 64],
-        "chunk_size": 25,
-        "n_action_steps": 5,
-        "overrides": dict(_ACT_OVERRIDES),
-    },
-}
-
-# Optimiser steps per candidate and profile (batch_size as in CANDIDATES unless given here).
-PROFILES: dict[str, dict[str, dict]] = {
-    "smoke": {
-        "act": {"steps": 20, "batch_size": 8},
-        "diffusion": {"steps": 20, "batch_size": 8},
-        "act_weak": {"steps": 3, "batch_size": 8},
-    },
-    "demo": {
-        "act": {"steps": 280},
-        "diffusion": {"steps": 250},
-        "act_weak": {"steps": 35},
-    },
-}
+# The candidate line-ups and their budgets live in the Hydra config (conf/policies/*.yaml,
+# scaled by conf/experiment/*.yaml): one source of truth for the pipeline and for tests.
+CONF_DIR = Path(__file__).resolve().parents[3] / "conf"
 
 
-def candidate_config(name: str, profile: str = "demo", **changes: Any) -> dict:
-    """The plain config dict of candidate `name` under budget `profile`, with optional top-level changes."""
-    if name not in CANDIDATES:
-        raise KeyError(f"unknown candidate policy {name!r}; known: {sorted(CANDIDATES)}")
-    if profile not in PROFILES:
-        raise KeyError(f"unknown training profile {profile!r}; known: {sorted(PROFILES)}")
-    cfg = copy.deepcopy(CANDIDATES[name])
-    cfg.update(copy.deepcopy(PROFILES[profile][name]))
-    cfg["name"] = name
+def candidate_configs(experiment: str = "demo") -> dict[str, dict]:
+    """The validated config of every candidate policy of `experiment`."""
+    from r2s_eval.config import compose_config
+
+    policies = compose_config(CONF_DIR, experiment)["policies"]
+    return {name: validate_policy_cfg(dict(cfg, name=name)) for name, cfg in policies.items()}
+
+
+def candidate_config(name: str, experiment: str = "demo", **changes: Any) -> dict:
+    """The config of candidate `name` under `experiment`, with optional top-level changes."""
+    candidates = candidate_configs(experiment)
+    if name not in candidates:
+        raise KeyError(f"unknown candidate policy {name!r}; known: {sorted(candidates)}")
+    cfg = copy.deepcopy(candidates[name])
     cfg.update(copy.deepcopy(changes))
     return validate_policy_cfg(cfg)

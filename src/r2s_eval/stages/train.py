@@ -10,7 +10,7 @@ from r2s_eval.stages import _cli
 
 def main(args) -> None:
     torch.set_num_threads(args.threads)
-    policy_cfg = dict(args.cfg["policy"], threads=args.threads)
+    policy_cfg = dict(args.cfg["policy"], name=args.cfg["name"], threads=args.threads)
     train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]))
 
 

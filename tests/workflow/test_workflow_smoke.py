@@ -28,8 +28,9 @@ def test_report_has_real_numbers(smoke_run):
     assert set(reference["policy"]) == {"act", "act_short", "act_weak"}
     assert (reference["trials"] > 0).all()
     rates = reference.set_index("policy")["success_rate"]
-    # The pipeline reports real, different success rates with the weak baseline lowest.
-    assert rates["act_weak"] < rates.drop("act_weak").min(), rates.to_dict()
+    # Real, different success rates: the full budget learns the task, the weak baseline is lowest.
+    assert rates["act"] > rates["act_weak"], rates.to_dict()
+    assert rates["act_weak"] == rates.min(), rates.to_dict()
 
 
 def test_each_stage_contract(smoke_run):

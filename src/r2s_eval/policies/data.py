@@ -74,6 +74,22 @@ class FrameCachedDataset(LeRobotDataset):
             if key not in self.meta.video_keys:
                 self._columns[key] = torch.from_numpy(np.stack(self.hf_dataset.with_format("numpy")[key]))
 
+    def image_stats(self) -> dict[str, dict[str, np.ndarray]]:
+        """Per-channel mean/std/min/max in [0, 1] of every cached camera, shaped (3, 1, 1)."""
+        stats = {}
+        for key in self.camera_keys_used:
+            paths = sorted({path for (_, k), (path, _) in self._video_span.items() if k == key})
+            frames = torch.cat([self._decoded[p][1] for p in paths])
+            frames = frames[:: max(1, len(frames) // 256)]  # a few hundred frames pin the moments down
+            pixels = frames.permute(1, 0, 2, 3).reshape(3, -1).float() / 255.0
+            stats[key] = {
+                "mean": pixels.mean(dim=1).numpy().reshape(3, 1, 1),
+                "std": pixels.std(dim=1).clamp_min(1e-3).numpy().reshape(3, 1, 1),
+                "min": pixels.min(dim=1).values.numpy().reshape(3, 1, 1),
+                "max": pixels.max(dim=1).values.numpy().reshape(3, 1, 1),
+            }
+        return stats
+
     def _query_videos(self, query_timestamps: dict[str, list[float]], ep_idx: int) -> dict[str, torch.Tensor]:
         item = {}
         for key in self.camera_keys_used:

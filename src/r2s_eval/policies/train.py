@@ -28,8 +28,11 @@ TRAIN_LOG = "train_log.json"
 RUNNER_CONFIG = "runner_config.json"  # our receding-horizon settings, next to lerobot's files
 
 
-def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu"):
-    """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`."""
+def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", stats: dict | None = None):
+    """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`.
+
+    `stats` replaces the dataset's normalisation statistics (default: `meta.stats`).
+    """
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.datasets.utils import dataset_to_policy_features
     from lerobot.policies.factory import make_policy, make_pre_post_processors
@@ -51,7 +54,7 @@ def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu"):
         lr_cfg.resize_shape = tuple(cfg["image_size"])
 
     policy = make_policy(lr_cfg, ds_meta=meta)
-    preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=meta.stats)
+    preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=stats or meta.stats)
     if cfg["image_size"] is not None and cfg["type"] == "act":
         # ACT has no resize option: lerobot's registered resize step, before normalisation
         # (it clamps to [0, 1]), so the saved pipeline reloads with stock lerobot.
@@ -128,10 +131,16 @@ def train_policy(
     set_seed(seed)
 
     meta = open_metadata(dataset_root, repo_id)
-    cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device)
+    _, lr_cfg, _, _, _ = build_policy_and_processors(cfg, meta, device)
     t_data = time.perf_counter()
     dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"])
     data_prep_s = time.perf_counter() - t_data
+    # The metadata's per-channel image std can be near zero (lerobot 0.4.4 aggregates it that
+    # way), which would scale pixels by ~1000 before the CNN and amplify sensor noise; normalise
+    # with statistics measured on the frames actually trained on.
+    stats = {**meta.stats, **dataset.image_stats()}
+    set_seed(seed)  # the same initial weights as without the probe build above
+    cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device, stats)
     loader = _make_loader(dataset, lr_cfg, cfg["batch_size"], seed)
     optimizer, scheduler = _make_optimizer(cfg, lr_cfg, policy)
     grad_clip = float(cfg["grad_clip_norm"])

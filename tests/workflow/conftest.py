@@ -75,5 +75,7 @@ def smoke_run(tmp_path_factory) -> SmokeRun:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
     killed_after = finished_rules(log_path.read_text())
+    # A hard kill leaves Snakemake's lock behind; unlocking is the documented first step.
+    snakemake(workdir, "--unlock")
     resumed = snakemake(workdir, "-j", "2")
     return SmokeRun(workdir, killed_after, resumed.stdout + resumed.stderr, time.monotonic() - start)

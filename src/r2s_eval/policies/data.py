@@ -21,15 +21,6 @@ class DatasetContractError(ValueError):
     """The dataset on disk does not provide what the policy config asks for."""
 
 
-def open_metadata(dataset_root: str | Path, repo_id: str) -> LeRobotDatasetMetadata:
-    """Load local metadata only: a missing dataset must fail here, never fall back to a download."""
-    root = Path(dataset_root)
-    info = root / "meta" / "info.json"
-    if not info.is_file():
-        raise FileNotFoundError(f"no LeRobot dataset at {root} (missing {info})")
-    return LeRobotDatasetMetadata(repo_id, root=root)
-
-
 def check_features(meta: LeRobotDatasetMetadata, image_keys: list[str]) -> None:
     """Raise `DatasetContractError` naming the dataset and the missing / malformed key."""
     where = f"dataset {meta.repo_id!r} at {meta.root}"

@@ -18,7 +18,8 @@ from typing import Any
 import torch
 
 from r2s_eval.policies.config import make_lerobot_config, validate_policy_cfg
-from r2s_eval.policies.data import check_features, make_training_dataset, open_metadata
+from r2s_eval.data import open_metadata
+from r2s_eval.policies.data import check_features, make_training_dataset
 from r2s_eval.utils.io import atomic_dir
 
 log = logging.getLogger(__name__)
@@ -28,14 +29,10 @@ TRAIN_LOG = "train_log.json"
 RUNNER_CONFIG = "runner_config.json"  # our receding-horizon settings, next to lerobot's files
 
 
-def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", stats: dict | None = None):
-    """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`.
-
-    `stats` replaces the dataset's normalisation statistics (default: `meta.stats`).
-    """
+def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
+    """Our validated config and the lerobot config, with the inputs restricted to the listed cameras."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.datasets.utils import dataset_to_policy_features
-    from lerobot.policies.factory import make_policy, make_pre_post_processors
     from lerobot.utils.constants import ACTION, OBS_STATE
 
     cfg = validate_policy_cfg(policy_cfg)
@@ -52,7 +49,17 @@ def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", sta
     if cfg["image_size"] is not None and cfg["type"] == "diffusion":
         # Diffusion resizes inside its RGB encoder (handles the observation-history axis).
         lr_cfg.resize_shape = tuple(cfg["image_size"])
+    return cfg, lr_cfg
 
+
+def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", stats: dict | None = None):
+    """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`.
+
+    `stats` replaces the dataset's normalisation statistics (default: `meta.stats`).
+    """
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+
+    cfg, lr_cfg = policy_config(policy_cfg, meta, device)
     policy = make_policy(lr_cfg, ds_meta=meta)
     preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=stats or meta.stats)
     if cfg["image_size"] is not None and cfg["type"] == "act":
@@ -131,7 +138,7 @@ def train_policy(
     set_seed(seed)
 
     meta = open_metadata(dataset_root, repo_id)
-    _, lr_cfg, _, _, _ = build_policy_and_processors(cfg, meta, device)
+    _, lr_cfg = policy_config(cfg, meta, device)
     t_data = time.perf_counter()
     dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"])
     data_prep_s = time.perf_counter() - t_data
@@ -139,7 +146,7 @@ def train_policy(
     # way), which would scale pixels by ~1000 before the CNN and amplify sensor noise; normalise
     # with statistics measured on the frames actually trained on.
     stats = {**meta.stats, **dataset.image_stats()}
-    set_seed(seed)  # the same initial weights as without the probe build above
+    set_seed(seed)  # initial weights depend on the seed alone, not on what loading the data drew
     cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device, stats)
     loader = _make_loader(dataset, lr_cfg, cfg["batch_size"], seed)
     optimizer, scheduler = _make_optimizer(cfg, lr_cfg, policy)

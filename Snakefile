@@ -3,6 +3,7 @@
 #   snakemake -j 2 reports/realsim_table.tex                       (default experiment: demo)
 #   snakemake -j 2 reports/realsim_table.tex --config experiment=smoke
 #   snakemake -j 2 ... --config overrides='[stats.n_boot=500]'     (any Hydra override)
+#   snakemake -j 2 reports                                         (every table and figure)
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/real.smk"
@@ -19,5 +20,5 @@ include: "workflow/rules/report.smk"
 
 rule all:
     input:
-        "reports/realsim_table.tex",
+        REPORTS,  # every table and figure (workflow/rules/report.smk); alone: `snakemake reports`
         "results/init/error_summary.json" if TWIN else [],

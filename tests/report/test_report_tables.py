@@ -1,31 +1,120 @@
-"""The real-to-sim table: structure, dashes without human annotations, and LaTeX validity."""
+"""The LaTeX tables: structure, numbers, dashes for missing values, and that they compile."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 
 import pandas as pd
 import pytest
 
-from r2s_eval.report import latex_escape, ranking_text, realsim_table
+from r2s_eval.report import (
+    bt_scores_table,
+    latex_escape,
+    ranking_text,
+    realsim_success_table,
+    realsim_table,
+    success_by_task,
+    tasks_table,
+)
 
 
-def validation(rho, r, mmrv, ci):
-    return {"average": {"spearman": rho, "pearson": r, "mmrv": mmrv, "ci_width": ci}}
+def validation(rho, r, mmrv, ci, last=None):
+    avg = {"spearman": rho, "pearson": r, "mmrv": mmrv, "ci_width": ci}
+    return {"average": avg, "last": last or avg}
 
 
-def test_rows_average_and_dash():
-    table = realsim_table({"qwen_vl": validation(0.9, 0.8, 0.01, 4.0), "kinematic": validation(0.5, 0.6, 0.1, 6.0)},
-                          agreement={"qwen_vl": 0.75}, decimals=2)
-    lines = table.splitlines()
-    assert lines[0].startswith(r"\begin{tabular}") and r"\toprule" in lines and r"\bottomrule" in lines
-    kin = next(line for line in lines if line.startswith("kinematic"))
-    assert kin == r"kinematic & 0.50 & 0.60 & 0.10 & 6.00 & -- \\"
-    qwen = next(line for line in lines if line.startswith(r"qwen\_vl"))
-    assert qwen.endswith(r"0.75 \\")
-    avg = next(line for line in lines if line.startswith("Average"))
-    assert avg == r"Average & 0.70 & 0.70 & 0.06 & 5.00 & 0.75 \\"
+def row(table: str, start: str) -> str:
+    return next(line for line in table.splitlines() if line.startswith(start))
+
+
+def columns(colspec: str) -> int:
+    return len(re.sub(r"[^lcr]", "", colspec))
+
+
+def check_structure(table: str) -> None:
+    """booktabs rules in order, and every row spans exactly the declared columns."""
+    lines = table.strip().splitlines()
+    spec = re.match(r"\\begin\{tabular\}\{([^}]*)\}", lines[0])
+    assert spec and lines[-1] == r"\end{tabular}"
+    rules = [line for line in lines if line in (r"\toprule", r"\midrule", r"\bottomrule")]
+    assert rules[0] == r"\toprule" and rules[-1] == r"\bottomrule" and r"\midrule" in rules
+    n = columns(spec.group(1))
+    for line in lines:
+        if line.endswith(r"\\"):
+            cells = re.split(r"(?<!\\)&", line[:-2])
+            spans = [int(m.group(1)) if (m := re.match(r"\s*\\multicolumn\{(\d+)\}", c)) else 1 for c in cells]
+            assert sum(spans) == n, line
+
+
+def test_realsim_table_rows_average_and_dashes():
+    table = realsim_table(
+        {"qwen_vl": validation(0.9, 0.8, 0.01, 4.0), "kinematic": validation(0.5, 0.6, 0.1, 6.0)},
+        audits={"qwen_vl": {"human_agreement": 0.75, "swap_consistency": None, "a_share_same_outcome": 0.5},
+                "kinematic": {"human_agreement": None, "swap_consistency": 0.9, "a_share_same_outcome": 0.7}},
+        decimals=2,
+    )
+    check_structure(table)
+    assert row(table, "kinematic") == r"kinematic & 0.50 & 0.60 & 0.10 & 6.00 & -- & 0.90 & 0.70 \\"
+    assert row(table, r"qwen\_vl") == r"qwen\_vl & 0.90 & 0.80 & 0.01 & 4.00 & 0.75 & -- & 0.50 \\"
+    # The average row averages the judges that have a value.
+    assert row(table, "Average") == r"Average & 0.70 & 0.70 & 0.06 & 5.00 & 0.75 & 0.90 & 0.60 \\"
+
+
+def test_realsim_table_without_audit_and_at_last_checkpoint():
+    v = validation(0.5, 0.6, 0.1, 6.0, last={"spearman": 1.0, "pearson": 0.9, "mmrv": 0.0, "ci_width": 3.0})
+    table = realsim_table({"kinematic": v}, decimals=1, metrics_at="last")
+    check_structure(table)
+    assert row(table, "kinematic") == r"kinematic & 1.0 & 0.9 & 0.0 & 3.0 & -- & -- & -- \\"
+    assert "Average" not in table  # one judge: no average row
+    with pytest.raises(ValueError, match="metrics_at"):
+        realsim_table({"kinematic": v}, metrics_at="first")
+
+
+def test_tasks_table():
+    summary = pd.DataFrame({"task": ["cup_on_plate", "stack"], "real": [8, 4], "sim": [6, 1],
+                            "replay_success": [0.75, 0.25]})
+    table = tasks_table(summary)
+    check_structure(table)
+    assert row(table, r"cup\_on\_plate") == r"cup\_on\_plate & 8 & 6 & 75.0 \\"
+    assert row(table, "stack") == r"stack & 4 & 1 & 25.0 \\"
+    assert row(table, "Total") == r"Total & 12 & 7 & 58.3 \\"
+
+
+def test_realsim_success_table():
+    reference = pd.DataFrame({"policy": ["a", "a", "b"], "task": ["t1", "t2", "t1"],
+                              "trials": [10, 10, 10], "successes": [8, 5, 2]})
+    sim = pd.DataFrame({"policy": ["a"] * 6 + ["b"] * 4, "task": ["t1"] * 4 + ["t2"] * 2 + ["t1", "t1", "t2", "t2"],
+                        "success": [1, 1, 1, 0, 1, 0, 0, 0, 1, 1]})
+    table = realsim_success_table(success_by_task(reference, sim))
+    check_structure(table)
+    assert r"\multicolumn{2}{c}{t1} & \multicolumn{2}{c}{t2} & \multicolumn{2}{c}{Total}" in table
+    assert row(table, "a ") == r"a & 80.0 & 75.0 & 50.0 & 50.0 & 65.0 & 66.7 \\"
+    assert row(table, "b ") == r"b & 20.0 & 0.0 & -- & 100.0 & 20.0 & 50.0 \\"
+    assert row(table, "Mean") == (r"Mean $|\Delta|$ (pp) & \multicolumn{2}{c}{12.5} & \multicolumn{2}{c}{0.0}"
+                                  r" & \multicolumn{2}{c}{15.8} \\")
+    assert row(table, "Largest") == (r"Largest gap (pp) & \multicolumn{2}{c}{20.0} & \multicolumn{2}{c}{0.0}"
+                                     r" & \multicolumn{2}{c}{30.0} \\")
+
+
+def test_bt_scores_table(make_fit):
+    fits = {
+        "j1": make_fit({10: {"a": (20.0, 10.0, 30.0), "b": (80.0, 70.0, 90.0)},
+                        20: {"a": (25.0, 15.0, 35.0), "b": (75.0, 65.0, 85.0)}}),
+        "j_2": make_fit({20: {"a": (40.0, 30.0, 50.0), "b": (60.0, 50.0, 70.0)}}),
+    }
+    table = bt_scores_table(fits, {"a": 0.9, "b": 0.3})
+    check_structure(table.split("\n", 1)[1])  # after the comment line naming the checkpoints
+    assert table.startswith("% BT score") and "j1: 20" in table.splitlines()[0]
+    assert row(table, "Policy") == r"Policy & Real (\%) & j1 & j\_2 \\"
+    body = [line for line in table.splitlines() if line.startswith(("a ", "b "))]
+    assert body == [  # ordered by reference success, scores at the last checkpoint
+        r"a & 90.0 & 25.0 {\scriptsize [15.0, 35.0]} & 40.0 {\scriptsize [30.0, 50.0]} \\",
+        r"b & 30.0 & 75.0 {\scriptsize [65.0, 85.0]} & 60.0 {\scriptsize [50.0, 70.0]} \\",
+    ]
+    plain = bt_scores_table(fits, {"a": 0.9, "b": 0.3}, decimals=0, show_ci=False)
+    assert row(plain, "a ") == r"a & 90 & 25 & 40 \\"
 
 
 def test_latex_escape():
@@ -41,10 +130,31 @@ def test_ranking_text_lists_reference_and_scores():
     assert "80.0" in a_line and "70.0 [65.0, 75.0] #1" in a_line
 
 
-@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed")
-def test_table_compiles(tmp_path):
-    body = realsim_table({"kinematic": validation(0.5, 0.6, 0.1, 6.0)})
+def all_tables(make_fit) -> list[str]:
+    fits = {"kinematic": make_fit({10: {"a_1": (60.0, 50.0, 70.0), "b": (40.0, 30.0, 50.0)}})}
+    success = success_by_task(
+        pd.DataFrame({"policy": ["a_1", "b"], "task": ["cup_on_plate"] * 2, "trials": [5, 5], "successes": [4, 1]}),
+        pd.DataFrame({"policy": ["a_1", "b"], "task": ["cup_on_plate"] * 2, "success": [True, False]}),
+    )
+    return [
+        tasks_table(pd.DataFrame({"task": ["cup_on_plate"], "real": [8], "sim": [6], "replay_success": [0.75]})),
+        realsim_success_table(success),
+        realsim_table({"kinematic": validation(0.5, 0.6, 0.1, 6.0)}, {"kinematic": {"a_share_same_outcome": 0.5}}),
+        bt_scores_table(fits, {"a_1": 0.8, "b": 0.2}),
+    ]
+
+
+def test_tables_structure(make_fit):
+    for table in all_tables(make_fit):
+        check_structure(table.split("\n", 1)[1] if table.startswith("%") else table)
+
+
+@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed (structure is checked above)")
+def test_tables_compile(tmp_path, make_fit):
+    body = "\n\\bigskip\n".join(all_tables(make_fit))
     doc = "\\documentclass{article}\\usepackage{booktabs}\\begin{document}\n" + body + "\\end{document}\n"
     (tmp_path / "t.tex").write_text(doc)
-    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "t.tex"], cwd=tmp_path, capture_output=True, text=True)
+    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "t.tex"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-2000:]
+    assert (tmp_path / "t.pdf").stat().st_size > 1000

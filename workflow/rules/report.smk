@@ -1,7 +1,80 @@
-# Paper tables and figures, generated from the artefacts.
+# Paper tables (LaTeX, booktabs) and figures (PDF + PNG), generated from the artefacts.
+# Each report has its own rule and reads only its own slice of conf/report, so changing one
+# plotting option reruns that report alone. `snakemake reports` builds them all.
+SIM_ROLLOUTS = expand("results/rollout/sim/{policy}", policy=POLICIES)
+FIGURE_EXTS = ["pdf", "png"]
+HUMAN_ANNOTATIONS = CFG["report"]["judge_audit"]["human_annotations"]
+
+REPORTS = [
+    "reports/tasks_table.tex",
+    "reports/realsim_success_table.tex",
+    "reports/realsim_table.tex",
+    "reports/bt_scores_table.tex",
+    *expand("reports/win_rate_matrix_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
+    *expand("reports/bt_convergence.{ext}", ext=FIGURE_EXTS),
+    *expand("reports/overall_ranking.{ext}", ext=FIGURE_EXTS),
+    *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
+    *expand("reports/case_study_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
+]
+
+
+rule reports:
+    input:
+        REPORTS,
+
+
+rule tasks_table:
+    input:
+        index="results/ingest/episodes.parquet",
+        replay_log="results/replay/log.parquet",
+    output:
+        "reports/tasks_table.tex",
+    params:
+        cfg=params_of("report.tasks_table"),
+    log:
+        "logs/report/tasks_table.log",
+    shell:
+        "{PY} -m r2s_eval.stages.tasks_table --cfg {params.cfg:q} --index {input.index}"
+        " --replay-log {input.replay_log} --out {output} > {log} 2>&1"
+
+
+rule realsim_success_table:
+    input:
+        reference="results/reference/success.parquet",
+        rollouts=SIM_ROLLOUTS,
+    output:
+        "reports/realsim_success_table.tex",
+    params:
+        cfg=params_of("report.realsim_success_table"),
+    log:
+        "logs/report/realsim_success_table.log",
+    shell:
+        "{PY} -m r2s_eval.stages.realsim_success_table --cfg {params.cfg:q} --reference {input.reference}"
+        " --rollouts {input.rollouts} --out {output} > {log} 2>&1"
+
+
+rule judge_audit:
+    input:
+        verdicts="results/judge/{judge}/verdicts.parquet",
+        rollouts=SIM_ROLLOUTS,
+        annotations=[HUMAN_ANNOTATIONS] if HUMAN_ANNOTATIONS else [],
+    output:
+        "results/audit/{judge}.json",
+    params:
+        cfg=params_of("report.judge_audit"),
+        annotations=f"--annotations {HUMAN_ANNOTATIONS}" if HUMAN_ANNOTATIONS else "",
+    log:
+        "logs/report/judge_audit/{judge}.log",
+    shell:
+        "{PY} -m r2s_eval.stages.judge_audit --cfg {params.cfg:q} --judge {wildcards.judge}"
+        " --verdicts {input.verdicts} --rollouts {input.rollouts} {params.annotations}"
+        " --out {output} > {log} 2>&1"
+
+
 rule realsim_table:
     input:
         validation=expand("results/validate/{judge}.json", judge=JUDGES),
+        audits=expand("results/audit/{judge}.json", judge=JUDGES),
         fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
         reference="results/reference/success.parquet",
     output:
@@ -13,5 +86,98 @@ rule realsim_table:
         "logs/realsim_table.log",
     shell:
         "{PY} -m r2s_eval.stages.realsim_table --cfg {params.cfg:q} --validation {input.validation}"
-        " --fits {input.fits} --reference {input.reference} --table {output.table}"
+        " --audits {input.audits} --fits {input.fits} --reference {input.reference} --table {output.table}"
         " --ranking {output.ranking} > {log} 2>&1"
+
+
+rule bt_scores_table:
+    input:
+        fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
+        reference="results/reference/success.parquet",
+    output:
+        "reports/bt_scores_table.tex",
+    params:
+        cfg=params_of("report.bt_scores_table"),
+    log:
+        "logs/report/bt_scores_table.log",
+    shell:
+        "{PY} -m r2s_eval.stages.bt_scores_table --cfg {params.cfg:q} --fits {input.fits}"
+        " --reference {input.reference} --out {output} > {log} 2>&1"
+
+
+rule win_rate_matrix:
+    input:
+        "results/judge/{judge}/verdicts.parquet",
+    output:
+        pdf="reports/win_rate_matrix_{judge}.pdf",
+        png="reports/win_rate_matrix_{judge}.png",
+    params:
+        cfg=params_of("report.win_rate_matrix"),
+    log:
+        "logs/report/win_rate_matrix/{judge}.log",
+    shell:
+        "{PY} -m r2s_eval.stages.win_rate_figure --cfg {params.cfg:q} --judge {wildcards.judge}"
+        " --verdicts {input} --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+
+
+rule bt_convergence:
+    input:
+        expand("results/fit/{judge}.parquet", judge=JUDGES),
+    output:
+        pdf="reports/bt_convergence.pdf",
+        png="reports/bt_convergence.png",
+    params:
+        cfg=params_of("report.bt_convergence"),
+    log:
+        "logs/report/bt_convergence.log",
+    shell:
+        "{PY} -m r2s_eval.stages.bt_convergence_figure --cfg {params.cfg:q} --fits {input}"
+        " --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+
+
+rule overall_ranking:
+    input:
+        fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
+        reference="results/reference/success.parquet",
+    output:
+        pdf="reports/overall_ranking.pdf",
+        png="reports/overall_ranking.png",
+    params:
+        cfg=params_of("report.overall_ranking"),
+    log:
+        "logs/report/overall_ranking.log",
+    shell:
+        "{PY} -m r2s_eval.stages.overall_ranking_figure --cfg {params.cfg:q} --fits {input.fits}"
+        " --reference {input.reference} --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+
+
+rule hardware_effort:
+    input:
+        reference="results/reference/success.parquet",
+    output:
+        pdf="reports/hardware_effort.pdf",
+        png="reports/hardware_effort.png",
+    params:
+        cfg=params_of("report.hardware_effort"),
+    log:
+        "logs/report/hardware_effort.log",
+    shell:
+        "{PY} -m r2s_eval.stages.hardware_effort_figure --cfg {params.cfg:q} --reference {input.reference}"
+        " --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+
+
+rule case_study:
+    input:
+        verdicts="results/judge/{judge}/verdicts.parquet",
+        rollouts=SIM_ROLLOUTS,
+    output:
+        pdf="reports/case_study_{judge}.pdf",
+        png="reports/case_study_{judge}.png",
+    params:
+        cfg=params_of("report.case_study"),
+    log:
+        "logs/report/case_study/{judge}.log",
+    shell:
+        "{PY} -m r2s_eval.stages.case_study_figure --cfg {params.cfg:q} --judge {wildcards.judge}"
+        " --verdicts {input.verdicts} --rollouts {input.rollouts} --pdf {output.pdf} --png {output.png}"
+        " > {log} 2>&1"

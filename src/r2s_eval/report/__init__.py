@@ -1,5 +1,63 @@
-"""Paper tables (LaTeX, booktabs) and figures generated from the pipeline's artefacts."""
+"""Paper tables (LaTeX, booktabs) and figures (PDF + PNG) generated from the pipeline's artefacts.
 
-from r2s_eval.report.tables import latex_escape, ranking_text, realsim_table
+``summaries`` computes the numbers from artefact tables, ``tables`` and ``figures`` lay them
+out; the stages in ``r2s_eval.stages`` read the files and call these.
+"""
 
-__all__ = ["latex_escape", "ranking_text", "realsim_table"]
+from r2s_eval.report.figures import (
+    case_study_figure,
+    convergence_figure,
+    hardware_effort_figure,
+    operator_hours,
+    ranking_figure,
+    save_figure,
+    win_rate_figure,
+)
+from r2s_eval.report.frames import sample_frames
+from r2s_eval.report.summaries import (
+    agreement_with_annotations,
+    judge_audit,
+    judge_averaged_scores,
+    last_checkpoint,
+    pick_case_study,
+    success_by_task,
+    success_gaps,
+    swap_consistency,
+    task_summary,
+    win_rate_matrix,
+)
+from r2s_eval.report.tables import (
+    bt_scores_table,
+    latex_escape,
+    ranking_text,
+    realsim_success_table,
+    realsim_table,
+    tasks_table,
+)
+
+__all__ = [
+    "agreement_with_annotations",
+    "bt_scores_table",
+    "case_study_figure",
+    "convergence_figure",
+    "hardware_effort_figure",
+    "judge_audit",
+    "judge_averaged_scores",
+    "last_checkpoint",
+    "latex_escape",
+    "operator_hours",
+    "pick_case_study",
+    "ranking_figure",
+    "ranking_text",
+    "realsim_success_table",
+    "realsim_table",
+    "sample_frames",
+    "save_figure",
+    "success_by_task",
+    "success_gaps",
+    "swap_consistency",
+    "task_summary",
+    "tasks_table",
+    "win_rate_figure",
+    "win_rate_matrix",
+]

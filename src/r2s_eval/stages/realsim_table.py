@@ -17,11 +17,14 @@ def _judge_name(path: str) -> str:
 
 
 def main(args) -> None:
+    opts = args.cfg["report.realsim_table"]
     validations = {_judge_name(p): read_json(p) for p in args.validation}
+    audits = {_judge_name(p): read_json(p) for p in args.audits}
     fits = {_judge_name(p): pd.read_parquet(p) for p in args.fits}
     reference = reference_rates(pd.read_parquet(args.reference))
+    table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
     with atomic_path(args.table) as tmp:
-        tmp.write_text(realsim_table(validations, decimals=int(args.cfg["report.realsim_table"]["decimals"])))
+        tmp.write_text(table)
     text = ranking_text(fits, reference.to_dict())
     with atomic_path(args.ranking) as tmp:
         tmp.write_text(text)
@@ -31,6 +34,7 @@ def main(args) -> None:
 if __name__ == "__main__":
     p = _cli.parser(__doc__)
     p.add_argument("--validation", nargs="+", required=True)
+    p.add_argument("--audits", nargs="*", default=[], help="judge-audit JSON per judge")
     p.add_argument("--fits", nargs="+", required=True)
     p.add_argument("--reference", required=True)
     p.add_argument("--table", required=True)

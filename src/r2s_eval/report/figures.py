@@ -1,0 +1,229 @@
+"""Figures (matplotlib, headless). Each function takes plain data plus its plotting options
+(the figure's slice of ``conf/report``) and returns a Figure; :func:`save_figure` writes it
+as PDF and PNG.
+
+Common options: ``width_in``, ``height_in`` (inches; per panel where a figure has a grid of
+panels, as noted), ``font_size``, ``dpi`` (PNG only).
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from r2s_eval.stats import spearman
+from r2s_eval.utils.io import atomic_path
+
+HARDWARE_COMPONENTS = ("execution", "reset", "monitoring", "recording")
+
+
+def _rc(opts: Mapping) -> dict:
+    return {"font.size": float(opts.get("font_size", 9))}
+
+
+def _figure(width_in: float, height_in: float) -> Figure:
+    # A bare Figure (no pyplot): no global figure registry, no GUI backend, nothing to close.
+    return Figure(figsize=(width_in, height_in), layout="constrained")
+
+
+def save_figure(fig: Figure, pdf: str | Path, png: str | Path, dpi: int = 200) -> None:
+    """Write ``fig`` as PDF and PNG (atomically). The PDF embeds TrueType fonts (editable
+    text) and carries no creation date, so the same data and options give the same bytes."""
+    with matplotlib.rc_context({"pdf.fonttype": 42}):
+        with atomic_path(pdf) as tmp:
+            fig.savefig(tmp, format="pdf", bbox_inches="tight", metadata={"CreationDate": None, "ModDate": None})
+        with atomic_path(png) as tmp:
+            fig.savefig(tmp, format="png", dpi=int(dpi), bbox_inches="tight")
+
+
+# ------------------------------------------------------------------ win rates
+
+
+def win_rate_figure(rates: pd.DataFrame, judge: str, opts: Mapping) -> Figure:
+    """Heatmap of ``rates`` (row policy's win share against the column policy), annotated
+    with percentages. Options: cmap, annotate, decimals."""
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts.get("width_in", 4.2), opts.get("height_in", 3.6))
+        ax = fig.subplots()
+        data = 100 * rates.to_numpy(dtype=float)
+        im = ax.imshow(np.ma.masked_invalid(data), cmap=opts.get("cmap", "RdBu"), vmin=0, vmax=100)
+        names = list(rates.index)
+        ax.set_xticks(range(len(names)), names, rotation=35, ha="right")
+        ax.set_yticks(range(len(names)), names)
+        ax.set_xlabel("against (column policy)")
+        ax.set_ylabel("row policy")
+        ax.set_title(f"Win rate, judge {judge}")
+        if opts.get("annotate", True):
+            decimals = int(opts.get("decimals", 0))
+            for i in range(len(names)):
+                for j in range(len(names)):
+                    if np.isfinite(data[i, j]):
+                        dark = abs(data[i, j] - 50) > 30  # white text on the saturated ends of the map
+                        ax.text(j, i, f"{data[i, j]:.{decimals}f}", ha="center", va="center",
+                                color="white" if dark else "black")
+        fig.colorbar(im, ax=ax, label="row wins (%)")
+    return fig
+
+
+# ---------------------------------------------------------------- convergence
+
+
+def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figure:
+    """One panel per judge: each policy's BT score over the checkpoints with its bootstrap
+    interval as a band. Options: columns (panels per row), band_alpha, marker; width_in and
+    height_in are per panel."""
+    judges = sorted(fits)
+    if not judges:
+        raise ValueError("no fit tables to plot")
+    ncols = max(1, min(int(opts.get("columns", 3)), len(judges)))
+    nrows = math.ceil(len(judges) / ncols)
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts.get("width_in", 3.4) * ncols, opts.get("height_in", 2.8) * nrows)
+        axes = fig.subplots(nrows, ncols, squeeze=False, sharey=True)
+        policies = sorted(set().union(*(set(fits[j]["policy"]) for j in judges)))
+        colors = {p: matplotlib.colormaps["tab10"](k % 10) for k, p in enumerate(policies)}
+        for ax, judge in zip(axes.flat, judges):
+            for policy, g in fits[judge].groupby("policy"):
+                g = g.sort_values("checkpoint")
+                ax.plot(g["checkpoint"], g["score"], marker=opts.get("marker", "o"), ms=3, color=colors[policy],
+                        label=policy)
+                ax.fill_between(g["checkpoint"], g["ci_low"], g["ci_high"], color=colors[policy],
+                                alpha=float(opts.get("band_alpha", 0.2)), linewidth=0)
+            ax.set_title(judge)
+            ax.set_xlabel("comparisons per policy pair")
+            ax.grid(alpha=0.3)
+        for ax in axes[:, 0]:
+            ax.set_ylabel("BT score $s$")
+        for ax in list(axes.flat)[len(judges):]:
+            ax.set_visible(False)
+        handles, labels = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 4), frameon=False)
+    return fig
+
+
+# -------------------------------------------------------------- overall ranking
+
+
+def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], opts: Mapping) -> Figure:
+    """Two panels sharing the policy axis, ordered by reference success: the judge-averaged
+    BT score at the last checkpoint (bars, judge-averaged bootstrap interval as error bars,
+    each judge as a dot) and the reference success rate. Options: score_color, reference_color."""
+    missing = sorted(set(averaged.index) - set(reference_rate))
+    if missing:
+        raise ValueError(f"no reference success rate for policies {missing}")
+    policies = sorted(averaged.index, key=lambda p: (reference_rate[p], p))  # best at the top of a barh plot
+    avg = averaged.loc[policies]
+    ref = np.array([100 * reference_rate[p] for p in policies])
+    y = np.arange(len(policies))
+    judges = [c.split(":", 1)[1] for c in avg.columns if c.startswith("score:")]
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts.get("width_in", 6.4), opts.get("height_in", 0.45 * len(policies) + 1.4))
+        ax_s, ax_r = fig.subplots(1, 2, sharey=True)
+        err = np.vstack([avg["score"] - avg["ci_low"], avg["ci_high"] - avg["score"]]).clip(min=0)
+        ax_s.barh(y, avg["score"], xerr=err, color=opts.get("score_color", "#4C72B0"), capsize=3)
+        if len(judges) > 1:
+            for judge in judges:
+                ax_s.plot(avg[f"score:{judge}"], y, "k.", ms=4)
+        ax_s.set_yticks(y, policies)
+        ax_s.set_xlabel("BT score $s$ (judge average)")
+        ax_s.set_title(f"Preference ({len(judges)} judge{'s' if len(judges) != 1 else ''})")
+        ax_r.barh(y, ref, color=opts.get("reference_color", "#55A868"))
+        ax_r.set_xlabel("real success rate (%)")
+        ax_r.set_xlim(0, 100)
+        ax_r.set_title("Reference")
+        rho = spearman(avg["score"].to_numpy(), ref) if len(policies) > 1 else float("nan")
+        fig.suptitle(f"Overall ranking (Spearman $\\rho$ = {rho:.2f})" if np.isfinite(rho) else "Overall ranking")
+        for ax in (ax_s, ax_r):
+            ax.grid(axis="x", alpha=0.3)
+    return fig
+
+
+# -------------------------------------------------------------- hardware effort
+
+
+def operator_hours(seconds_per_trial: Mapping[str, float], n_policies: int, tasks: int, trials_per_task) -> dict:
+    """Operator hours per component to evaluate ``n_policies`` on ``tasks`` x ``trials_per_task``
+    real trials each (``trials_per_task`` may be an array)."""
+    missing = [c for c in HARDWARE_COMPONENTS if c not in seconds_per_trial]
+    if missing:
+        raise ValueError(f"seconds_per_trial lacks components {missing}")
+    trials = n_policies * tasks * np.asarray(trials_per_task, dtype=float)
+    return {c: trials * float(seconds_per_trial[c]) / 3600 for c in HARDWARE_COMPONENTS}
+
+
+def hardware_effort_figure(seconds_per_trial: Mapping[str, float], n_policies: int, current: tuple[int, int],
+                           opts: Mapping) -> Figure:
+    """Operator time of a real-world evaluation against r2s-eval's zero repeated hardware time.
+
+    Left: hours per component (stacked) for ``n_policies`` as the trials per policy (tasks x
+    trials per task) grow, this experiment's ``current = (tasks, trials per task)`` marked.
+    Right: total hours against trials per task, one line per number of tasks in
+    ``opts["tasks"]``. Options: tasks (list), max_trials_per_task.
+    """
+    n_tasks, n_trials = current
+    max_trials = int(opts.get("max_trials_per_task", 50))
+    task_counts = [int(t) for t in opts.get("tasks", [1, 3, 7])]
+    per_task = np.arange(0, max_trials + 1)
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts.get("width_in", 7.0), opts.get("height_in", 2.8))
+        ax_a, ax_b = fig.subplots(1, 2)
+        total_trials = per_task * max(n_tasks, 1)
+        hours = operator_hours(seconds_per_trial, n_policies, max(n_tasks, 1), per_task)
+        ax_a.stackplot(total_trials, *[hours[c] for c in HARDWARE_COMPONENTS], labels=HARDWARE_COMPONENTS, alpha=0.85)
+        ax_a.plot(total_trials, np.zeros_like(total_trials, dtype=float), "k-", lw=2, label="r2s-eval (repeated)")
+        now = sum(operator_hours(seconds_per_trial, n_policies, n_tasks, n_trials).values())
+        ax_a.plot([n_tasks * n_trials], [now], "ko", ms=5)
+        ax_a.annotate(f"this run: {float(now):.1f} h", (n_tasks * n_trials, float(now)), textcoords="offset points",
+                      xytext=(5, 5))
+        ax_a.set_xlabel(f"real trials per policy (tasks x trials, {n_tasks} task{'s' if n_tasks != 1 else ''})")
+        ax_a.set_ylabel("operator time (h)")
+        ax_a.set_title(f"{n_policies} policies: where the time goes")
+        ax_a.legend(loc="upper left", frameon=False)
+        for t in task_counts:
+            total = sum(operator_hours(seconds_per_trial, n_policies, t, per_task).values())
+            ax_b.plot(per_task, total, label=f"{t} task{'s' if t != 1 else ''}")
+        ax_b.plot(per_task, np.zeros_like(per_task, dtype=float), "k-", lw=2, label="r2s-eval")
+        ax_b.set_xlabel("trials per task")
+        ax_b.set_ylabel("operator time (h)")
+        ax_b.set_title("growth with tasks x trials")
+        ax_b.legend(frameon=False)
+        for ax in (ax_a, ax_b):
+            ax.grid(alpha=0.3)
+            ax.set_xlim(left=0)
+            ax.set_ylim(bottom=-0.02 * ax.get_ylim()[1])
+    return fig
+
+
+# ------------------------------------------------------------------ case study
+
+
+def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[float]]], title: str, caption: str,
+                      opts: Mapping) -> Figure:
+    """Frames of rollouts side by side, one row per rollout: ``rows`` holds (row label,
+    frames, frame times in seconds). ``caption`` (e.g. the judge's rationale) is wrapped
+    under the title. Options: wrap_chars; width_in and height_in are per frame."""
+    ncols = max(len(frames) for _, frames, _ in rows)
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts.get("width_in", 1.6) * ncols, opts.get("height_in", 1.7) * len(rows) + 0.8)
+        axes = fig.subplots(len(rows), ncols, squeeze=False)
+        for r, (label, frames, times) in enumerate(rows):
+            for c in range(ncols):
+                ax = axes[r, c]
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if c < len(frames):
+                    ax.imshow(frames[c])
+                    ax.set_xlabel(f"t = {times[c]:.1f} s")
+                else:
+                    ax.set_visible(False)
+            axes[r, 0].set_ylabel(label)
+        wrapped = textwrap.fill(caption, int(opts.get("wrap_chars", 110)))
+        fig.suptitle(f"{title}\n{wrapped}" if caption else title, fontsize=float(opts.get("font_size", 9)))
+    return fig

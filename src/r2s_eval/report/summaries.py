@@ -1,0 +1,273 @@
+"""Numbers behind the tables and figures, computed from the pipeline's artefacts.
+
+Pure functions of DataFrames (no file access), so each one is testable on a few
+hand-made rows. Rates are fractions in [0, 1]; the tables turn them into percent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from r2s_eval.compare import wins_at_checkpoints
+from r2s_eval.stats import human_agreement_rate, order_swap_consistency, position_bias
+
+
+def _require(df: pd.DataFrame, cols: Sequence[str], what: str) -> None:
+    lacking = [c for c in cols if c not in df.columns]
+    if lacking:
+        raise ValueError(f"{what} lacks columns {lacking} (has {list(df.columns)})")
+
+
+def _nan_to_none(value: float) -> float | None:
+    return None if value is None or (isinstance(value, float) and math.isnan(value)) else float(value)
+
+
+# ----------------------------------------------------------------------- tasks
+
+
+def task_summary(index: pd.DataFrame, replay_log: pd.DataFrame) -> pd.DataFrame:
+    """Per task: real trajectories (ingested episodes), sim trajectories (successful replays)
+    and the replay success rate.
+
+    ``index`` is ingest's episode index (episode_index, task); ``replay_log`` is replay's log
+    (episode_index, task, success). Every ingested episode must have been replayed.
+    Returns columns task, real, sim, replay_success (fraction), sorted by task.
+    """
+    _require(index, ["episode_index", "task"], "episode index")
+    _require(replay_log, ["episode_index", "task", "success"], "replay log")
+    missing = sorted(set(index["episode_index"]) - set(replay_log["episode_index"]))
+    if missing:
+        raise ValueError(f"replay log has no row for ingested episodes {missing[:10]}")
+    real = index.groupby("task").size().rename("real")
+    log = replay_log[replay_log["episode_index"].isin(index["episode_index"])]
+    sim = log.groupby("task")["success"].agg(["sum", "size"])
+    table = pd.concat([real, sim["sum"].rename("sim")], axis=1).fillna(0).astype(int)
+    table["replay_success"] = table["sim"] / sim["size"].reindex(table.index)
+    return table.rename_axis("task").reset_index().sort_values("task", ignore_index=True)
+
+
+# ------------------------------------------------------------ real vs sim success
+
+
+def success_by_task(reference: pd.DataFrame, sim_episodes: pd.DataFrame) -> pd.DataFrame:
+    """Real and sim success rate per (policy, task), plus each policy's pooled total.
+
+    ``reference``: the reference table (policy, task, trials, successes); ``sim_episodes``:
+    sim rollout episodes (policy, task, success). Returns one row per (policy, task) that
+    either side has, with columns policy, task, real, sim (fractions; NaN where a side lacks
+    that cell), real_trials, sim_trials, and rows with task ``"total"`` holding the
+    trials-weighted rate over the tasks a side has.
+    """
+    _require(reference, ["policy", "task", "trials", "successes"], "reference success table")
+    _require(sim_episodes, ["policy", "task", "success"], "sim rollout episodes")
+    real = reference.groupby(["policy", "task"])[["successes", "trials"]].sum().add_suffix("_real")
+    sim = sim_episodes.assign(success=sim_episodes["success"].astype(bool)).groupby(["policy", "task"])["success"].agg(
+        successes_sim="sum", trials_sim="size")
+    cells = real.join(sim, how="outer")
+    totals = cells.groupby(level="policy").sum(min_count=1)
+    totals.index = pd.MultiIndex.from_product([totals.index, ["total"]], names=["policy", "task"])
+    both = pd.concat([cells, totals])
+    out = pd.DataFrame({
+        "real": both["successes_real"] / both["trials_real"],
+        "sim": both["successes_sim"] / both["trials_sim"],
+        "real_trials": both["trials_real"].fillna(0).astype(int),
+        "sim_trials": both["trials_sim"].fillna(0).astype(int),
+    })
+    return out.reset_index()
+
+
+def success_gaps(success: pd.DataFrame) -> pd.DataFrame:
+    """Per task column (and ``"total"``): mean |real - sim| and the largest gap over policies,
+    in percentage points, over the policies that have both sides. Index: task."""
+    both = success.dropna(subset=["real", "sim"])
+    gap = (100 * (both["real"] - both["sim"]).abs()).groupby(both["task"])
+    return pd.DataFrame({"mean_abs_pp": gap.mean(), "max_abs_pp": gap.max()})
+
+
+# ------------------------------------------------------------------ judge audit
+
+
+def _pair_letters(verdicts: pd.DataFrame) -> dict[tuple[str, str], str]:
+    """(episode_a, episode_b) -> the judge's letter; one answer per ordered pair of videos."""
+    letters: dict[tuple[str, str], str] = {}
+    for ea, eb, v in zip(verdicts["episode_a"].astype(str), verdicts["episode_b"].astype(str), verdicts["verdict"]):
+        v = str(v).strip().upper()
+        if letters.setdefault((ea, eb), v) != v:
+            raise ValueError(f"judge answered both {letters[(ea, eb)]} and {v} for episodes {ea} / {eb}")
+    return letters
+
+
+def agreement_with_annotations(verdicts: pd.DataFrame, annotations: pd.DataFrame, source: str = "annotations") -> dict:
+    """Majority vote of the annotators against the judge on the annotated pairs.
+
+    ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or
+    'B', for the videos in that order) and optionally annotator. A pair annotated in the
+    other order than the judge saw it counts with its letter flipped. ``source`` names the
+    file in errors.
+    """
+    _require(annotations, ["episode_a", "episode_b", "choice"], f"{source}")
+    judge = _pair_letters(verdicts)
+    flip = {"A": "B", "B": "A"}
+    votes: dict[tuple[str, str], list[str]] = {}
+    for row, (ea, eb, choice) in enumerate(zip(annotations["episode_a"].astype(str), annotations["episode_b"].astype(str),
+                                               annotations["choice"].astype(str).str.strip().str.upper())):
+        if choice not in flip:
+            raise ValueError(f"{source}, row {row} (episodes {ea} / {eb}): choice must be A or B, got {choice!r}")
+        if (ea, eb) in judge:
+            votes.setdefault((ea, eb), []).append(choice)
+        elif (eb, ea) in judge:
+            votes.setdefault((eb, ea), []).append(flip[choice])
+        else:
+            raise ValueError(f"{source}, row {row}: the judge never compared episodes {ea} / {eb}")
+    rate = human_agreement_rate(judge, votes)
+    return {"human_agreement": _nan_to_none(rate), "n_annotated_pairs": len(votes),
+            "n_annotations": int(len(annotations))}
+
+
+def _present(verdicts: pd.DataFrame, candidates: Sequence[str]) -> str | None:
+    return next((c for c in candidates if c in verdicts.columns), None)
+
+
+def swap_consistency(verdicts: pd.DataFrame, letter_columns: Sequence[str], winner_columns: Sequence[str]) -> dict:
+    """Order-swap consistency from whichever swapped-answer column the verdicts carry.
+
+    A letter column holds the answer given with the two videos shown in swapped order (the
+    answer is consistent when the letters differ); a winner column holds the policy picked in
+    the swapped query (consistent when it equals ``winner``). Rows without a swapped answer
+    (not audited) are skipped; no such column or no audited row gives None.
+    """
+    letter_col, winner_col = _present(verdicts, letter_columns), _present(verdicts, winner_columns)
+    if letter_col is not None:
+        audited = verdicts[verdicts[letter_col].notna()]
+        if len(audited):
+            return {"swap_consistency": order_swap_consistency(audited["verdict"].tolist(), audited[letter_col].tolist()),
+                    "n_swapped": int(len(audited)), "swap_column": letter_col}
+    elif winner_col is not None:
+        audited = verdicts[verdicts[winner_col].notna()]
+        if len(audited):
+            same = audited[winner_col].astype(str).to_numpy() == audited["winner"].astype(str).to_numpy()
+            return {"swap_consistency": float(same.mean()), "n_swapped": int(len(audited)), "swap_column": winner_col}
+    return {"swap_consistency": None, "n_swapped": 0, "swap_column": letter_col or winner_col}
+
+
+def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
+                annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
+                swapped_winner_columns: Sequence[str] = ()) -> dict:
+    """How far one judge can be trusted beyond the ranking metrics.
+
+    Position bias (share of A answers, overall and on pairs whose two rollouts had the same
+    outcome), order-swap consistency where the verdicts carry swapped answers, and agreement
+    with human annotators where annotations are given. Missing quantities are None.
+    """
+    _require(verdicts, ["episode_a", "episode_b", "verdict", "winner"], "verdicts")
+    _require(sim_episodes, ["episode_id", "success"], "sim rollout episodes")
+    success = dict(zip(sim_episodes["episode_id"].astype(str), sim_episodes["success"].astype(bool)))
+    unknown = sorted((set(verdicts["episode_a"].astype(str)) | set(verdicts["episode_b"].astype(str))) - set(success))
+    if unknown:
+        raise ValueError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
+    same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+                                                               verdicts["episode_b"].astype(str))], dtype=bool)
+    bias = position_bias(verdicts["verdict"].tolist(), same)
+    out = {"n_verdicts": bias.n, "a_share": bias.overall, "a_share_same_outcome": _nan_to_none(bias.same_outcome),
+           "n_same_outcome": bias.n_same_outcome}
+    out.update(swap_consistency(verdicts, swapped_letter_columns, swapped_winner_columns))
+    if annotations is not None:
+        out.update(agreement_with_annotations(verdicts, annotations, annotations_source))
+    else:
+        out.update({"human_agreement": None, "n_annotated_pairs": 0, "n_annotations": 0})
+    return out
+
+
+# --------------------------------------------------------------------- win rates
+
+
+def win_rate_matrix(verdicts: pd.DataFrame) -> pd.DataFrame:
+    """``rate[i, j]``: share of the comparisons of policies i and j that the judge gave to i,
+    over all judged comparisons (the last checkpoint). Diagonal NaN; rows and columns ordered
+    by overall win share, best first."""
+    _require(verdicts, ["policy_i", "policy_j", "pair_index"], "verdicts")
+    policies = sorted(set(verdicts["policy_i"].astype(str)) | set(verdicts["policy_j"].astype(str)))
+    n = int(verdicts.groupby(["policy_i", "policy_j"])["pair_index"].size().min())
+    wins = wins_at_checkpoints(verdicts, policies, [n])[0].astype(float)
+    total = wins + wins.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = np.where(total > 0, wins / total, np.nan)
+    np.fill_diagonal(rate, np.nan)
+    order = np.argsort(-wins.sum(axis=1) / np.maximum(total.sum(axis=1), 1), kind="stable")
+    names = [policies[k] for k in order]
+    return pd.DataFrame(rate[np.ix_(order, order)], index=names, columns=names)
+
+
+# --------------------------------------------------------------- overall ranking
+
+
+def last_checkpoint(fit: pd.DataFrame) -> pd.DataFrame:
+    """The rows of a fit table at its last checkpoint, indexed by policy."""
+    _require(fit, ["checkpoint", "policy", "score", "ci_low", "ci_high"], "fit table")
+    return fit[fit["checkpoint"] == fit["checkpoint"].max()].set_index("policy").sort_index()
+
+
+def judge_averaged_scores(fits: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Per policy at the last checkpoint: the score, CI bounds and checkpoint averaged over
+    judges, plus one ``score:<judge>`` column per judge."""
+    if not fits:
+        raise ValueError("no fit tables given")
+    last = {judge: last_checkpoint(fit) for judge, fit in fits.items()}
+    policies = sorted(set().union(*(set(t.index) for t in last.values())))
+    for judge, table in last.items():
+        lacking = sorted(set(policies) - set(table.index))
+        if lacking:
+            raise ValueError(f"judge {judge}: no score for policies {lacking} at its last checkpoint")
+    out = pd.DataFrame(index=pd.Index(policies, name="policy"))
+    for col in ("score", "ci_low", "ci_high"):
+        out[col] = np.mean([last[j].loc[policies, col].to_numpy() for j in sorted(last)], axis=0)
+    for judge in sorted(last):
+        out[f"score:{judge}"] = last[judge].loc[policies, "score"].to_numpy()
+    return out
+
+
+# -------------------------------------------------------------------- case study
+
+
+def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcome: str = "success", rank: int = 0) -> dict:
+    """A judged pair whose two rollouts had the same outcome, so the preference rests on how
+    the task was done, not on whether.
+
+    ``outcome``: "success", "failure" or "any" (both succeeded, both failed, either).
+    Candidates are distinct video pairs of different policies in (policy_i, policy_j,
+    pair_index) order; ``rank`` picks among them. Returns the preferred and the other
+    episode's rows (dicts) and the verdict row.
+    """
+    _require(verdicts, ["episode_a", "episode_b", "verdict", "policy_a", "policy_b", "policy_i", "policy_j",
+                        "pair_index"], "verdicts")
+    _require(sim_episodes, ["episode_id", "success", "video_path"], "sim rollout episodes")
+    if outcome not in ("success", "failure", "any"):
+        raise ValueError(f"outcome must be success, failure or any, got {outcome!r}")
+    episodes = sim_episodes.assign(episode_id=sim_episodes["episode_id"].astype(str)).set_index("episode_id")
+    ok = episodes["success"].astype(bool)
+    v = verdicts.assign(episode_a=verdicts["episode_a"].astype(str), episode_b=verdicts["episode_b"].astype(str))
+    unknown = sorted((set(v["episode_a"]) | set(v["episode_b"])) - set(ok.index))
+    if unknown:
+        raise ValueError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
+    sa, sb = ok.loc[v["episode_a"]].to_numpy(), ok.loc[v["episode_b"]].to_numpy()
+    keep = sa == sb
+    if outcome != "any":
+        keep &= sa == (outcome == "success")
+    candidates = (v[keep].sort_values(["policy_i", "policy_j", "pair_index"])
+                  .drop_duplicates(["episode_a", "episode_b"]))
+    if not len(candidates):
+        raise ValueError(f"no judged pair whose two rollouts share the outcome {outcome!r}")
+    if not 0 <= int(rank) < len(candidates):
+        raise ValueError(f"case-study rank {rank} out of range: {len(candidates)} candidate pair(s) with outcome {outcome!r}")
+    row = candidates.iloc[int(rank)]
+    preferred, other = (row.episode_a, row.episode_b) if str(row.verdict).upper() == "A" else (row.episode_b, row.episode_a)
+    return {
+        "preferred": {"episode_id": preferred, **episodes.loc[preferred].to_dict()},
+        "other": {"episode_id": other, **episodes.loc[other].to_dict()},
+        "verdict": row.to_dict(),
+        "n_candidates": int(len(candidates)),
+    }

@@ -1,0 +1,28 @@
+"""Stage: the BT scores table (per judge and policy, s at the last checkpoint with its CI)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from r2s_eval.report import bt_scores_table
+from r2s_eval.stages import _cli
+from r2s_eval.stages.validate import reference_rates
+from r2s_eval.utils.io import atomic_path
+
+
+def main(args) -> None:
+    opts = args.cfg["report.bt_scores_table"]
+    fits = {Path(p).stem: pd.read_parquet(p) for p in args.fits}
+    reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(bt_scores_table(fits, reference, decimals=int(opts["decimals"]), show_ci=bool(opts["show_ci"])))
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--fits", nargs="+", required=True, help="fit table per judge (results/fit/<judge>.parquet)")
+    p.add_argument("--reference", required=True)
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

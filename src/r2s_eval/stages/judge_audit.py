@@ -1,0 +1,44 @@
+"""Stage: how far one judge can be trusted beyond the ranking metrics.
+
+Position bias (share of A answers, overall and on same-outcome pairs), order-swap
+consistency where the verdicts carry swapped answers, and agreement with human annotators
+where an annotations CSV is configured. Quantities without data are null.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import pandas as pd
+
+from r2s_eval.report import judge_audit
+from r2s_eval.stages import _cli
+from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.utils.io import write_json
+
+log = logging.getLogger("r2s_eval.judge_audit")
+
+
+def main(args) -> None:
+    opts = args.cfg["report.judge_audit"]
+    verdicts = pd.read_parquet(args.verdicts)
+    annotations = pd.read_csv(args.annotations) if args.annotations else None
+    audit = judge_audit(
+        verdicts, load_episodes(args.rollouts), annotations=annotations, annotations_source=str(args.annotations),
+        swapped_letter_columns=opts["swapped_letter_columns"], swapped_winner_columns=opts["swapped_winner_columns"],
+    )
+    if audit["swap_consistency"] is None:
+        log.info("%s: no swapped answers (looked for %s)", args.verdicts,
+                 opts["swapped_letter_columns"] + opts["swapped_winner_columns"])
+    write_json(args.out, {"judge": args.judge, "verdicts": str(args.verdicts), **audit})
+    log.info("%s", audit)
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--judge", required=True)
+    p.add_argument("--verdicts", required=True)
+    p.add_argument("--rollouts", nargs="+", required=True, help="sim rollout folders, one per policy")
+    p.add_argument("--annotations", help="CSV of human annotations (episode_a, episode_b, choice[, annotator])")
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

@@ -1,0 +1,26 @@
+"""Stage: real vs sim success per task and policy, with totals and the real-sim gaps."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from r2s_eval.report import realsim_success_table, success_by_task
+from r2s_eval.stages import _cli
+from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.utils.io import atomic_path
+
+
+def main(args) -> None:
+    opts = args.cfg["report.realsim_success_table"]
+    success = success_by_task(pd.read_parquet(args.reference), load_episodes(args.rollouts))
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(realsim_success_table(success, decimals=int(opts["decimals"])))
+    print(success.to_string(index=False))
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--reference", required=True, help="reference success table (the real side)")
+    p.add_argument("--rollouts", nargs="+", required=True, help="sim rollout folders, one per policy")
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

@@ -1,0 +1,25 @@
+"""Stage: the tasks table (per task: real and sim trajectories, replay success %)."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from r2s_eval.report import task_summary, tasks_table
+from r2s_eval.stages import _cli
+from r2s_eval.utils.io import atomic_path
+
+
+def main(args) -> None:
+    opts = args.cfg["report.tasks_table"]
+    summary = task_summary(pd.read_parquet(args.index), pd.read_parquet(args.replay_log))
+    with atomic_path(args.out) as tmp:
+        tmp.write_text(tasks_table(summary, decimals=int(opts["decimals"])))
+    print(summary.to_string(index=False))
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--index", required=True, help="ingest's episode index")
+    p.add_argument("--replay-log", required=True)
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

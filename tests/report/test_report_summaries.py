@@ -1,0 +1,151 @@
+"""Numbers behind the reports, checked by hand on small constructed artefacts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from r2s_eval.report import (
+    judge_audit,
+    judge_averaged_scores,
+    pick_case_study,
+    success_by_task,
+    success_gaps,
+    task_summary,
+    win_rate_matrix,
+)
+
+
+def test_task_summary_counts_real_sim_and_replay_success():
+    index = pd.DataFrame({"episode_index": [0, 1, 2, 3, 4], "task": ["t1", "t1", "t1", "t2", "t2"]})
+    log = pd.DataFrame({"episode_index": [0, 1, 2, 3, 4, 9], "task": ["t1", "t1", "t1", "t2", "t2", "t2"],
+                        "success": [True, False, True, True, True, False]})  # episode 9 was not ingested
+    table = task_summary(index, log)
+    assert table["task"].tolist() == ["t1", "t2"]
+    assert table["real"].tolist() == [3, 2] and table["sim"].tolist() == [2, 2]
+    assert table["replay_success"].tolist() == pytest.approx([2 / 3, 1.0])
+
+
+def test_task_summary_names_unreplayed_episodes():
+    index = pd.DataFrame({"episode_index": [0, 7], "task": ["t1", "t1"]})
+    log = pd.DataFrame({"episode_index": [0], "task": ["t1"], "success": [True]})
+    with pytest.raises(ValueError, match=r"\[7\]"):
+        task_summary(index, log)
+
+
+@pytest.fixture
+def success():
+    reference = pd.DataFrame({"policy": ["a", "a", "b"], "task": ["t1", "t2", "t1"],
+                              "trials": [10, 10, 10], "successes": [8, 5, 2]})
+    sim = pd.DataFrame({
+        "policy": ["a"] * 6 + ["b"] * 4,
+        "task": ["t1"] * 4 + ["t2"] * 2 + ["t1", "t1", "t2", "t2"],
+        "success": [True, True, True, False, True, False, False, False, True, True],
+    })
+    return success_by_task(reference, sim)
+
+
+def test_success_by_task_cells_and_totals(success):
+    cells = success.set_index(["policy", "task"])
+    assert cells.loc[("a", "t1"), ["real", "sim"]].tolist() == pytest.approx([0.8, 0.75])
+    assert cells.loc[("a", "t2"), ["real", "sim"]].tolist() == pytest.approx([0.5, 0.5])
+    assert cells.loc[("b", "t1"), ["real", "sim"]].tolist() == pytest.approx([0.2, 0.0])
+    assert math.isnan(cells.loc[("b", "t2"), "real"]) and cells.loc[("b", "t2"), "sim"] == 1.0
+    assert cells.loc[("a", "total"), ["real", "sim"]].tolist() == pytest.approx([13 / 20, 4 / 6])
+    assert cells.loc[("b", "total"), ["real", "sim"]].tolist() == pytest.approx([0.2, 0.5])
+    assert cells.loc[("a", "t1"), ["real_trials", "sim_trials"]].tolist() == [10, 4]
+
+
+def test_success_gaps_in_percentage_points(success):
+    gaps = success_gaps(success)
+    assert gaps.loc["t1"].tolist() == pytest.approx([12.5, 20.0])  # |80-75| and |20-0|
+    assert gaps.loc["t2"].tolist() == pytest.approx([0.0, 0.0])  # b has no real t2 trials
+    assert gaps.loc["total"].tolist() == pytest.approx([(5 / 3 + 30) / 2, 30.0])
+
+
+def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes):
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"])
+    assert audit["a_share"] == pytest.approx(4 / 6)
+    # Same outcome: a1/b1 (both succeed, answered A) and c2/b2 (both fail, answered B).
+    assert audit["n_same_outcome"] == 2 and audit["a_share_same_outcome"] == pytest.approx(0.5)
+    assert audit["swap_consistency"] is None and audit["n_swapped"] == 0
+    assert audit["human_agreement"] is None
+
+
+def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
+    verdicts["swapped_letter"] = ["A", None, "B", "B", "B", None]  # original letters A, B, A, A, A, B
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict", "swapped_letter"])
+    assert audit["n_swapped"] == 4 and audit["swap_column"] == "swapped_letter"
+    assert audit["swap_consistency"] == pytest.approx(3 / 4)  # only the first audited row kept its letter
+
+
+def test_audit_swap_consistency_from_winners(verdicts, sim_episodes):
+    verdicts["swapped_winner"] = ["a", None, "a", "a", "c", None]  # winners a, a, c, a, b, b
+    audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"])
+    assert audit["n_swapped"] == 4 and audit["swap_consistency"] == pytest.approx(0.5)
+
+
+def test_audit_human_agreement_majority_and_flipped_order(verdicts, sim_episodes):
+    annotations = pd.DataFrame({
+        "episode_a": ["a1", "a1", "a1", "a2", "c1", "b1", "b1"],
+        "episode_b": ["b1", "b1", "b1", "b2", "a1", "c1", "c1"],
+        "choice": ["A", "a", "B", "A", "B", "A", "B"],
+        "annotator": ["x", "y", "z", "x", "x", "x", "y"],
+    })
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations)
+    # a1/b1: majority A, judge A (agree). a2/b2 was shown to the judge as b2/a2 and answered B (a2):
+    # the annotator's A for a2 agrees. c1/a1: annotator B, judge A. b1/c1: tied vote, left out.
+    assert audit["human_agreement"] == pytest.approx(2 / 3)
+    assert audit["n_annotated_pairs"] == 4 and audit["n_annotations"] == 7
+
+
+def test_audit_names_unjudged_annotation(verdicts, sim_episodes):
+    annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["c2"], "choice": ["A"]})
+    with pytest.raises(ValueError, match=r"ann\.csv, row 0: the judge never compared episodes a1 / c2"):
+        judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv")
+
+
+def test_audit_rejects_bad_choice(verdicts, sim_episodes):
+    annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["b1"], "choice": ["left"]})
+    with pytest.raises(ValueError, match="choice must be A or B"):
+        judge_audit(verdicts, sim_episodes, annotations=annotations)
+
+
+def test_win_rate_matrix_ordered_by_win_share(verdicts):
+    rates = win_rate_matrix(verdicts)
+    assert list(rates.index) == ["a", "b", "c"] and list(rates.columns) == ["a", "b", "c"]
+    expected = np.array([[np.nan, 1.0, 0.5], [0.0, np.nan, 1.0], [0.5, 0.0, np.nan]])
+    np.testing.assert_allclose(rates.to_numpy(), expected)
+
+
+def test_case_study_picks_same_outcome_pair(verdicts, sim_episodes):
+    case = pick_case_study(verdicts, sim_episodes, "success")
+    assert case["n_candidates"] == 1
+    assert case["preferred"]["episode_id"] == "a1" and case["other"]["episode_id"] == "b1"
+    fail = pick_case_study(verdicts, sim_episodes, "failure")
+    assert (fail["preferred"]["episode_id"], fail["other"]["episode_id"]) == ("b2", "c2")  # answered B
+    assert pick_case_study(verdicts, sim_episodes, "any", rank=1)["preferred"]["episode_id"] == "b2"
+    with pytest.raises(ValueError, match="rank 2 out of range: 2 candidate"):
+        pick_case_study(verdicts, sim_episodes, "any", rank=2)
+
+
+def test_case_study_without_candidates(verdicts, sim_episodes):
+    sim_episodes["success"] = [True, True, False, False, False, False]  # only a's rollouts succeed
+    with pytest.raises(ValueError, match="no judged pair whose two rollouts share the outcome 'success'"):
+        pick_case_study(verdicts, sim_episodes, "success")
+
+
+def test_judge_averaged_scores(make_fit):
+    fits = {
+        "j1": make_fit({1: {"a": (90, 80, 95), "b": (10, 5, 20)}, 2: {"a": (70, 60, 80), "b": (30, 20, 40)}}),
+        "j2": make_fit({2: {"a": (50, 40, 60), "b": (50, 40, 60)}}),
+    }
+    avg = judge_averaged_scores(fits)
+    assert avg.loc["a", ["score", "ci_low", "ci_high"]].tolist() == pytest.approx([60, 50, 70])
+    assert avg.loc["b", "score:j1"] == 30 and avg.loc["b", "score:j2"] == 50
+    fits["j2"] = make_fit({2: {"a": (50, 40, 60)}})
+    with pytest.raises(ValueError, match=r"judge j2: no score for policies \['b'\]"):
+        judge_averaged_scores(fits)

@@ -128,13 +128,22 @@ def test_case_study_picks_same_outcome_pair(verdicts, sim_episodes):
     fail = pick_case_study(verdicts, sim_episodes, "failure")
     assert (fail["preferred"]["episode_id"], fail["other"]["episode_id"]) == ("b2", "c2")  # answered B
     assert pick_case_study(verdicts, sim_episodes, "any", rank=1)["preferred"]["episode_id"] == "b2"
-    with pytest.raises(ValueError, match="rank 2 out of range: 2 candidate"):
+    with pytest.raises(ValueError, match=r"no case study at rank 2: .*\{'any': 2\}"):
         pick_case_study(verdicts, sim_episodes, "any", rank=2)
+    with pytest.raises(ValueError, match="outcomes must be success, failure or any"):
+        pick_case_study(verdicts, sim_episodes, ["success", "both"])
+
+
+def test_case_study_falls_back_to_the_next_outcome(verdicts, sim_episodes):
+    sim_episodes["success"] = [True, True, False, False, False, False]  # only a's rollouts succeed
+    case = pick_case_study(verdicts, sim_episodes, ["success", "failure"])
+    assert case["outcome"] == "failure" and case["n_candidates"] == 2
+    assert (case["preferred"]["episode_id"], case["other"]["episode_id"]) == ("b1", "c1")  # b/c pair 0, answered A
 
 
 def test_case_study_without_candidates(verdicts, sim_episodes):
     sim_episodes["success"] = [True, True, False, False, False, False]  # only a's rollouts succeed
-    with pytest.raises(ValueError, match="no judged pair whose two rollouts share the outcome 'success'"):
+    with pytest.raises(ValueError, match=r"no case study at rank 0: .*\{'success': 0\}"):
         pick_case_study(verdicts, sim_episodes, "success")
 
 

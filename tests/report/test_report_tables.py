@@ -98,6 +98,15 @@ def test_realsim_success_table():
                                      r" & \multicolumn{2}{c}{30.0} \\")
 
 
+def test_realsim_success_table_single_task_has_no_total_columns():
+    reference = pd.DataFrame({"policy": ["a"], "task": ["t1"], "trials": [4], "successes": [3]})
+    sim = pd.DataFrame({"policy": ["a", "a"], "task": ["t1", "t1"], "success": [True, False]})
+    table = realsim_success_table(success_by_task(reference, sim))
+    check_structure(table)
+    assert "Total" not in table and row(table, "a ") == r"a & 75.0 & 50.0 \\"
+    assert row(table, "Largest") == r"Largest gap (pp) & \multicolumn{2}{c}{25.0} \\"
+
+
 def test_bt_scores_table(make_fit):
     fits = {
         "j1": make_fit({10: {"a": (20.0, 10.0, 30.0), "b": (80.0, 70.0, 90.0)},

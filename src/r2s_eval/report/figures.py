@@ -17,6 +17,7 @@ import matplotlib
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from r2s_eval.stats import spearman
 from r2s_eval.utils.io import atomic_path
@@ -98,6 +99,11 @@ def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figur
                                 alpha=float(opts.get("band_alpha", 0.2)), linewidth=0)
             ax.set_title(judge)
             ax.set_xlabel("comparisons per policy pair")
+            checkpoints = np.unique(fits[judge]["checkpoint"])
+            if len(checkpoints) <= 8:  # few checkpoints: tick each one
+                ax.set_xticks(checkpoints)
+            else:
+                ax.xaxis.set_major_locator(MaxNLocator(integer=True))
             ax.grid(alpha=0.3)
         for ax in axes[:, 0]:
             ax.set_ylabel("BT score $s$")

@@ -233,20 +233,25 @@ def judge_averaged_scores(fits: dict[str, pd.DataFrame]) -> pd.DataFrame:
 # -------------------------------------------------------------------- case study
 
 
-def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcome: str = "success", rank: int = 0) -> dict:
+def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcomes: str | Sequence[str] = "success",
+                    rank: int = 0) -> dict:
     """A judged pair whose two rollouts had the same outcome, so the preference rests on how
     the task was done, not on whether.
 
-    ``outcome``: "success", "failure" or "any" (both succeeded, both failed, either).
-    Candidates are distinct video pairs of different policies in (policy_i, policy_j,
-    pair_index) order; ``rank`` picks among them. Returns the preferred and the other
-    episode's rows (dicts) and the verdict row.
+    ``outcomes``: one of, or a list tried in order of, "success" (both rollouts succeeded),
+    "failure" (both failed) and "any"; the first outcome with more than ``rank`` candidates
+    is used (e.g. ``["success", "failure"]`` falls back to two failures when no two
+    successful rollouts were compared). Candidates are distinct video pairs in (policy_i,
+    policy_j, pair_index) order. Returns the preferred and the other episode's rows (dicts),
+    the verdict row, the outcome used and the number of candidates.
     """
     _require(verdicts, ["episode_a", "episode_b", "verdict", "policy_a", "policy_b", "policy_i", "policy_j",
                         "pair_index"], "verdicts")
     _require(sim_episodes, ["episode_id", "success", "video_path"], "sim rollout episodes")
-    if outcome not in ("success", "failure", "any"):
-        raise ValueError(f"outcome must be success, failure or any, got {outcome!r}")
+    outcomes = [outcomes] if isinstance(outcomes, str) else list(outcomes)
+    bad = [o for o in outcomes if o not in ("success", "failure", "any")]
+    if bad or not outcomes:
+        raise ValueError(f"case-study outcomes must be success, failure or any, got {outcomes!r}")
     episodes = sim_episodes.assign(episode_id=sim_episodes["episode_id"].astype(str)).set_index("episode_id")
     ok = episodes["success"].astype(bool)
     v = verdicts.assign(episode_a=verdicts["episode_a"].astype(str), episode_b=verdicts["episode_b"].astype(str))
@@ -254,20 +259,24 @@ def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcome:
     if unknown:
         raise ValueError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
     sa, sb = ok.loc[v["episode_a"]].to_numpy(), ok.loc[v["episode_b"]].to_numpy()
-    keep = sa == sb
-    if outcome != "any":
-        keep &= sa == (outcome == "success")
-    candidates = (v[keep].sort_values(["policy_i", "policy_j", "pair_index"])
-                  .drop_duplicates(["episode_a", "episode_b"]))
-    if not len(candidates):
-        raise ValueError(f"no judged pair whose two rollouts share the outcome {outcome!r}")
-    if not 0 <= int(rank) < len(candidates):
-        raise ValueError(f"case-study rank {rank} out of range: {len(candidates)} candidate pair(s) with outcome {outcome!r}")
+    counts = {}
+    for outcome in outcomes:
+        keep = sa == sb
+        if outcome != "any":
+            keep &= sa == (outcome == "success")
+        candidates = (v[keep].sort_values(["policy_i", "policy_j", "pair_index"])
+                      .drop_duplicates(["episode_a", "episode_b"]))
+        counts[outcome] = len(candidates)
+        if int(rank) < len(candidates):
+            break
+    else:
+        raise ValueError(f"no case study at rank {rank}: candidate pairs with the same outcome per outcome tried: {counts}")
     row = candidates.iloc[int(rank)]
     preferred, other = (row.episode_a, row.episode_b) if str(row.verdict).upper() == "A" else (row.episode_b, row.episode_a)
     return {
         "preferred": {"episode_id": preferred, **episodes.loc[preferred].to_dict()},
         "other": {"episode_id": other, **episodes.loc[other].to_dict()},
         "verdict": row.to_dict(),
+        "outcome": outcome,
         "n_candidates": int(len(candidates)),
     }

@@ -75,8 +75,9 @@ def realsim_success_table(success: pd.DataFrame, decimals: int = 1) -> str:
     """Per policy (rows) and task (column pairs): real and sim success %, the pooled totals,
     and two footer rows with the mean absolute real-sim difference and the largest gap over
     policies, in percentage points. ``success`` is
-    :func:`~r2s_eval.report.summaries.success_by_task`."""
-    tasks = sorted(t for t in success["task"].unique() if t != "total") + ["total"]
+    :func:`~r2s_eval.report.summaries.success_by_task`. The totals appear with two or more tasks."""
+    tasks = sorted(t for t in success["task"].unique() if t != "total")
+    tasks += ["total"] if len(tasks) > 1 else []  # one task: its columns are the totals
     cells = success.set_index(["policy", "task"])
     gaps = success_gaps(success)
     policies = sorted(success["policy"].unique())

@@ -15,7 +15,7 @@ log = logging.getLogger("r2s_eval.case_study")
 
 def main(args) -> None:
     opts = args.cfg["report.case_study"]
-    case = pick_case_study(pd.read_parquet(args.verdicts), load_episodes(args.rollouts), opts["outcome"], opts["rank"])
+    case = pick_case_study(pd.read_parquet(args.verdicts), load_episodes(args.rollouts), opts["outcomes"], opts["rank"])
     rows = []
     for role in ("preferred", "other"):
         ep = case[role]
@@ -23,9 +23,10 @@ def main(args) -> None:
         outcome = "success" if ep["success"] else "failure"
         rows.append((f"{role}\n{ep['policy']} ({outcome})", frames, times))
     v = case["verdict"]
-    title = f"Judge {args.judge}, task {v['task']}, init {v['init_id']}: same outcome, judge prefers {case['preferred']['policy']}"
+    both = {"success": "both succeed", "failure": "both fail"}.get(case["outcome"], "same outcome")
+    title = f"Judge {args.judge}, task {v['task']}, init {v['init_id']}: {both}, the judge prefers {case['preferred']['policy']}"
     save_figure(case_study_figure(rows, title, str(v.get("rationale") or ""), opts), args.pdf, args.png, dpi=opts["dpi"])
-    log.info("case study from %d candidate pairs: preferred %s, other %s", case["n_candidates"],
+    log.info("case study (%s) from %d candidate pairs: preferred %s, other %s", case["outcome"], case["n_candidates"],
              case["preferred"]["episode_id"], case["other"]["episode_id"])
 
 

@@ -82,6 +82,15 @@ def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
     assert audit["swap_consistency"] == pytest.approx(3 / 4)  # only the first audited row kept its letter
 
 
+def test_audit_swap_consistency_skips_empty_answers(verdicts, sim_episodes):
+    # The judge stage writes "" where a pair was not audited or its swapped answer was invalid.
+    verdicts["verdict_swapped"] = ["B", "", "", "B", "", "A"]  # original letters A, B, A, A, A, B
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"])
+    assert audit["n_swapped"] == 3 and audit["swap_consistency"] == pytest.approx(1.0)
+    verdicts["verdict_swapped"] = ""
+    assert judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"])["swap_consistency"] is None
+
+
 def test_audit_swap_consistency_from_winners(verdicts, sim_episodes):
     verdicts["swapped_winner"] = ["a", None, "a", "a", "c", None]  # winners a, a, c, a, b, b
     audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"])

@@ -125,11 +125,17 @@ def agreement_with_annotations(verdicts: pd.DataFrame, annotations: pd.DataFrame
             raise ValueError(f"{source}, row {row}: the judge never compared episodes {ea} / {eb}")
     rate = human_agreement_rate(judge, votes)
     return {"human_agreement": _nan_to_none(rate), "n_annotated_pairs": len(votes),
-            "n_annotations": int(len(annotations))}
+            "n_annotations": len(annotations)}
 
 
 def _present(verdicts: pd.DataFrame, candidates: Sequence[str]) -> str | None:
     return next((c for c in candidates if c in verdicts.columns), None)
+
+
+def _answered(column: pd.Series) -> np.ndarray:
+    """Rows that carry a swapped answer: not null and not empty (the judge stage writes "" for
+    pairs it did not audit or whose swapped answer was invalid)."""
+    return (column.notna() & (column.astype(str).str.strip() != "")).to_numpy()
 
 
 def swap_consistency(verdicts: pd.DataFrame, letter_columns: Sequence[str], winner_columns: Sequence[str]) -> dict:
@@ -138,20 +144,23 @@ def swap_consistency(verdicts: pd.DataFrame, letter_columns: Sequence[str], winn
     A letter column holds the answer given with the two videos shown in swapped order (the
     answer is consistent when the letters differ); a winner column holds the policy picked in
     the swapped query (consistent when it equals ``winner``). Rows without a swapped answer
-    (not audited) are skipped; no such column or no audited row gives None.
+    (null or empty: not audited) are skipped; no such column or no audited row gives None.
     """
     letter_col, winner_col = _present(verdicts, letter_columns), _present(verdicts, winner_columns)
+    none = {"swap_consistency": None, "n_swapped": 0, "swap_column": letter_col or winner_col}
     if letter_col is not None:
-        audited = verdicts[verdicts[letter_col].notna()]
-        if len(audited):
-            return {"swap_consistency": order_swap_consistency(audited["verdict"].tolist(), audited[letter_col].tolist()),
-                    "n_swapped": int(len(audited)), "swap_column": letter_col}
-    elif winner_col is not None:
-        audited = verdicts[verdicts[winner_col].notna()]
-        if len(audited):
-            same = audited[winner_col].astype(str).to_numpy() == audited["winner"].astype(str).to_numpy()
-            return {"swap_consistency": float(same.mean()), "n_swapped": int(len(audited)), "swap_column": winner_col}
-    return {"swap_consistency": None, "n_swapped": 0, "swap_column": letter_col or winner_col}
+        audited = verdicts[_answered(verdicts[letter_col])]
+        if not len(audited):
+            return none
+        rate = order_swap_consistency(audited["verdict"].tolist(), audited[letter_col].tolist())
+        return {"swap_consistency": rate, "n_swapped": len(audited), "swap_column": letter_col}
+    if winner_col is not None:
+        audited = verdicts[_answered(verdicts[winner_col])]
+        if not len(audited):
+            return none
+        same = audited[winner_col].astype(str).to_numpy() == audited["winner"].astype(str).to_numpy()
+        return {"swap_consistency": float(same.mean()), "n_swapped": len(audited), "swap_column": winner_col}
+    return none
 
 
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
@@ -278,5 +287,5 @@ def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcomes
         "other": {"episode_id": other, **episodes.loc[other].to_dict()},
         "verdict": row.to_dict(),
         "outcome": outcome,
-        "n_candidates": int(len(candidates)),
+        "n_candidates": len(candidates),
     }

@@ -16,7 +16,7 @@ def experiment_scale(reference: pd.DataFrame) -> tuple[int, int, int]:
     """(policies, tasks, trials per task and policy, rounded mean) of a reference table."""
     if reference.empty:
         raise ValueError("reference success table is empty")
-    trials = int(round(reference.groupby(["policy", "task"])["trials"].sum().mean()))
+    trials = round(reference.groupby(["policy", "task"])["trials"].sum().mean())
     return int(reference["policy"].nunique()), int(reference["task"].nunique()), trials
 
 

@@ -183,7 +183,8 @@ def hardware_effort_figure(seconds_per_trial: Mapping[str, float], n_policies: i
         total_trials = per_task * max(n_tasks, 1)
         hours = operator_hours(seconds_per_trial, n_policies, max(n_tasks, 1), per_task)
         ax_a.stackplot(total_trials, *[hours[c] for c in HARDWARE_COMPONENTS], labels=HARDWARE_COMPONENTS, alpha=0.85)
-        ax_a.plot(total_trials, np.zeros_like(total_trials, dtype=float), "k-", lw=2, label="r2s-eval (repeated)")
+        ax_a.plot(total_trials, np.zeros_like(total_trials, dtype=float), "k-", lw=2,
+                  label="r2s-eval (no repeated hardware time)")
         now = sum(operator_hours(seconds_per_trial, n_policies, n_tasks, n_trials).values())
         ax_a.plot([n_tasks * n_trials], [now], "ko", ms=5)
         ax_a.annotate(f"this run: {float(now):.1f} h", (n_tasks * n_trials, float(now)), textcoords="offset points",

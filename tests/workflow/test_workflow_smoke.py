@@ -15,6 +15,10 @@ from .conftest import finished_rules, planned_jobs, snakemake
 
 pytestmark = pytest.mark.slow
 
+# Reports drawn from the Bradley-Terry fits, and those drawn from the verdicts themselves.
+FIT_REPORTS = {"bt_scores_table", "bt_convergence", "overall_ranking"}
+VERDICT_REPORTS = {"win_rate_matrix", "case_study"}
+
 
 def test_report_has_real_numbers(smoke_run):
     table = (smoke_run.workdir / "reports" / "realsim_table.tex").read_text()
@@ -73,13 +77,19 @@ def test_second_invocation_plans_nothing(smoke_run):
 def test_statistics_change_reruns_only_fit_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    assert rules == {"fit", "validate", "realsim_table"}, rules
+    assert rules == {"fit", "validate", "realsim_table", *FIT_REPORTS}, rules
 
 
 def test_judge_change_reruns_describe_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    assert rules == {"describe", "judge_pairs", "fit", "validate", "realsim_table"}, rules
+    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", *FIT_REPORTS, *VERDICT_REPORTS}
+    assert rules == expected, rules
+
+
+def test_plot_option_reruns_only_that_figure(smoke_run):
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["report.win_rate_matrix.cmap=viridis"])
+    assert {rule for rule, _ in planned_jobs(proc.stdout)} == {"win_rate_matrix"}
 
 
 def test_policy_change_reruns_only_that_policy(smoke_run):

@@ -87,18 +87,19 @@ def render(name: str, **values: Any) -> str:
 
 
 def split_on(text: str, *markers: str) -> list[str]:
-    """Split rendered text around placeholder markers (kept as separate items)."""
+    """Split rendered text around placeholder markers, each of which must occur exactly once."""
+    for m in markers:
+        if text.count(m) != 1:
+            raise ValueError(f"marker {m!r} must occur exactly once in the prompt")
     parts = [text]
     for m in markers:
         out = []
         for p in parts:
-            if p in markers:
+            if p in markers or m not in p:
                 out.append(p)
                 continue
-            pieces = p.split(m)
-            if len(pieces) != 2:
-                raise ValueError(f"marker {m!r} must occur exactly once in the prompt")
-            out += [pieces[0], m, pieces[1]]
+            before, after = p.split(m)
+            out += [before, m, after]
         parts = out
     return [p for p in parts if p in markers or p.strip()]
 

@@ -184,3 +184,49 @@ def test_openai_stage_killed_mid_run_resumes_without_repeating_a_request(rollout
     stats = json.loads(out.with_name("describe_stats.json").read_text())
     assert stats["cache_hits"] == 5 and stats["calls"] == len(episodes) - 5
     assert len(pd.read_parquet(out)) == len(episodes)
+
+
+def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, monkeypatch):
+    """compare_pairs -> describe -> judge_pairs through their command lines, as the workflow runs them."""
+    from r2s_eval.stages import _cli
+    from r2s_eval.stages import compare_pairs as cp_stage
+    from r2s_eval.stages import describe as d_stage
+    from r2s_eval.stages import judge_pairs as jp_stage
+
+    dirs, episodes = rollouts
+    monkeypatch.chdir(tmp_path)
+    pairs = tmp_path / "pairs.parquet"
+    cfg_pairs = {"compare": {"checkpoints": {"start": 4, "stop": 8, "step": 4}}, "seed": 3}
+    _cli.run(cp_stage.main, _add(cp_stage, ["--rollouts", "--out"]),
+             ["--cfg", json.dumps(cfg_pairs), "--rollouts", *dirs, "--out", str(pairs)])
+    with ChatServer() as server:
+        judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
+        desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
+        _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--out"]),
+                 ["--cfg", json.dumps(judge), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
+        _cli.run(jp_stage.main, _add(jp_stage, ["--pairs", "--rollouts", "--descriptions", "--cache", "--out"]),
+                 ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
+                  "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])
+    out = pd.read_parquet(verdicts)
+    assert len(out) == len(pd.read_parquet(pairs)) and (out["winner"] == "GoodPolicyAlpha").all()
+    stats = json.loads(verdicts.with_name("compare_stats.json").read_text())
+    assert stats["excluded"] > 0 and stats["swap_audited"] == int(out["swap_audited"].sum())
+    for key in ("calls", "cache_hits", "requests", "retries", "reasks", "tokens_in", "tokens_out", "wall_s"):
+        assert key in stats and key in json.loads(verdicts.with_name("describe_stats.json").read_text())
+
+    # Pairs that do not come from these rollouts and seed are refused, not silently replaced.
+    judge["seed"] = 4
+    with pytest.raises(ValueError, match="was not sampled from these rollouts with seed 4"):
+        _cli.run(jp_stage.main, _add(jp_stage, ["--pairs", "--rollouts", "--descriptions", "--cache", "--out"]),
+                 ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
+                  "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])
+
+
+def _add(stage, flags: list[str]):
+    """The stage's own argument parser, as in its __main__ block."""
+    from r2s_eval.stages import _cli
+
+    p = _cli.parser(stage.__doc__)
+    for f in flags:
+        p.add_argument(f, nargs="+" if f == "--rollouts" else None, required=f != "--descriptions")
+    return p

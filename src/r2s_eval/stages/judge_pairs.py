@@ -27,7 +27,7 @@ def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, se
     checkpoints = meta.get("checkpoints") or [int(pairs["pair_index"].max()) + 1]
     again = sample_pairs(episodes, policies, checkpoints, seed)
     cols = ["policy_i", "policy_j", "pair_index", "episode_a", "episode_b"]
-    if not again[cols].reset_index(drop=True).equals(pairs[cols].reset_index(drop=True)):
+    if again[cols].astype(str).values.tolist() != pairs[cols].astype(str).values.tolist():
         raise ValueError(f"{pairs_path} was not sampled from these rollouts with seed {seed}; rerun compare_pairs")
     return sample_reserve(episodes, policies, checkpoints, seed, n_reserve)
 

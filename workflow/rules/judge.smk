@@ -1,5 +1,28 @@
-# The judge describes each sim rollout once, then picks A or B for every sampled pair.
-# Answers are cached by content under results/cache/, so reruns never pay twice.
+# The judge describes each sim rollout once, then picks A or B for every sampled pair (two-step
+# judges compare the descriptions; one-step judges, `mode: one_step`, watch both videos).
+# Answers are cached by content in one folder shared by all judges (keys hold the model, the
+# prompts and the generation settings), so reruns and repeated judge entries never pay twice.
+JUDGE_CACHE = "results/cache/judge"
+
+
+def judge_mode(wildcards):
+    return CFG["judges"][wildcards.judge].get("mode", "two_step")
+
+
+def judge_pair_params(wildcards):
+    return to_json({"judge": CFG["judges"][wildcards.judge], "name": wildcards.judge, "seed": CFG["seed"]})
+
+
+def judge_pair_inputs(wildcards):
+    inputs = {
+        "pairs": "results/compare/pairs.parquet",
+        "rollouts": expand("results/rollout/sim/{policy}", policy=POLICIES),
+    }
+    if judge_mode(wildcards) == "two_step":
+        inputs["descriptions"] = f"results/judge/{wildcards.judge}/descriptions.parquet"
+    return inputs
+
+
 rule describe:
     input:
         expand("results/rollout/sim/{policy}", policy=POLICIES),
@@ -11,20 +34,20 @@ rule describe:
         "logs/describe/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.describe --cfg {params.cfg:q} --rollouts {input}"
-        " --cache results/cache/judge/{wildcards.judge} --out {output} > {log} 2>&1"
+        " --cache {JUDGE_CACHE} --out {output} > {log} 2>&1"
 
 
 rule judge_pairs:
     input:
-        pairs="results/compare/pairs.parquet",
-        descriptions="results/judge/{judge}/descriptions.parquet",
+        unpack(judge_pair_inputs),
     output:
         "results/judge/{judge}/verdicts.parquet",
     params:
-        cfg=judge_params,
+        cfg=judge_pair_params,
+        descriptions=lambda wc, input: f"--descriptions {input.descriptions}" if "descriptions" in input.keys() else "",
     log:
         "logs/judge_pairs/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.judge_pairs --cfg {params.cfg:q} --pairs {input.pairs}"
-        " --descriptions {input.descriptions} --cache results/cache/judge/{wildcards.judge}"
+        " --rollouts {input.rollouts} {params.descriptions} --cache {JUDGE_CACHE}"
         " --out {output} > {log} 2>&1"

@@ -117,3 +117,28 @@ def sample_pairs(
         frames.append(pd.DataFrame(rows, columns=list(PAIR_COLUMNS)))
     out = pd.concat(frames, ignore_index=True)
     return out.astype({"pair_index": "int64", "init_id": "int64", "first_checkpoint": "int64"})
+
+
+def sample_reserve(
+    episodes_df: pd.DataFrame,
+    policies: Sequence[str],
+    checkpoints: Sequence[int],
+    seed: int,
+    n_reserve: int,
+) -> pd.DataFrame:
+    """Replacement comparisons: positions n .. n + n_reserve - 1 of every pair's sequence.
+
+    n = max(checkpoints). These continue the seeded streams of ``sample_pairs`` (same arguments),
+    so they never coincide with a planned comparison's draw and do not change any of them; a judge
+    stage takes from them, in order and for the same task, when a planned comparison has to be
+    excluded. Columns as ``sample_pairs``, with first_checkpoint -1 (no checkpoint plans them).
+    """
+    n = _check_checkpoints(checkpoints)[-1]
+    if int(n_reserve) < 0:
+        raise ValueError(f"n_reserve must be >= 0, got {n_reserve}")
+    if int(n_reserve) == 0:
+        return pd.DataFrame(columns=list(PAIR_COLUMNS))
+    extended = sample_pairs(episodes_df, policies, [n + int(n_reserve)], seed)
+    reserve = extended[extended["pair_index"] >= n].copy()
+    reserve["first_checkpoint"] = -1
+    return reserve.reset_index(drop=True)

@@ -6,14 +6,20 @@ Public API:
   * interface: ``Judge`` (subclass it and decorate with ``@register_judge("<backend>")``, then
     import the module here), ``make_judge(cfg)`` keyed by ``cfg["backend"]``;
   * built-in backend "kinematic": ``KinematicJudge``, an offline trajectory heuristic, not a VLM;
-  * stage drivers: ``describe_rollouts``, ``judge_pairs`` (cached, resumable).
+  * VLM backends (two-step method in ``vlm.VLMJudge``): "openai" (``OpenAIJudge``, any
+    OpenAI-compatible chat-completions server) and "transformers" (``TransformersJudge``, a local
+    model);
+  * stage drivers: ``describe_rollouts``, ``judge_pairs`` (cached, resumable, with invalid-answer
+    replacement and the order-swap audit).
 """
 
 from r2s_eval.judge.base import (
     CRITERIA,
     PROGRESS_LABELS,
     CriterionNote,
+    STAGE_DEFAULTS,
     Description,
+    InvalidAnswer,
     Judge,
     RolloutInput,
     Verdict,
@@ -22,21 +28,30 @@ from r2s_eval.judge.base import (
     register_judge,
 )
 from r2s_eval.judge.kinematic import KinematicJudge
-from r2s_eval.judge.stages import StageStats, describe_rollouts, judge_pairs
+from r2s_eval.judge.openai_backend import OpenAIJudge
+from r2s_eval.judge.stages import StageStats, describe_rollouts, judge_pairs, swap_audited
+from r2s_eval.judge.transformers_backend import TransformersJudge
+from r2s_eval.judge.vlm import VLMJudge
 
 __all__ = [
     "CRITERIA",
+    "STAGE_DEFAULTS",
     "PROGRESS_LABELS",
     "CriterionNote",
     "Description",
+    "InvalidAnswer",
     "Judge",
     "KinematicJudge",
+    "OpenAIJudge",
     "RolloutInput",
     "StageStats",
+    "TransformersJudge",
+    "VLMJudge",
     "Verdict",
     "available_backends",
     "describe_rollouts",
     "judge_pairs",
     "make_judge",
     "register_judge",
+    "swap_audited",
 ]

@@ -18,7 +18,7 @@ import hashlib
 import json
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -78,6 +78,8 @@ class Description:
     criteria: Mapping[str, CriterionNote]
     summary: str
     judge: str
+    # The model's reply as written, kept when the sections were parsed out of free text.
+    raw_text: str = ""
     missing: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -96,12 +98,15 @@ class Description:
         return note.label if note is not None and note.label in PROGRESS_LABELS else None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "judge": self.judge,
             "summary": self.summary,
             "criteria": {k: v.to_dict() for k, v in self.criteria.items()},
             "missing": list(self.missing),
         }
+        if self.raw_text:  # only when present, so structured descriptions keep their bytes
+            out["raw_text"] = self.raw_text
+        return out
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Description:
@@ -110,6 +115,7 @@ class Description:
             criteria={k: CriterionNote.from_dict(v) for k, v in crit.items() if k in CRITERIA},
             summary=str(d.get("summary") or ""),
             judge=str(d.get("judge") or ""),
+            raw_text=str(d.get("raw_text") or ""),
         )
 
     def to_json(self) -> str:
@@ -143,6 +149,28 @@ class Verdict:
         return cls(letter=str(d["letter"]), rationale=str(d.get("rationale") or ""))
 
 
+class InvalidAnswer(Exception):
+    """The judge did not answer with a valid letter, even when asked once more.
+
+    The stage driver records it (the pair is excluded and replaced) instead of failing the run.
+    """
+
+    def __init__(self, message: str, replies: Sequence[str] = ()):
+        super().__init__(message)
+        self.replies = list(replies)
+
+
+# Options of the stage drivers, not of the judge: they decide which questions are asked and how
+# fast, never how one is answered, so they stay out of the judge identity and its cache keys.
+STAGE_DEFAULTS: dict[str, Any] = {
+    "mode": "two_step",  # two_step: describe each video, compare descriptions; one_step: compare videos
+    "concurrency": 1,  # parallel judge calls (server backends)
+    "swap_share": 0.0,  # share of pairs also asked in swapped order (order-swap audit)
+    "reserve": 50,  # seeded replacement comparisons per policy pair for excluded ones
+}
+MODES: tuple[str, ...] = ("two_step", "one_step")
+
+
 def plain_config(cfg: Any) -> Any:
     """Turn a (possibly OmegaConf) config into plain JSON-able dicts/lists for hashing and storage."""
     if isinstance(cfg, Mapping):
@@ -161,6 +189,9 @@ class Judge(ABC):
     prompt/template or the describing logic changes, so cached answers are not reused) and
     ``inputs`` (which recordings the judge reads: "video", "trajectory" or both; the cache key
     covers exactly these bytes and the other paths are withheld).
+
+    The stage options in ``STAGE_DEFAULTS`` (mode, concurrency, swap_share, reserve) are taken out
+    of the config into ``stage_cfg`` before a backend sees it.
     """
 
     backend: ClassVar[str] = ""
@@ -169,9 +200,19 @@ class Judge(ABC):
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         self.cfg: dict[str, Any] = plain_config(cfg or {})
+        self.stage_cfg: dict[str, Any] = {k: self.cfg.pop(k, v) for k, v in STAGE_DEFAULTS.items()}
         bad = set(self.inputs) - set(INPUT_KINDS)
         if not self.inputs or bad:
             raise ValueError(f"{type(self).__name__}.inputs must be a non-empty subset of {INPUT_KINDS}")
+        sc = self.stage_cfg
+        if sc["mode"] not in MODES:
+            raise ValueError(f"judge mode must be one of {MODES}, got {sc['mode']!r}")
+        if not (isinstance(sc["concurrency"], int) and sc["concurrency"] >= 1):
+            raise ValueError(f"judge concurrency must be an integer >= 1, got {sc['concurrency']!r}")
+        if not 0.0 <= float(sc["swap_share"]) <= 1.0:
+            raise ValueError(f"judge swap_share must be within [0, 1], got {sc['swap_share']!r}")
+        if not (isinstance(sc["reserve"], int) and sc["reserve"] >= 0):
+            raise ValueError(f"judge reserve must be an integer >= 0, got {sc['reserve']!r}")
 
     @property
     def name(self) -> str:
@@ -192,7 +233,18 @@ class Judge(ABC):
 
     @abstractmethod
     def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
-        """Say which of two described rollouts better carries out `instruction`: 'A' or 'B'."""
+        """Say which of two described rollouts better carries out `instruction`: 'A' or 'B'.
+
+        Raise ``InvalidAnswer`` when no valid letter came back (after asking once more).
+        """
+
+    def compare_videos(self, a: RolloutInput, b: RolloutInput, instruction: str) -> Verdict:
+        """One-step mode: watch both rollouts and answer 'A' or 'B' (as the human annotators do)."""
+        raise NotImplementedError(f"judge backend {self.backend!r} has no one-step mode; use mode: two_step")
+
+    def attach_cache(self, cache_dir: str | Path) -> None:
+        """Called by the stage drivers with their cache folder; backends that send several
+        requests per answer use it to keep each request, so a killed run never repeats one."""
 
 
 _BACKENDS: dict[str, type[Judge]] = {}

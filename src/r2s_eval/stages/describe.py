@@ -15,7 +15,8 @@ def main(args) -> None:
     episodes = load_episodes(args.rollouts)
     out = Path(args.out)
     descriptions = describe_rollouts(episodes, Path("."), judge, args.cache, stats_path=out.with_name("describe_stats.json"))
-    write_parquet(out, descriptions, metadata={"stage": "describe", "judge": args.cfg["name"]})
+    write_parquet(out, descriptions, metadata={"stage": "describe", "judge": args.cfg["name"],
+                                               "stats": descriptions.attrs["stats"]})
 
 
 if __name__ == "__main__":

@@ -1,0 +1,194 @@
+"""The two-step VLM judge, independent of where the model runs.
+
+``VLMJudge`` holds the method; a backend only implements ``_generate(messages) -> Reply``:
+
+* describe: sample the video's frames (``frames.py``), ask the ``describe`` prompt, cut the reply
+  into the four criteria and the summary (``prompting.parse_description``; absent sections are
+  flagged in ``Description.missing``);
+* compare: show the two descriptions (``compare`` prompt) and parse one letter strictly; an invalid
+  reply is asked once more (``reask`` prompt), then ``InvalidAnswer`` is raised;
+* compare_videos (one-step mode): show both videos directly (``compare_videos`` prompt).
+
+Messages are backend-neutral: ``[{"role": ..., "content": [str | Clip, ...]}]``. Every request is
+kept in a content-addressed request cache when the stage driver attaches one, so a run killed
+between an invalid answer and its re-ask repeats neither.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+from abc import abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
+from r2s_eval.judge.cache import AnswerCache, cache_key
+from r2s_eval.judge.frames import OVER_BUDGET, Clip, sample_clip
+from r2s_eval.judge.prompting import (
+    description_text,
+    parse_description,
+    parse_letter,
+    render,
+    split_on,
+    strip_thinking,
+    templates_sha,
+)
+from r2s_eval.judge.usage import record_usage
+from r2s_eval.utils.io import config_hash
+
+# Placeholders the rendered prompt is split on; the clip goes where they stood.
+_VIDEO, _VIDEO_A, _VIDEO_B = "\x00video\x00", "\x00video_a\x00", "\x00video_b\x00"
+
+COMMON_DEFAULTS: dict[str, Any] = {
+    "backend": None,
+    "name": None,
+    "model": None,  # required: the served model name, or a checkpoint path / hub id
+    "fps": 10.0,  # frames sampled per second of video
+    "max_frames": 32,  # frame budget per video
+    "over_budget": "subsample",  # or "truncate"
+    "max_side_px": None,  # shrink frames so the longer side is at most this
+    "max_new_tokens": 1024,
+    "system_role": True,  # False: the system text opens the user turn (models without a system role)
+}
+
+
+@dataclass(frozen=True)
+class Reply:
+    text: str
+    tokens_in: int = 0
+    tokens_out: int = 0
+
+
+def merge_config(kind: str, defaults: Mapping[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
+    unknown = set(cfg) - set(defaults)
+    if unknown:
+        raise ValueError(f"{kind} judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
+    out = copy.deepcopy(dict(defaults))
+    out.update(copy.deepcopy(dict(cfg)))
+    return out
+
+
+class VLMJudge(Judge):
+    """Base of the VLM backends (see the module docstring)."""
+
+    prompt_version = "vlm-v1"
+    inputs = ("video",)
+    DEFAULTS: ClassVar[dict[str, Any]] = COMMON_DEFAULTS
+    # Keys that say how to reach or run the model, not what it answers: outside the cache keys.
+    TRANSPORT_KEYS: ClassVar[frozenset[str]] = frozenset({"name"})
+
+    def __init__(self, cfg: Mapping[str, Any] | None = None):
+        super().__init__(cfg)
+        self.cfg = merge_config(self.backend, self.DEFAULTS, self.cfg)
+        if self.cfg["backend"] != self.backend:
+            raise ValueError(f"{self.backend} judge built with backend {self.cfg['backend']!r}")
+        if not self.cfg["model"]:
+            raise ValueError(f"{self.backend} judge needs a 'model'")
+        if self.cfg["over_budget"] not in OVER_BUDGET:
+            raise ValueError(f"{self.backend} judge: over_budget must be one of {OVER_BUDGET}")
+        if not float(self.cfg["fps"]) > 0 or int(self.cfg["max_frames"]) < 1 or int(self.cfg["max_new_tokens"]) < 1:
+            raise ValueError(f"{self.backend} judge: fps, max_frames and max_new_tokens must be positive")
+        self._requests: AnswerCache | None = None
+        self._identity = {
+            "backend": self.backend,
+            "answer_config": config_hash({k: v for k, v in self.cfg.items() if k not in self.TRANSPORT_KEYS}),
+            "prompts": templates_sha(),
+            "prompt_version": self.prompt_version,
+        }
+
+    @property
+    def name(self) -> str:
+        return str(self.cfg.get("name") or self.cfg["model"])
+
+    def identity(self) -> dict[str, str]:
+        """Model, generation and frame settings, and the prompt templates; not the judge's name or
+        server address, so every judge entry and rerun using the same model shares the answers."""
+        return dict(self._identity)
+
+    def attach_cache(self, cache_dir: str | Path) -> None:
+        self._requests = AnswerCache(cache_dir, "requests")
+
+    # ------------------------------------------------------------------ backend
+    @abstractmethod
+    def _generate(self, messages: list[dict[str, Any]]) -> Reply:
+        """Greedy reply to backend-neutral messages (see the module docstring)."""
+
+    # ------------------------------------------------------------------ requests
+    def _chat(self, messages: list[dict[str, Any]]) -> Reply:
+        digest = [
+            {"role": m["role"], "content": [{"clip": p.sha256} if isinstance(p, Clip) else p for p in m["content"]]}
+            for m in messages
+        ]
+        key = cache_key({"judge": self._identity, "messages": digest}) if self._requests is not None else None
+        if key is not None:
+            hit = self._requests.get(key)
+            if hit is not None:
+                record_usage(request_cache_hits=1)
+                return Reply(str(hit["text"]))
+        reply = self._generate(messages)
+        record_usage(requests=1, tokens_in=reply.tokens_in, tokens_out=reply.tokens_out)
+        if key is not None:
+            self._requests.put(
+                key,
+                {"text": reply.text, "tokens_in": reply.tokens_in, "tokens_out": reply.tokens_out},
+                {"judge": self._identity, "messages_sha": hashlib.sha256(repr(digest).encode()).hexdigest()},
+            )
+        return reply
+
+    def _messages(self, content: list[Any]) -> list[dict[str, Any]]:
+        system = render("system")
+        if self.cfg["system_role"]:
+            return [{"role": "system", "content": [system]}, {"role": "user", "content": content}]
+        return [{"role": "user", "content": [system + "\n\n", *content]}]
+
+    def _clip(self, path: Path | None) -> Clip:
+        if path is None:
+            raise ValueError(f"the {self.backend} judge watches videos; the rollout input has no video_path")
+        c = self.cfg
+        return sample_clip(path, float(c["fps"]), int(c["max_frames"]), c["over_budget"], c["max_side_px"])
+
+    def _ask_letter(self, content: list[Any]) -> Verdict:
+        messages = self._messages(content)
+        first = self._chat(messages)
+        letter = parse_letter(first.text)
+        if letter is not None:
+            return Verdict(letter, strip_thinking(first.text))
+        record_usage(reasks=1)
+        again = messages + [
+            {"role": "assistant", "content": [first.text]},
+            {"role": "user", "content": [render("reask")]},
+        ]
+        second = self._chat(again)
+        letter = parse_letter(second.text)
+        if letter is not None:
+            return Verdict(letter, strip_thinking(second.text))
+        raise InvalidAnswer("no valid letter (A or B) after asking once more", [first.text, second.text])
+
+    # ------------------------------------------------------------------ the method
+    def describe(self, rollout: RolloutInput) -> Description:
+        clip = self._clip(rollout.video_path)
+        text = render(
+            "describe", instruction=rollout.instruction, n_frames=len(clip.frames),
+            duration_s=f"{clip.duration_s:.1f}", video=_VIDEO,
+        )
+        content = [clip if p == _VIDEO else p for p in split_on(text, _VIDEO)]
+        return parse_description(self._chat(self._messages(content)).text, judge=str(self.cfg["model"]))
+
+    def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
+        text = render(
+            "compare", instruction=instruction, description_a=description_text(a), description_b=description_text(b)
+        )
+        return self._ask_letter([text])
+
+    def compare_videos(self, a: RolloutInput, b: RolloutInput, instruction: str) -> Verdict:
+        ca, cb = self._clip(a.video_path), self._clip(b.video_path)
+        text = render(
+            "compare_videos", instruction=instruction,
+            n_frames_a=len(ca.frames), duration_a_s=f"{ca.duration_s:.1f}", video_a=_VIDEO_A,
+            n_frames_b=len(cb.frames), duration_b_s=f"{cb.duration_s:.1f}", video_b=_VIDEO_B,
+        )
+        clips = {_VIDEO_A: ca, _VIDEO_B: cb}
+        return self._ask_letter([clips.get(p, p) for p in split_on(text, _VIDEO_A, _VIDEO_B)])

@@ -1,0 +1,183 @@
+"""A chat-completions server on 127.0.0.1 that answers like a (very simple) video judge.
+
+It speaks the OpenAI chat-completions wire format over real HTTP, so the ``openai`` backend is
+exercised end to end. Its answers depend only on what it is shown, the way a model's would:
+
+* describe: the mean brightness of the frames decides the outcome label (>= 0.6 successful,
+  < 0.6 failed) and is quoted in the text ("brightness 0.72"); videos in the MISSING band get a
+  reply without the force/effort section;
+* compare (two descriptions): the successful one wins, then the brighter one; when a description
+  quotes a brightness in the CONFUSING band the reply is never a letter, in the HESITANT band it
+  is a sentence first and a letter once asked again;
+* compare videos (one step): the brighter video wins.
+
+Scripted faults: ``fail_plan`` answers the first requests with those HTTP statuses; ``hold_after``
+answers that many requests and then holds every later one until ``release()`` (to kill a client
+mid-stage deterministically); ``latency_s`` delays every answer. ``log`` records each request:
+its status, the sha256 of its body and the full prompt text.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import io
+import json
+import re
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import numpy as np
+from PIL import Image
+
+CONFUSING = (0.45, 0.55)
+HESITANT = (0.30, 0.40)
+MISSING = (0.90, 0.95)
+_BRIGHT_RE = re.compile(r"brightness (\d\.\d+)")
+
+
+def _brightness(url: str) -> float:
+    data = base64.b64decode(url.split(",", 1)[1])
+    return float(np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), dtype=float).mean() / 255.0)
+
+
+def _in(x: float, band: tuple[float, float]) -> bool:
+    return band[0] <= x < band[1]
+
+
+class ChatServer:
+    def __init__(self, latency_s: float = 0.0, fail_plan: list[int] | None = None, hold_after: int | None = None):
+        self.latency_s = latency_s
+        self.fail_plan = list(fail_plan or [])
+        self.hold_after = hold_after
+        self.log: list[dict] = []
+        self.answered = 0
+        self._lock = threading.Lock()
+        self._released = threading.Event()
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, *args):  # keep test output quiet
+                pass
+
+            def do_POST(self):
+                body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
+                status, payload, headers = server.handle(self.path, body)
+                blob = json.dumps(payload).encode()
+                try:
+                    self.send_response(status)
+                    for k, v in headers.items():
+                        self.send_header(k, v)
+                    self.send_header("Content-Type", "application/json")
+                    self.send_header("Content-Length", str(len(blob)))
+                    self.end_headers()
+                    self.wfile.write(blob)
+                except OSError:  # the client is gone (killed)
+                    pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/v1"
+        self._thread = threading.Thread(target=self.httpd.serve_forever, daemon=True)
+
+    def __enter__(self) -> ChatServer:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+    def release(self) -> None:
+        self._released.set()
+
+    # ---------------------------------------------------------------- answers
+    def ok_requests(self, kind: str | None = None) -> list[dict]:
+        return [e for e in self.log if e["status"] == 200 and (kind is None or e["kind"] == kind)]
+
+    def handle(self, path: str, body: bytes) -> tuple[int, dict, dict]:
+        req = json.loads(body)
+        text, images = self._flatten(req["messages"])
+        kind = ("describe" if "Describe the robot" in text else
+                "compare_videos" if "Rollout A (" in text else "compare")
+        entry = {"kind": kind, "sha": hashlib.sha256(body).hexdigest(), "text": text, "status": None,
+                 "model": req.get("model"), "temperature": req.get("temperature"), "max_tokens": req.get("max_tokens")}
+        with self._lock:
+            self.log.append(entry)
+            if self.fail_plan:
+                entry["status"] = self.fail_plan.pop(0)
+                return entry["status"], {"error": {"message": "scripted failure", "type": "server_error"}}, (
+                    {"Retry-After": "0"} if entry["status"] == 429 else {})
+            held = self.hold_after is not None and self.answered >= self.hold_after
+            if not held:
+                self.answered += 1
+        if held:
+            self._released.wait()
+            entry["status"] = "held"
+            return 503, {"error": {"message": "held"}}, {}
+        if path.rstrip("/") != "/v1/chat/completions":
+            entry["status"] = 404
+            return 404, {"error": {"message": f"no route {path}"}}, {}
+        time.sleep(self.latency_s)
+        reply = self._answer(kind, text, images, req["messages"])
+        entry["status"] = 200
+        return 200, {
+            "id": "cmpl-" + entry["sha"][:12], "object": "chat.completion", "created": 0, "model": req.get("model"),
+            "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": reply}}],
+            "usage": {"prompt_tokens": len(text.split()) + 10 * len(images), "completion_tokens": len(reply.split()),
+                      "total_tokens": 0},
+        }, {}
+
+    @staticmethod
+    def _flatten(messages: list[dict]) -> tuple[str, list[tuple[int, str]]]:
+        """All text (system, user, assistant) and the image URLs with the text length before them."""
+        text, images = "", []
+        for m in messages:
+            content = m["content"]
+            if isinstance(content, str):
+                text += content + "\n"
+                continue
+            for part in content:
+                if part["type"] == "text":
+                    text += part["text"]
+                elif part["type"] == "image_url":
+                    images.append((len(text), part["image_url"]["url"]))
+            text += "\n"
+        return text, images
+
+    def _answer(self, kind: str, text: str, images: list[tuple[int, str]], messages: list[dict]) -> str:
+        if kind == "describe":
+            b = float(np.mean([_brightness(u) for _, u in images]))
+            label = "successful" if b >= 0.6 else "failed"
+            parts = [
+                f"**Motion smoothness:** steady, brightness {b:.3f}.",
+                "**Action continuity:** no pauses.",
+                f"**Task success:** {label}. The object {'ends' if b >= 0.6 else 'does not end'} in place.",
+                "**Force/effort control:** gentle contact.",
+                "**Summary:** a plain execution.",
+            ]
+            if _in(b, MISSING):
+                parts.pop(3)
+            return "\n".join(parts)
+        if kind == "compare_videos":
+            split = text.index("Rollout B (")
+            a = np.mean([_brightness(u) for pos, u in images if pos < split])
+            b = np.mean([_brightness(u) for pos, u in images if pos >= split])
+            return "A" if a >= b else "B"
+        # compare two descriptions
+        a_text = text[text.index("Rollout A:"): text.index("Rollout B:")]
+        b_text = text[text.index("Rollout B:"):]
+        (ba,), (bb,) = (map(float, _BRIGHT_RE.findall(t)[:1]) for t in (a_text, b_text))
+        reasked = any(m["role"] == "assistant" for m in messages)
+        if _in(ba, CONFUSING) or _in(bb, CONFUSING):
+            return "They look about the same to me."
+        if (_in(ba, HESITANT) or _in(bb, HESITANT)) and not reasked:
+            return "Rollout A is somewhat better than rollout B, I think."
+        sa, sb = ("Task success: successful" in a_text), ("Task success: successful" in b_text)
+        if sa != sb:
+            return "A" if sa else "B"
+        return "**A**" if ba >= bb else "B."

@@ -198,3 +198,19 @@ def test_policies_observation_errors(trained):
     obs[HEAD] = obs[HEAD].astype(np.float32)
     with pytest.raises(ValueError, match="uint8"):
         runner.act(obs)
+
+
+def test_policies_episodes_fraction_trains_on_a_subset(dataset_root, tmp_path):
+    from r2s_eval.data import open_metadata
+    from r2s_eval.policies.data import select_episodes
+
+    meta = open_metadata(dataset_root, REPO_ID)
+    assert select_episodes(meta, 1.0) is None
+    assert select_episodes(meta, 0.5) == [0, 1]  # ceil(0.5 * 3) of the one task's episodes
+    assert select_episodes(meta, 0.01) == [0]  # never an empty task
+    summary = train_policy(dataset_root, REPO_ID, _tiny("act", episodes_fraction=0.34), tmp_path / "act", seed=0)
+    assert summary["num_episodes"] == 2 and summary["num_frames"] == 40
+    with pytest.raises(PolicyConfigError, match="episodes_fraction"):
+        from r2s_eval.policies.config import validate_policy_cfg
+
+        validate_policy_cfg(_tiny("act", episodes_fraction=0.0))

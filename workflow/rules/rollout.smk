@@ -21,6 +21,7 @@ def rollout_inputs(wildcards):
 rule rollout:
     input:
         unpack(rollout_inputs),
+    priority: lambda w: 1 if w.arm == "sim" else 0
     output:
         directory("results/rollout/{arm}/{policy}"),
     params:

@@ -3,6 +3,12 @@ def train_dataset(wildcards):
     return REAL_DATASET if wildcards.arm == "real" else "results/replay/dataset"
 
 
+def train_priority(wildcards):
+    # Longest jobs first, sim side first (more stages wait on it): keeps both cores busy.
+    steps = int(CFG["policies"][wildcards.policy].get("steps", 0))
+    return steps + (100_000 if wildcards.arm == "sim" else 0)
+
+
 rule train:
     input:
         dataset=train_dataset,
@@ -10,6 +16,7 @@ rule train:
         directory("results/train/{arm}/{policy}"),
     params:
         cfg=policy_params,
+    priority: train_priority
     threads: 1
     log:
         "logs/train/{arm}/{policy}.log",

@@ -26,6 +26,7 @@ TOP_LEVEL_DEFAULTS: dict[str, Any] = {
     "type": None,  # "act" | "diffusion"
     "name": None,  # candidate name, informational
     "steps": 300,  # optimiser updates
+    "episodes_fraction": 1.0,  # share of each task's demonstrations trained on (data-scale ablations)
     "batch_size": 16,
     "lr": 1e-4,
     "weight_decay": None,  # None: the policy's optimiser preset
@@ -83,6 +84,8 @@ def validate_policy_cfg(policy_cfg: Mapping) -> dict:
         cfg["image_size"] = [int(v) for v in cfg["image_size"]]
         if len(cfg["image_size"]) != 2 or min(cfg["image_size"]) <= 0:
             raise PolicyConfigError(f"policy config 'image_size' must be [H, W], got {cfg['image_size']}")
+    if not 0.0 < float(cfg["episodes_fraction"]) <= 1.0:
+        raise PolicyConfigError(f"policy config 'episodes_fraction' must be in (0, 1], got {cfg['episodes_fraction']}")
     if not isinstance(cfg["overrides"], dict):
         raise PolicyConfigError("policy config 'overrides' must be a dict")
     return cfg

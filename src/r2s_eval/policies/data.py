@@ -9,6 +9,7 @@ sequentially once (PyAV), other cameras are never touched.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -126,14 +127,33 @@ def _decode_all_frames(path: Path) -> tuple[np.ndarray, torch.Tensor]:
     return np.asarray(times, dtype=np.float64), stacked
 
 
+def select_episodes(meta: LeRobotDatasetMetadata, fraction: float) -> list[int] | None:
+    """The first `fraction` of each task's episodes (at least one per task); None keeps them all.
+
+    Per task, so a smaller share still covers every task of a multi-task dataset.
+    """
+    if fraction >= 1.0:
+        return None
+    by_task: dict[str, list[int]] = {}
+    for ep_idx in range(meta.total_episodes):
+        tasks = meta.episodes[ep_idx]["tasks"]
+        by_task.setdefault(str(tasks[0] if len(tasks) else ""), []).append(ep_idx)
+    keep = [ep for eps in by_task.values() for ep in eps[: max(1, math.ceil(fraction * len(eps)))]]
+    return sorted(keep)
+
+
 def make_training_dataset(
     dataset_root: str | Path,
     repo_id: str,
     meta: LeRobotDatasetMetadata,
     lerobot_cfg,
     image_keys: list[str],
+    episodes: list[int] | None = None,
 ) -> FrameCachedDataset:
-    """Dataset with the policy's delta timestamps (action chunk, observation history)."""
+    """Dataset with the policy's delta timestamps (action chunk, observation history).
+
+    `episodes` restricts it to those episode indices (all when None).
+    """
     from lerobot.datasets.factory import resolve_delta_timestamps
 
     delta = resolve_delta_timestamps(lerobot_cfg, meta) or {}
@@ -145,4 +165,5 @@ def make_training_dataset(
         camera_keys=image_keys,
         delta_timestamps=delta,
         video_backend="pyav",
+        episodes=episodes,
     )

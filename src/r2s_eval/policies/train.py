@@ -19,7 +19,7 @@ import torch
 
 from r2s_eval.policies.config import make_lerobot_config, validate_policy_cfg
 from r2s_eval.data import open_metadata
-from r2s_eval.policies.data import check_features, make_training_dataset
+from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
 from r2s_eval.utils.io import atomic_dir
 
 log = logging.getLogger(__name__)
@@ -140,7 +140,8 @@ def train_policy(
     meta = open_metadata(dataset_root, repo_id)
     _, lr_cfg = policy_config(cfg, meta, device)
     t_data = time.perf_counter()
-    dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"])
+    episodes = select_episodes(meta, float(cfg["episodes_fraction"]))
+    dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"], episodes)
     data_prep_s = time.perf_counter() - t_data
     # The metadata's per-channel image std can be near zero (lerobot 0.4.4 aggregates it that
     # way), which would scale pixels by ~1000 before the CNN and amplify sensor noise; normalise

@@ -1,5 +1,7 @@
 # Validate the teleop dataset and index its episodes (task, length, first frame).
 rule ingest:
+    # The calibrated sim's chain gates everything sim-side: run it before any training.
+    priority: SIM_CHAIN_PRIORITY
     input:
         dataset=REAL_DATASET,
     output:

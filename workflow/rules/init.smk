@@ -1,5 +1,7 @@
 # Estimate every episode's initial object poses from its first head-camera frame.
 rule init_estimate:
+    # The calibrated sim's chain gates everything sim-side: run it before any training.
+    priority: SIM_CHAIN_PRIORITY
     input:
         index="results/ingest/episodes.parquet",
         frames="results/ingest/first_frames",

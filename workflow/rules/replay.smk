@@ -1,5 +1,7 @@
 # Replay the recorded joint actions in the calibrated sim, retrying from perturbed poses.
 rule replay:
+    # The calibrated sim's chain gates everything sim-side: run it before any training.
+    priority: SIM_CHAIN_PRIORITY
     input:
         dataset=REAL_DATASET,
         index="results/ingest/episodes.parquet",

@@ -6,8 +6,11 @@
 3. refine: render the simulator at the estimate from the same calibrated camera and move each
    object until its rendered centroid lands on the observed one (Gauss-Newton on the pixel
    reprojection error). This removes the perspective bias of step 2 (a silhouette centroid is
-   not the projection of the 3-D centre) and absorbs the object's shape;
-4. add the per-task offsets fitted on calibration episodes.
+   not the projection of the 3-D centre) and absorbs the object's shape. For objects whose
+   yaw is observable (``yaw_symmetry`` > 0) the yaw is then searched over one symmetry period
+   (a coarse grid, then a finer one around the best) for the rendered silhouette that best
+   overlaps the observed one (intersection over union), and the position refined again;
+4. add the per-task offsets fitted on calibration episodes (``fit_offsets``).
 Poses are planar: (x_m, y_m) of the object's bottom centre in the world frame, and yaw_rad.
 """
 
@@ -16,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from r2s_eval.calib.segment import Segmenter
@@ -81,6 +85,20 @@ def _centroid_and_axis(mask: np.ndarray) -> tuple[np.ndarray, float]:
     return np.array([cu, cv_]), angle
 
 
+def _shifted(mask: np.ndarray, shift_uv: np.ndarray) -> np.ndarray:
+    """``mask`` translated by a sub-pixel shift (u right, v down), as a soft float mask."""
+    M = np.array([[1.0, 0.0, shift_uv[0]], [0.0, 1.0, shift_uv[1]]], np.float32)
+    h, w = mask.shape
+    return cv2.warpAffine(mask.astype(np.float32), M, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two masks (soft masks in [0, 1]: sum of min over sum of max)."""
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    union = np.maximum(a, b).sum()
+    return float(np.minimum(a, b).sum() / union) if union else 0.0
+
+
 def wrap_yaw(yaw_rad: float, symmetry: int) -> float:
     """Yaw in [-period/2, period/2) for an object of n-fold symmetry (period 2*pi/n)."""
     if symmetry == 0:
@@ -106,6 +124,71 @@ def _pixel_jacobian(camera: CameraModel, point_world_m: np.ndarray, step_m: floa
     return J
 
 
+def _refine_positions(poses, observed, objects, camera, table_z_m, render_masks, max_iterations, tolerance_px,
+                      max_step_m) -> tuple[int, dict[str, float]]:
+    """Gauss-Newton on the rendered-vs-observed centroid; keeps each object's best iterate."""
+    errors = {name: float("nan") for name in poses}
+    best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        rendered = render_masks({n: tuple(p) for n, p in poses.items()})
+        residuals = {}
+        for obj in objects:
+            mask = rendered.get(obj.name)
+            if mask is None or not mask.any():
+                continue  # rendered out of view or hidden: keep the back-projection
+            residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
+            err = float(np.linalg.norm(residuals[obj.name]))
+            if err < best[obj.name][0]:
+                best[obj.name] = (err, poses[obj.name].copy())
+        if not residuals or max(np.linalg.norm(r) for r in residuals.values()) < tolerance_px:
+            break
+        for obj in objects:
+            if obj.name not in residuals:
+                continue
+            x, y, _ = poses[obj.name]
+            point = np.array([x, y, table_z_m + obj.centroid_height_m])
+            step = np.linalg.lstsq(_pixel_jacobian(camera, point), residuals[obj.name], rcond=None)[0]
+            norm = np.linalg.norm(step)
+            if norm > max_step_m:
+                step *= max_step_m / norm
+            poses[obj.name][:2] += step
+    for name, (err, pose) in best.items():
+        if np.isfinite(err):
+            poses[name][:] = pose
+            errors[name] = err
+    return iterations, errors
+
+
+def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: tuple[int, int]) -> float:
+    """Yaw (within one symmetry period) whose rendered silhouette best overlaps the observed one."""
+    period = 2.0 * np.pi / obj.yaw_symmetry
+    n_coarse, n_fine = grid
+
+    observed_centroid = _centroid_and_axis(observed_mask)[0]
+
+    def iou(yaw: float) -> float:
+        trial = {n: tuple(p) for n, p in poses.items()}
+        trial[obj.name] = (poses[obj.name][0], poses[obj.name][1], yaw)
+        mask = render_masks(trial).get(obj.name)
+        if mask is None or not mask.any():
+            return 0.0
+        # Compare shapes, not positions: the silhouette centroid moves with yaw for shapes
+        # like a lying tapered cup, and the position is refined again afterwards.
+        shift = observed_centroid - _centroid_and_axis(mask)[0]
+        return mask_iou(_shifted(mask, shift), observed_mask)
+
+    coarse = poses[obj.name][2] + np.arange(n_coarse) * period / n_coarse
+    scores = [iou(y) for y in coarse]
+    best = float(coarse[int(np.argmax(scores))])
+    step = period / n_coarse
+    fine = best + np.linspace(-step, step, n_fine)
+    fine_scores = [iou(y) for y in fine]
+    # Several yaws can tie on a pixel grid: take the middle of the best plateau.
+    top = np.flatnonzero(np.isclose(fine_scores, max(fine_scores)))
+    return wrap_yaw(float(np.mean(fine[top])), obj.yaw_symmetry)
+
+
 def estimate_initial_poses(
     image_rgb: np.ndarray,
     segmenter: Segmenter,
@@ -117,6 +200,7 @@ def estimate_initial_poses(
     tolerance_px: float = 0.25,
     max_step_m: float = 0.03,
     offsets: Mapping[str, Sequence[float]] | None = None,
+    yaw_grid: tuple[int, int] = (16, 9),
 ) -> dict[str, PoseEstimate]:
     """Estimate each object's planar pose from `image_rgb`; see the module docstring."""
     masks = segmenter.segment(image_rgb)
@@ -140,33 +224,15 @@ def estimate_initial_poses(
     errors = {name: float("nan") for name in poses}
     iterations = 0
     if render_masks is not None:
-        best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
-        for iterations in range(1, max_iterations + 1):
-            rendered = render_masks({n: tuple(p) for n, p in poses.items()})
-            residuals = {}
-            for obj in objects:
-                mask = rendered.get(obj.name)
-                if mask is None or not mask.any():
-                    continue  # rendered out of view or hidden: keep the back-projection
-                residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
-                err = float(np.linalg.norm(residuals[obj.name]))
-                if err < best[obj.name][0]:
-                    best[obj.name] = (err, poses[obj.name].copy())
-            if not residuals or max(np.linalg.norm(r) for r in residuals.values()) < tolerance_px:
-                break
-            for obj in objects:
-                if obj.name not in residuals:
-                    continue
-                x, y, _ = poses[obj.name]
-                point = np.array([x, y, table_z_m + obj.centroid_height_m])
-                step = np.linalg.lstsq(_pixel_jacobian(camera, point), residuals[obj.name], rcond=None)[0]
-                norm = np.linalg.norm(step)
-                if norm > max_step_m:
-                    step *= max_step_m / norm
-                poses[obj.name][:2] += step
-        for name, (err, pose) in best.items():
-            if np.isfinite(err):
-                poses[name], errors[name] = pose, err
+        iterations, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
+                                               max_iterations, tolerance_px, max_step_m)
+        yawed = [obj for obj in objects if obj.yaw_symmetry]
+        if yawed:
+            for obj in yawed:
+                poses[obj.name][2] = _search_yaw(obj, poses, masks[obj.name], render_masks, yaw_grid)
+            more, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
+                                             max_iterations, tolerance_px, max_step_m)
+            iterations += more
 
     offsets = offsets or {}
     estimates = {}

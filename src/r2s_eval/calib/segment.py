@@ -46,13 +46,17 @@ class HueRange:
 class HSVSegmenter:
     """Colour thresholds per object, keeping the largest connected blob (drops speckle)."""
 
-    def __init__(self, ranges: Mapping[str, HueRange], min_area_px: int = 20):
+    def __init__(self, ranges: Mapping[str, HueRange], min_area_px: int = 20, blur_px: int = 0):
         self.ranges = dict(ranges)
         self.min_area_px = min_area_px
+        self.blur_px = blur_px
 
     def segment(self, image_rgb: np.ndarray) -> dict[str, np.ndarray]:
-        # A light blur makes thresholds robust to sensor noise.
-        hsv = cv2.cvtColor(cv2.GaussianBlur(image_rgb, (3, 3), 0), cv2.COLOR_RGB2HSV)
+        # An optional blur makes thresholds robust to heavy sensor noise, but it rounds the
+        # corners of small objects (a block's yaw is read from them); off by default.
+        if self.blur_px:
+            image_rgb = cv2.GaussianBlur(image_rgb, (self.blur_px, self.blur_px), 0)
+        hsv = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2HSV)
         return {name: self._largest_blob(rng.mask(hsv)) for name, rng in self.ranges.items()}
 
     def _largest_blob(self, mask: np.ndarray) -> np.ndarray:
@@ -83,4 +87,4 @@ def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> 
             ranges[name] = HueRange.around_rgb(
                 rgba, cfg.get("hue_tol", 12), cfg.get("sat_min", 90), cfg.get("val_min", 40)
             )
-    return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20))
+    return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20), blur_px=int(cfg.get("blur_px", 0)))

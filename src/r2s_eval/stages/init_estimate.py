@@ -26,7 +26,7 @@ def mask_renderer(env, camera: str):
     names = env.task.object_names
 
     def render(poses):
-        env.reset(poses)
+        env.reset(poses, settle=False, observe=False)  # kinematics only: a pose hypothesis
         labels, label_names = env.render(camera, segmentation=True)
         by_name = {n: label for label, n in label_names.items()}
         return {n: labels == by_name[n] for n in names}

@@ -55,9 +55,9 @@ def main(args) -> None:
                 kept += 1
                 progress.update()
                 for name, pose in initial.items():
-                    x, y, _ = pose["pos_world_m"]
+                    x, y, yaw = pose["planar"]  # the convention of reset() and of the estimates
                     truth.append({"episode_index": index, "task": task, "object": name, "x_m": float(x), "y_m": float(y),
-                                  "yaw_rad": float(pose["yaw_rad"]), "yaw_symmetry": yaw_symmetry(env, name)})
+                                  "yaw_rad": float(yaw), "yaw_symmetry": yaw_symmetry(env, name)})
             progress.close()
             env.close()
             rate = np.mean([a["success"] for a in attempts if a["task"] == task])

@@ -152,7 +152,8 @@ class TabletopEnv:
                 support_z_m += obj_geom.support_top_m(parent_kind, self._obj_dims[parent]) + 0.0005
             kind = self.task.object(name).kind
             origin = obj_geom.placement_origin_m(kind, self._obj_dims[name], placement, x_m, y_m, yaw_rad, support_z_m)
-            self.set_object_pose(name, origin, obj_geom.placement_quat(placement, yaw_rad), forward=False)
+            quat = obj_geom.placement_quat(placement, yaw_rad, kind, self._obj_dims[name])
+            self.set_object_pose(name, origin, quat, forward=False)
         mujoco.mj_forward(m, d)
         if settle:
             mujoco.mj_step(m, d, nstep=SETTLE_STEPS)

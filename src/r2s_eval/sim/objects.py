@@ -31,7 +31,9 @@ placement      rotation before the yaw       body origin above the support
 =============  ============================  =========================================
 upright        none                          0 (bottom face on the support)
 upside_down    pi about body x               height_m (bottom face up)
-on_side        +pi/2 about body y            radius_m, shifted -height_m/2 along the axis
+on_side        +pi/2 about body y (less the  base radius, shifted -height_m/2 along the
+               taper of a cup: it lies on    axis
+               a wall line)
 =============  ============================  =========================================
 """
 
@@ -104,14 +106,27 @@ def _quat_mul(a, b) -> np.ndarray:
     return out
 
 
-def placement_quat(placement: str, yaw_rad: float) -> np.ndarray:
-    """Body orientation (wxyz) of an object in ``placement`` with planar yaw ``yaw_rad``."""
+def taper_rad(kind: str, dims: dict) -> float:
+    """Lean of a tapered cup's wall from vertical (0 for everything else)."""
+    if kind != "cup":
+        return 0.0
+    return float(np.arctan2(dims["radius_m"] - dims.get("base_radius_m", dims["radius_m"]),
+                            dims["height_m"] - dims["bottom_m"]))
+
+
+def placement_quat(placement: str, yaw_rad: float, kind: str = "", dims: dict | None = None) -> np.ndarray:
+    """Body orientation (wxyz) of an object in ``placement`` with planar yaw ``yaw_rad``.
+
+    A tapered cup on its side lies on a wall line, so its axis rises towards the (wider)
+    opening by the taper angle: pass ``kind`` and ``dims`` for it.
+    """
     if placement == "upright":
         base = np.array([1.0, 0.0, 0.0, 0.0])
     elif placement == "upside_down":
         base = np.array([0.0, 1.0, 0.0, 0.0])
     elif placement == "on_side":
-        base = np.array([np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
+        pitch = np.pi / 2 - taper_rad(kind, dims or {})
+        base = np.array([np.cos(pitch / 2), 0.0, np.sin(pitch / 2), 0.0])
     else:
         raise ValueError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
     return _quat_mul(_yaw_quat(yaw_rad), base)
@@ -125,9 +140,11 @@ def placement_origin_m(kind: str, dims: dict, placement: str, x_m: float, y_m: f
     if placement == "upside_down":
         return np.array([x_m, y_m, support_z_m + height_m(kind, dims)])
     if placement == "on_side":
+        lean = taper_rad(kind, dims)
         axis = np.array([np.cos(yaw_rad), np.sin(yaw_rad)])
-        xy = np.array([x_m, y_m]) - axis * dims["height_m"] / 2
-        return np.array([xy[0], xy[1], support_z_m + dims["radius_m"]])
+        xy = np.array([x_m, y_m]) - axis * np.cos(lean) * dims["height_m"] / 2
+        # The bottom disc's lowest point touches the support.
+        return np.array([xy[0], xy[1], support_z_m + dims.get("base_radius_m", dims["radius_m"]) * np.cos(lean)])
     raise ValueError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
 
 

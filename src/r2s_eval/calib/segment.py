@@ -1,7 +1,8 @@
 """Object segmentation of a camera frame. Pluggable: anything with `segment(image) -> masks`.
 
-The bundled HSV segmenter suits objects of distinct saturated colours (our suite); an
-open-vocabulary backend can implement the same protocol for cluttered real scenes.
+The bundled HSV segmenter (the default) suits objects of distinct saturated colours (our
+suite); ``grounded_sam`` (``r2s_eval.calib.open_vocab``) finds objects from text prompts with
+Grounding DINO + SAM through transformers, for users who have those weights locally.
 """
 
 from __future__ import annotations
@@ -72,12 +73,17 @@ class HSVSegmenter:
 def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> Segmenter:
     """Build the configured segmenter. `object_rgba` gives nominal colours for defaults.
 
-    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40,
+    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40, "blur_px": 0,
           "objects": {name: {"hue_lo":..,"hue_hi":..,"sat_min":..,"val_min":..}}}  (objects optional)
+    or {"type": "grounded_sam", ...} (see ``r2s_eval.calib.open_vocab``).
     """
     kind = cfg.get("type", "hsv")
+    if kind == "grounded_sam":
+        from r2s_eval.calib.open_vocab import make_grounded_sam
+
+        return make_grounded_sam(cfg, list(object_rgba))
     if kind != "hsv":
-        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv)")
+        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv, grounded_sam)")
     explicit = cfg.get("objects") or {}
     ranges = {}
     for name, rgba in object_rgba.items():

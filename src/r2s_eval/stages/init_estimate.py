@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from pathlib import Path
 
 import cv2
@@ -94,10 +95,13 @@ def main(args) -> None:
     calib, world = args.cfg["calib"], args.cfg["world"]
     index = pd.read_parquet(args.index)
     fitted = json.loads(Path(args.offsets).read_text())
+    started = time.perf_counter()
     table = estimate_episodes(index, args.frames, calib, world, fitted["offsets"])
+    s_per_episode = (time.perf_counter() - started) / max(len(index), 1)
     table["calibration"] = table["episode_index"].isin(fitted["calibration_episodes"])
     log.info("median reprojection error %.2f px over %d objects", table["reproj_error_px"].median(), len(table))
-    write_parquet(args.out, table, metadata={"stage": "init_estimate", "camera": calib["camera"]})
+    write_parquet(args.out, table, metadata={"stage": "init_estimate", "camera": calib["camera"],
+                                             "s_per_episode": s_per_episode})
 
 
 if __name__ == "__main__":

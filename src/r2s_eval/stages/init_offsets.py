@@ -35,7 +35,8 @@ def _read_measured(path: str, episodes: list[int]) -> pd.DataFrame:
     if missing:
         raise ValueError(f"{path}: measured poses lack columns {sorted(missing)}")
     # Only the calibration episodes' measurements are read: the rest is test data.
-    return table[table["episode_index"].isin(episodes)].reset_index(drop=True)
+    columns = ["episode_index", "object", "x_m", "y_m", "yaw_rad"]
+    return table.loc[table["episode_index"].isin(episodes), columns].reset_index(drop=True)
 
 
 def _median_error_mm(estimates: pd.DataFrame, measured: pd.DataFrame, offsets: dict | None) -> dict:

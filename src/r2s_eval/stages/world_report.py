@@ -105,7 +105,8 @@ def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.Data
 
 
 def _fmt(value, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
+    width = int("".join(c for c in spec.split(".")[0] if c.isdigit()) or 0)
+    return "-".rjust(width) if value is None else format(value, spec)
 
 
 def format_table(report: dict) -> str:

@@ -8,8 +8,12 @@
    reprojection error). This removes the perspective bias of step 2 (a silhouette centroid is
    not the projection of the 3-D centre) and absorbs the object's shape. For objects whose
    yaw is observable (``yaw_symmetry`` > 0) the yaw is then searched over one symmetry period
-   (a coarse grid, then a finer one around the best) for the rendered silhouette that best
-   overlaps the observed one (intersection over union), and the position refined again;
+   (a coarse grid, then a finer one around the best) for the rendering that best matches the
+   frame: with ``render_image``, the normalised cross-correlation of the luminance around the
+   object (maximised over sub-pixel shifts); otherwise the overlap (IoU) of the silhouettes.
+   Luminance is what survives video compression at full resolution (4:2:0 chroma is halved,
+   which blurs colour masks of small objects), and it shows inner edges such as a block's
+   top face. Then the position is refined again;
 4. add the per-task offsets fitted on calibration episodes (``fit_offsets``).
 Poses are planar: (x_m, y_m) of the object's bottom centre in the world frame, and yaw_rad.
 """
@@ -26,6 +30,11 @@ from r2s_eval.calib.segment import Segmenter
 
 # rendered masks for a set of planar poses {name: (x_m, y_m, yaw_rad)}
 RenderMasks = Callable[[dict[str, tuple[float, float, float]]], dict[str, np.ndarray]]
+# rendered RGB image (uint8 HxWx3) for a set of planar poses, same camera
+RenderImage = Callable[[dict[str, tuple[float, float, float]]], np.ndarray]
+
+APPEARANCE_PAD_PX = 3  # window margin around the object, and the largest shift searched
+APPEARANCE_UPSAMPLE = 4  # sub-pixel shifts: both windows are upsampled before matching
 
 
 class InitEstimationError(RuntimeError):
@@ -76,11 +85,15 @@ class PoseEstimate:
 
 
 def _centroid_and_axis(mask: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centroid (u, v) and principal-axis angle of a mask (binary, or soft: pixel weights)."""
     rows, cols = np.nonzero(mask)
+    weights = np.asarray(mask, float)[rows, cols]
     u, v = cols.astype(float), rows.astype(float)
-    cu, cv_ = u.mean(), v.mean()
+    total = weights.sum()
+    cu, cv_ = (weights * u).sum() / total, (weights * v).sum() / total
     du, dv = u - cu, v - cv_
-    mu20, mu02, mu11 = (du * du).mean(), (dv * dv).mean(), (du * dv).mean()
+    mu20, mu02 = (weights * du * du).sum() / total, (weights * dv * dv).sum() / total
+    mu11 = (weights * du * dv).sum() / total
     angle = 0.5 * np.arctan2(2.0 * mu11, mu20 - mu02)
     return np.array([cu, cv_]), angle
 
@@ -160,30 +173,63 @@ def _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
     return iterations, errors
 
 
-def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: tuple[int, int]) -> float:
-    """Yaw (within one symmetry period) whose rendered silhouette best overlaps the observed one."""
+def _luma(image_rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(image_rgb), cv2.COLOR_RGB2GRAY).astype(np.float32)
+
+
+def _appearance_score(observed_luma: np.ndarray, rendered_luma: np.ndarray, window) -> float:
+    """Best normalised cross-correlation of the observed window within the rendered one (+-pad px)."""
+    r0, r1, c0, c1 = window
+    pad, up = APPEARANCE_PAD_PX, APPEARANCE_UPSAMPLE
+    h, w = rendered_luma.shape
+    search = rendered_luma[max(0, r0 - pad):min(h, r1 + pad), max(0, c0 - pad):min(w, c1 + pad)]
+    template = observed_luma[r0:r1, c0:c1]
+    search = cv2.resize(search, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
+    template = cv2.resize(template, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
+    if search.shape[0] < template.shape[0] or search.shape[1] < template.shape[1]:
+        return -1.0
+    return float(cv2.matchTemplate(search, template, cv2.TM_CCOEFF_NORMED).max())
+
+
+def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: tuple[int, int],
+                image_rgb: np.ndarray | None = None, render_image: RenderImage | None = None) -> float:
+    """Yaw (within one symmetry period) whose rendering best matches the frame."""
     period = 2.0 * np.pi / obj.yaw_symmetry
     n_coarse, n_fine = grid
+    n_coarse = max(n_coarse, int(np.ceil(period / np.deg2rad(10.0))))  # coarse steps of at most 10 deg
 
-    observed_centroid = _centroid_and_axis(observed_mask)[0]
+    def trial(yaw: float) -> dict:
+        poses_ = {n: tuple(p) for n, p in poses.items()}
+        poses_[obj.name] = (poses[obj.name][0], poses[obj.name][1], yaw)
+        return poses_
 
-    def iou(yaw: float) -> float:
-        trial = {n: tuple(p) for n, p in poses.items()}
-        trial[obj.name] = (poses[obj.name][0], poses[obj.name][1], yaw)
-        mask = render_masks(trial).get(obj.name)
-        if mask is None or not mask.any():
-            return 0.0
-        # Compare shapes, not positions: the silhouette centroid moves with yaw for shapes
-        # like a lying tapered cup, and the position is refined again afterwards.
-        shift = observed_centroid - _centroid_and_axis(mask)[0]
-        return mask_iou(_shifted(mask, shift), observed_mask)
+    if render_image is not None and image_rgb is not None:
+        observed_luma = _luma(image_rgb)
+        rows, cols = np.nonzero(observed_mask)
+        h, w = observed_mask.shape
+        window = (max(0, rows.min() - APPEARANCE_PAD_PX), min(h, rows.max() + 1 + APPEARANCE_PAD_PX),
+                  max(0, cols.min() - APPEARANCE_PAD_PX), min(w, cols.max() + 1 + APPEARANCE_PAD_PX))
+
+        def score(yaw: float) -> float:
+            return _appearance_score(observed_luma, _luma(render_image(trial(yaw))), window)
+    else:
+        observed_centroid = _centroid_and_axis(observed_mask)[0]
+
+        def score(yaw: float) -> float:
+            mask = render_masks(trial(yaw)).get(obj.name)
+            if mask is None or not mask.any():
+                return 0.0
+            # Compare shapes, not positions: the silhouette centroid moves with yaw for shapes
+            # like a lying tapered cup, and the position is refined again afterwards.
+            shift = observed_centroid - _centroid_and_axis(mask)[0]
+            return mask_iou(_shifted(mask, shift), observed_mask)
 
     coarse = poses[obj.name][2] + np.arange(n_coarse) * period / n_coarse
-    scores = [iou(y) for y in coarse]
+    scores = [score(y) for y in coarse]
     best = float(coarse[int(np.argmax(scores))])
     step = period / n_coarse
     fine = best + np.linspace(-step, step, n_fine)
-    fine_scores = [iou(y) for y in fine]
+    fine_scores = [score(y) for y in fine]
     # Several yaws can tie on a pixel grid: take the middle of the best plateau.
     top = np.flatnonzero(np.isclose(fine_scores, max(fine_scores)))
     return wrap_yaw(float(np.mean(fine[top])), obj.yaw_symmetry)
@@ -200,7 +246,8 @@ def estimate_initial_poses(
     tolerance_px: float = 0.25,
     max_step_m: float = 0.03,
     offsets: Mapping[str, Sequence[float]] | None = None,
-    yaw_grid: tuple[int, int] = (16, 9),
+    yaw_grid: tuple[int, int] = (16, 11),
+    render_image: RenderImage | None = None,
 ) -> dict[str, PoseEstimate]:
     """Estimate each object's planar pose from `image_rgb`; see the module docstring."""
     masks = segmenter.segment(image_rgb)
@@ -229,7 +276,8 @@ def estimate_initial_poses(
         yawed = [obj for obj in objects if obj.yaw_symmetry]
         if yawed:
             for obj in yawed:
-                poses[obj.name][2] = _search_yaw(obj, poses, masks[obj.name], render_masks, yaw_grid)
+                poses[obj.name][2] = _search_yaw(obj, poses, masks[obj.name], render_masks, yaw_grid, image_rgb,
+                                                 render_image)
             more, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
                                              max_iterations, tolerance_px, max_step_m)
             iterations += more

@@ -25,15 +25,34 @@ from r2s_eval.utils.io import write_parquet
 log = logging.getLogger("r2s_eval.init")
 
 
-def mask_renderer(env, camera: str):
-    """Render the sim's object masks for planar poses, from the calibrated camera."""
+def mask_renderer(env, camera: str, supersample: int = 1):
+    """Render the sim's object masks for planar poses, from the calibrated camera.
+
+    With ``supersample`` k > 1 the masks are rendered at k times the resolution and
+    area-averaged back: soft masks (pixel coverage) whose centroid and overlap change
+    smoothly with the pose, instead of in whole-pixel steps.
+    """
     names = env.task.object_names
+    h, w = env.image_size
+    k = int(supersample)
 
     def render(poses):
         env.reset(poses, settle=False, observe=False)  # kinematics only: a pose hypothesis
-        labels, label_names = env.render(camera, segmentation=True)
+        labels, label_names = env.render(camera, size=(h * k, w * k), segmentation=True)
         by_name = {n: label for label, n in label_names.items()}
-        return {n: labels == by_name[n] for n in names}
+        if k == 1:
+            return {n: labels == by_name[n] for n in names}
+        return {n: (labels == by_name[n]).reshape(h, k, w, k).mean(axis=(1, 3)) for n in names}
+
+    return render
+
+
+def image_renderer(env, camera: str):
+    """Render the sim's clean RGB frame for planar poses, from the calibrated camera."""
+
+    def render(poses):
+        env.reset(poses, settle=False, observe=False)
+        return env.render(camera)
 
     return render
 
@@ -63,10 +82,11 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
                 camera,
                 env.table_top_z_m,
                 geometries,
-                render_masks=mask_renderer(env, calib["camera"]),
+                render_masks=mask_renderer(env, calib["camera"], int(calib["refine"].get("supersample", 1))),
                 max_iterations=calib["refine"]["max_iterations"],
                 tolerance_px=calib["refine"]["tolerance_px"],
                 offsets=(offsets or {}).get(ep.task),
+                render_image=image_renderer(env, calib["camera"]) if calib["refine"].get("appearance", True) else None,
             )
         except InitEstimationError as exc:
             raise InitEstimationError(f"episode {ep.episode_index} ({frame_path}): {exc}") from exc

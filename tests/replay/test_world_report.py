@@ -46,7 +46,7 @@ def test_report_numbers_and_targets(tmp_path, capsys):
     assert a["meets_targets"] is True
     assert b["replay"]["success_rate"] == 0.0 and b["meets_targets"] is False
     printed = capsys.readouterr().out
-    assert "upright" not in printed and "a " in printed and " NO" in printed
+    assert "block" in printed and " NO" in printed
 
 
 def test_missing_attempt_log_is_named(tmp_path):

@@ -127,7 +127,7 @@ BALL = ObjectSpec(
     kind="ball",
     rgba=(0.10, 0.75, 0.15, 1.0),  # green
     dims=dict(radius_m=0.02),
-    mass_kg=0.03,
+    mass_kg=0.045,  # a golf ball's weight
 )
 BOX = ObjectSpec(
     name="box",

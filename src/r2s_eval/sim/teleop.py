@@ -35,8 +35,11 @@ block_from_box  block_a   on the table beside the box, towards the centre line
 ``upright_cup`` grasps the lying cup across its middle, lifts it, pitches the
 hand by 90 deg about the jaw axis (the cup's opening turns up), lowers it onto
 the table, lets go and backs off along the hand's axis. Blocks are grasped
-with the jaws square to their faces (the face pair closest to the natural
-reach direction).
+with the jaws square to their faces; the hand turns (for round objects in
+22.5 deg steps, for blocks among their face pairs) to stay close to the natural
+reach direction while keeping its jaws and long palm from sweeping into an
+object within 15 cm. Before closing, the operator waits until the arm has
+caught up with its command (the servos lag).
 
 Human-like variability (seeded by ``rng``): per-segment speed factor, short
 pauses, overshoot-and-correct on free-space moves, millimetre aiming error,
@@ -82,6 +85,8 @@ class OperatorConfig:
     put_down_margin_m: float = 0.03  # gap between a block put down and the box
     upright_lift_tcp_height_m: float = 0.16  # tcp above the table while turning a cup
     turn_speed_rad_s: float = 1.2  # hand rotation speed
+    settle_m: float = 0.006  # before closing, wait until the real tcp is this close to the grasp pose
+    neighbour_radius_m: float = 0.15  # objects this close turn the hand so its jaws miss them
     ik_iterations: int = 4
     max_steps_per_segment: int = 60
 
@@ -96,6 +101,7 @@ class Segment:
     speed_m_s: float
     hold_steps: int = 0
     R_world: np.ndarray | None = None  # gripper orientation to reach; None keeps the current one
+    settle_m: float | None = None  # also wait until the real tcp is this close to the target
 
 
 def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
@@ -193,18 +199,31 @@ class ScriptedOperator:
         return min(world.ARMS, key=lambda a: abs(bases[a][1] - mid_y))
 
     def _grasp_yaw(self) -> float:
-        """Approach yaw of the top-down hand: along the reach, or square to a block's faces."""
+        """Approach yaw of the top-down hand (its jaws close across it).
+
+        Along the reach for round objects, square to a block's or box's faces; and, like a
+        person, turned so the jaws and the long palm do not sweep into a close neighbour.
+        """
         name = self.task.manipulated
-        reach = centre_m(self.env, name)[:2] - self.env.arm_base_positions()[self.arm][:2]
+        xy = centre_m(self.env, name)[:2]
+        reach = xy - self.env.arm_base_positions()[self.arm][:2]
         reach_yaw = float(np.arctan2(reach[1], reach[0]))
-        kind = self.task.object(name).kind
         obj_yaw = self.env.object_poses()[name]["yaw_rad"]
         if self.task.placement(name) == "on_side":
             return obj_yaw  # jaws across the lying axis; the hand's z axis along it
-        if kind in ("block", "box"):
-            k = np.round((reach_yaw - obj_yaw) / (np.pi / 2))
-            return float(obj_yaw + k * np.pi / 2)
-        return reach_yaw
+        kind = self.task.object(name).kind
+        step = np.pi / 2 if kind in ("block", "box") else np.pi / 8
+        base = obj_yaw if kind in ("block", "box") else reach_yaw
+        candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
+        others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
+        near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
+
+        def cost(yaw: float) -> float:
+            turn = abs(np.angle(np.exp(1j * (yaw - reach_yaw))))
+            jaw_axis = np.array([-np.sin(yaw), np.cos(yaw)])
+            return turn + sum(2.0 * abs(float(jaw_axis @ d)) for d in near)
+
+        return float(min(candidates, key=cost))
 
     def _speed(self, base_m_s: float) -> float:
         j = self.cfg.speed_jitter_rel
@@ -283,6 +302,8 @@ class ScriptedOperator:
         self._action[self._arm_slice] = self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
         self._action[self._grip_index] = self._gripper_cmd
         arrived = dist <= max_step and turned and abs(seg.gripper - self._gripper_cmd) < 1e-9
+        if arrived and seg.settle_m is not None:  # the arm lags its command: wait until it is there
+            arrived = float(np.linalg.norm(self.env.ee_positions()[self.arm] - self._cmd_pos)) <= seg.settle_m
         if arrived:
             if self._hold_left > 0:
                 self._hold_left -= 1
@@ -330,7 +351,7 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     def approach():
         obj = centre_m(env, pp.obj)  # re-aim on the object as seen now
         return [Segment("approach", np.r_[obj[:2] + _aim(op), pp.grasp_tcp_z_m(op)], open_cmd,
-                        op._speed(cfg.fine_speed_m_s))]
+                        op._speed(cfg.fine_speed_m_s), settle_m=cfg.settle_m)]
 
     def close():
         segs = close_only()
@@ -490,7 +511,8 @@ def _upright_cup_plan(op: ScriptedOperator):
 
     def approach():
         cup = centre_m(env, "cup")
-        return [Segment("approach", np.r_[cup[:2] + _aim(op), cup[2] + 0.004], 0.0, op._speed(cfg.fine_speed_m_s))]
+        return [Segment("approach", np.r_[cup[:2] + _aim(op), cup[2] + 0.004], 0.0, op._speed(cfg.fine_speed_m_s),
+                        settle_m=cfg.settle_m)]
 
     def close():
         return [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]

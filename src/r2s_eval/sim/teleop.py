@@ -174,9 +174,6 @@ class ScriptedOperator:
         self._plan = PLANS[task.key](self)
 
     # ------------------------------------------------------------ scene reads (what a person sees)
-    def _obj_pos(self, name: str) -> np.ndarray:
-        return self.env.object_poses()[name]["pos_world_m"].copy()
-
     def object_height_m(self, name: str) -> float:
         return height_m(self.task.object(name).kind, self.env.object_dims(name))
 

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import dataclasses
 
-import numpy as np
 
 from r2s_eval.calib import CameraModel, ObjectGeometry
 from r2s_eval.sim import TabletopEnv, Task, WorldParams, get_task

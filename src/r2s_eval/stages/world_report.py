@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import logging
 
-import numpy as np
 import pandas as pd
 
 from r2s_eval.stages import _cli

@@ -76,6 +76,7 @@ class TabletopEnv:
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
+        self._eval_cache: dict = {}
         self.reset()
 
     # ------------------------------------------------------------ indexing
@@ -112,6 +113,15 @@ class TabletopEnv:
                 fingers[side] = set(np.flatnonzero(m.geom_bodyid == body_id))
             self._finger_geoms[arm] = fingers
         self._obj_geoms = {n: set(np.flatnonzero(m.geom_bodyid == b)) for n, b in self._obj_body.items()}
+        # Per-geom lookup tables, so contact queries are array indexing (they run every step).
+        self._geom_is_robot = np.isin(self._geom_label, (2, 3))
+        self._geom_object = np.full(m.ngeom, -1, dtype=np.int32)
+        for i, n in enumerate(self.task.object_names):
+            self._geom_object[list(self._obj_geoms[n])] = i
+        self._geom_finger = np.zeros(m.ngeom, dtype=np.int32)  # 1 + 2 * arm index + (0: jaw a, 1: jaw b)
+        for i, arm in enumerate(world.ARMS):
+            for k, side in enumerate(("a", "b")):
+                self._geom_finger[list(self._finger_geoms[arm][side])] = 1 + 2 * i + k
         self._tcp_site = {arm: m.site(f"{arm}_tcp").id for arm in world.ARMS}
 
     # ------------------------------------------------------------ episode
@@ -320,42 +330,60 @@ class TabletopEnv:
         n = self.data.ncon
         return self.data.contact.geom1[:n], self.data.contact.geom2[:n]
 
-    def _contacts_between(self, geoms_a: set, geoms_b: set) -> np.ndarray:
+    def _robot_object_contacts(self, name: str | None = None) -> np.ndarray:
+        """Indices of robot-object contacts (with object ``name``, or with any task object)."""
         g1, g2 = self._contacts()
-        a = np.fromiter(geoms_a, int)
-        b = np.fromiter(geoms_b, int)
-        hit = (np.isin(g1, a) & np.isin(g2, b)) | (np.isin(g1, b) & np.isin(g2, a))
+        o1, o2 = self._geom_object[g1], self._geom_object[g2]
+        if name is None:
+            hit = (self._geom_is_robot[g1] & (o2 >= 0)) | (self._geom_is_robot[g2] & (o1 >= 0))
+        else:
+            i = self.task.object_names.index(name)
+            hit = (self._geom_is_robot[g1] & (o2 == i)) | (self._geom_is_robot[g2] & (o1 == i))
         return np.flatnonzero(hit)
 
     def robot_touches(self, name: str) -> bool:
-        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
-        return len(self._contacts_between(robot, self._obj_geoms[name])) > 0
+        return len(self._robot_object_contacts(name)) > 0
 
     def grasped(self, name: str) -> str | None:
         """Arm whose two jaws both touch object ``name``, else None."""
-        for arm in world.ARMS:
-            fingers = self._finger_geoms[arm]
-            if all(len(self._contacts_between(fingers[s], self._obj_geoms[name])) for s in ("a", "b")):
+        g1, g2 = self._contacts()
+        i = self.task.object_names.index(name)
+        fingers = np.concatenate([self._geom_finger[g1][self._geom_object[g2] == i],
+                                  self._geom_finger[g2][self._geom_object[g1] == i]])
+        for k, arm in enumerate(world.ARMS):
+            if np.any(fingers == 1 + 2 * k) and np.any(fingers == 2 + 2 * k):
                 return arm
         return None
 
     def contact_force_n(self) -> float:
         """Total normal contact force (N) between the robot and all task objects."""
-        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
-        objects = set().union(*self._obj_geoms.values())
         force = np.zeros(6)
         total = 0.0
-        for i in self._contacts_between(robot, objects):
+        for i in self._robot_object_contacts():
             mujoco.mj_contactForce(self.model, self.data, int(i), force)
             total += abs(force[0])
         return float(total)
 
     # ------------------------------------------------------------ task
+    def _state_key(self) -> bytes:
+        d = self.data
+        return d.qpos.tobytes() + d.qvel.tobytes() + np.float64(d.time).tobytes() + np.int64(d.ncon).tobytes()
+
+    def _evaluated(self, what: str, fn) -> float:
+        # The rollout loop asks for success and progress of the same state several times per
+        # step; both are pure functions of the state, so each is computed once per state.
+        key = self._state_key()
+        if self._eval_cache.get("key") != key:
+            self._eval_cache = {"key": key}
+        if what not in self._eval_cache:
+            self._eval_cache[what] = fn(self)
+        return self._eval_cache[what]
+
     def is_success(self) -> bool:
-        return bool(self.task.success(self))
+        return bool(self._evaluated("success", self.task.success))
 
     def task_progress(self) -> float:
-        return float(self.task.progress(self))
+        return float(self._evaluated("progress", self.task.progress))
 
     def close(self) -> None:
         for r in self._renderers.values():

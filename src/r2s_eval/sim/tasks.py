@@ -402,8 +402,7 @@ def _cup_held_upright(env: "TabletopEnv") -> bool:
 
 # ---------------------------------------------------------------- progress
 def staged_progress(
-    env: "TabletopEnv", success: Callable[["TabletopEnv"], bool], candidates: tuple[str, ...],
-    goal_configuration: Callable[["TabletopEnv"], bool],
+    env: "TabletopEnv", candidates: tuple[str, ...], goal_configuration: Callable[["TabletopEnv"], bool],
 ) -> float:
     """Stages: reached 0.2, grasped 0.4, lifted 0.6, held in the goal configuration 0.8, success 1.0.
 
@@ -411,7 +410,7 @@ def staged_progress(
 
     ``candidates`` are the objects that may be manipulated; the best one counts.
     """
-    if success(env):
+    if env.is_success():  # the task's own rule (computed once per state by the env)
         return 1.0
     best = 0.0
     for name in candidates:
@@ -432,14 +431,14 @@ def staged_progress(
 
 def cup_on_plate_progress(env: "TabletopEnv") -> float:
     """Stages: reached 0.2, grasped 0.4, lifted 0.6, above plate 0.8, placed 1.0."""
-    return staged_progress(env, cup_on_plate_success, ("cup",), _cup_over_plate)
+    return staged_progress(env, ("cup",), _cup_over_plate)
 
 
-def _progress(success, candidates, goal):
+def _progress(candidates, goal):
     def progress(env: "TabletopEnv") -> float:
-        return staged_progress(env, success, candidates, goal)
+        return staged_progress(env, candidates, goal)
 
-    progress.__doc__ = f"Staged progress towards {success.__name__} (see staged_progress)."
+    progress.__doc__ = f"Staged progress of {candidates} towards {goal.__name__} (see staged_progress)."
     return progress
 
 
@@ -452,7 +451,7 @@ TASKS: dict[str, Task] = {
         objects=(CUP, BALL),
         init_regions={"cup": Region(**_FULL_REGION), "ball": Region(**_FULL_REGION)},
         success=cover_ball_success,
-        progress=_progress(cover_ball_success, ("cup",), _cup_over_ball),
+        progress=_progress(("cup",), _cup_over_ball),
         manipulated="cup",
         placements={"cup": "upside_down"},
     ),
@@ -462,7 +461,7 @@ TASKS: dict[str, Task] = {
         objects=(BALL, BOX),
         init_regions={"ball": Region(**_FULL_REGION), "box": Region(**_FULL_REGION)},
         success=ball_in_box_success,
-        progress=_progress(ball_in_box_success, ("ball",), _ball_over_box),
+        progress=_progress(("ball",), _ball_over_box),
         manipulated="ball",
     ),
     "ball_in_cup": Task(
@@ -471,7 +470,7 @@ TASKS: dict[str, Task] = {
         objects=(BALL, CUP),
         init_regions={"ball": Region(**_FULL_REGION), "cup": Region(**_FULL_REGION)},
         success=ball_in_cup_success,
-        progress=_progress(ball_in_cup_success, ("ball",), _ball_over_cup),
+        progress=_progress(("ball",), _ball_over_cup),
         manipulated="ball",
     ),
     "cup_on_plate": Task(
@@ -489,7 +488,7 @@ TASKS: dict[str, Task] = {
         objects=(BLOCK_A, BLOCK_B),
         init_regions={"block_a": Region(**_FULL_REGION), "block_b": Region(**_FULL_REGION)},
         success=stack_blocks_success,
-        progress=_progress(stack_blocks_success, ("block_a", "block_b"), _block_over_block),
+        progress=_progress(("block_a", "block_b"), _block_over_block),
         manipulated="block_a",
     ),
     "block_from_box": Task(
@@ -502,7 +501,7 @@ TASKS: dict[str, Task] = {
             "block_a": Region(x_range_m=(-0.015, 0.015), y_range_m=(-0.01, 0.01), relative_to="box"),
         },
         success=block_from_box_success,
-        progress=_progress(block_from_box_success, ("block_a",), _block_clear_of_box),
+        progress=_progress(("block_a",), _block_clear_of_box),
         manipulated="block_a",
     ),
     "upright_cup": Task(
@@ -513,7 +512,7 @@ TASKS: dict[str, Task] = {
         init_regions={"cup": Region(x_range_m=(-0.10, 0.05), y_range_m=(-0.14, 0.14),
                                     yaw_range_rad=(-1.4, 1.4))},
         success=upright_cup_success,
-        progress=_progress(upright_cup_success, ("cup",), _cup_held_upright),
+        progress=_progress(("cup",), _cup_held_upright),
         manipulated="cup",
         arm="behind_axis",
         placements={"cup": "on_side"},

@@ -36,7 +36,7 @@ def test_replay_gives_up_after_max_attempts(demo):
     env, poses, actions = demo
     x, y, yaw = poses["cup"]
     wrong = dict(poses, cup=(x + 0.08, y, yaw))  # 8 cm off: +-1 cm retries cannot reach it
-    result = replay_episode(env, actions, wrong, np.random.default_rng(0), max_attempts=2)
+    result = replay_episode(env, actions, wrong, np.random.default_rng(0), max_attempts=3)
     assert not result.success and result.attempts == 3
 
 
@@ -46,3 +46,8 @@ def test_perturbation_bounds():
     for _ in range(200):
         x, y, yaw = perturb(base, rng, 0.01, np.pi)["cup"]
         assert abs(x - 0.1) <= 0.01 and abs(y + 0.05) <= 0.01 and abs(yaw - 0.3) <= np.pi
+    # Observable yaw stays within +-yaw_rad; a rotationally symmetric object's yaw is redrawn.
+    yaws = [perturb({"block": (0, 0, 0.3), "ball": (0, 0, 0.3)}, rng, 0.01, 0.1, {"block": 4, "ball": 0})
+            for _ in range(200)]
+    assert all(abs(p["block"][2] - 0.3) <= 0.1 for p in yaws)
+    assert max(abs(p["ball"][2] - 0.3) for p in yaws) > 1.0

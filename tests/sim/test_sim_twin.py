@@ -77,3 +77,21 @@ def test_images_differ_but_scene_matches(nominal_env, twin_env, twin_params):
 def test_nominal_params_are_default():
     assert WorldParams() == WorldParams()
     assert WorldParams().image_noise_std == 0.0
+
+
+def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
+    """Scaled masses must reach the compile-time constants (subtree masses, inverse weights),
+    or a heavier light ball dropped spinning into a cup gets flung through its floor."""
+    from r2s_eval.sim.tasks import centre_m
+
+    params = WorldParams(object_mass_scale={"ball": 1.19, "cup": 0.94})
+    env = TabletopEnv("ball_in_cup", params=params, cameras=())
+    ball = env.model.body("ball").id
+    assert env.model.body_subtreemass[ball] == pytest.approx(env.model.body_mass[ball])
+    env.reset({"ball": (0.0, -0.1, 0.0), "cup": (0.008, 0.1, 0.0)})
+    env.set_object_pose("ball", [0.01, 0.11, 0.855])
+    env.data.qvel[env._obj_dof_adr["ball"] + 3: env._obj_dof_adr["ball"] + 6] = [17.5, 0.0, 0.0]
+    for _ in range(10):
+        env.step(env.state())
+    assert env.is_success() and centre_m(env, "ball")[2] > 0.75
+    env.close()

@@ -1,10 +1,38 @@
-# Estimate every episode's initial object poses from its first head-camera frame.
+# Initial object poses from each episode's first head-camera frame: per-task offsets are
+# fitted once on held-out calibration episodes (init_offsets), then frozen and added to
+# every estimate (init_estimate).
+def measured_poses(wildcards):
+    """Measured poses of the calibration episodes: the twin's log, or the user's CSV (optional)."""
+    if TWIN:
+        return {"measured": "results/real/init_truth.parquet"}
+    path = CFG["calib"]["calibration"].get("measured_poses")
+    return {"measured": path} if path else {}
+
+
+rule init_offsets:
+    input:
+        unpack(measured_poses),
+        index="results/ingest/episodes.parquet",
+        frames="results/ingest/first_frames",
+    output:
+        "results/init/offsets.json",
+    params:
+        cfg=params_of("calib", "world"),
+        measured=lambda w, input: f"--measured {input.measured}" if "measured" in input.keys() else "",
+    log:
+        "logs/init_offsets.log",
+    shell:
+        "{PY} -m r2s_eval.stages.init_offsets --cfg {params.cfg:q} --index {input.index}"
+        " --frames {input.frames} {params.measured} --out {output} > {log} 2>&1"
+
+
 rule init_estimate:
     # The calibrated sim's chain gates everything sim-side: run it before any training.
     priority: SIM_CHAIN_PRIORITY
     input:
         index="results/ingest/episodes.parquet",
         frames="results/ingest/first_frames",
+        offsets="results/init/offsets.json",
     output:
         "results/init/estimates.parquet",
     params:
@@ -13,12 +41,13 @@ rule init_estimate:
         "logs/init_estimate.log",
     shell:
         "{PY} -m r2s_eval.stages.init_estimate --cfg {params.cfg:q} --index {input.index}"
-        " --frames {input.frames} --out {output} > {log} 2>&1"
+        " --frames {input.frames} --offsets {input.offsets} --out {output} > {log} 2>&1"
 
 
 if TWIN:
 
-    # The only reader of the twin's true poses: it scores the estimate, nothing consumes it.
+    # Scores the estimates of the test episodes against the twin's true poses; nothing
+    # downstream consumes it. (init_offsets reads the truth of the calibration episodes only.)
     rule init_error:
         input:
             estimates="results/init/estimates.parquet",

@@ -17,3 +17,22 @@ rule replay:
         "{PY} -m r2s_eval.stages.replay --cfg {params.cfg:q} --dataset {input.dataset}"
         " --index {input.index} --estimates {input.estimates} --out-dataset {output.dataset}"
         " --out-log {output.log_table} > {log} 2>&1"
+
+
+if TWIN:
+
+    # The calibrated world's fidelity per task (teleop success, initial-pose error, replay
+    # success and attempts, per-episode costs), printed into the log and kept as JSON.
+    rule world_report:
+        input:
+            truth="results/real/init_truth.parquet",
+            errors="results/init/error.parquet",
+            replay="results/replay/log.parquet",
+            estimates="results/init/estimates.parquet",
+        output:
+            "results/world/report.json",
+        log:
+            "logs/world_report.log",
+        shell:
+            "{PY} -m r2s_eval.stages.world_report --truth {input.truth} --errors {input.errors}"
+            " --replay {input.replay} --estimates {input.estimates} --out {output} > {log} 2>&1"

@@ -1,4 +1,4 @@
-"""Real-to-sim calibration: initial object poses from a first camera frame."""
+"""Real-to-sim calibration: initial object poses from a first camera frame, per-task offsets."""
 
 from r2s_eval.calib.estimate import (
     CameraModel,
@@ -8,6 +8,7 @@ from r2s_eval.calib.estimate import (
     estimate_initial_poses,
     yaw_error_rad,
 )
+from r2s_eval.calib.offsets import calibration_subset, fit_offsets
 from r2s_eval.calib.segment import HSVSegmenter, Segmenter, make_segmenter
 
 __all__ = [
@@ -17,7 +18,9 @@ __all__ = [
     "ObjectGeometry",
     "PoseEstimate",
     "Segmenter",
+    "calibration_subset",
     "estimate_initial_poses",
+    "fit_offsets",
     "make_segmenter",
     "yaw_error_rad",
 ]

@@ -6,8 +6,15 @@
 3. refine: render the simulator at the estimate from the same calibrated camera and move each
    object until its rendered centroid lands on the observed one (Gauss-Newton on the pixel
    reprojection error). This removes the perspective bias of step 2 (a silhouette centroid is
-   not the projection of the 3-D centre) and absorbs the object's shape;
-4. add the per-task offsets fitted on calibration episodes.
+   not the projection of the 3-D centre) and absorbs the object's shape. For objects whose
+   yaw is observable (``yaw_symmetry`` > 0) the yaw is then searched over one symmetry period
+   (a coarse grid, then a finer one around the best) for the rendering that best matches the
+   frame: with ``render_image``, the normalised cross-correlation of the luminance around the
+   object (maximised over sub-pixel shifts); otherwise the overlap (IoU) of the silhouettes.
+   Luminance is what survives video compression at full resolution (4:2:0 chroma is halved,
+   which blurs colour masks of small objects), and it shows inner edges such as a block's
+   top face. Then the position is refined again;
+4. add the per-task offsets fitted on calibration episodes (``fit_offsets``).
 Poses are planar: (x_m, y_m) of the object's bottom centre in the world frame, and yaw_rad.
 """
 
@@ -16,12 +23,18 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from r2s_eval.calib.segment import Segmenter
 
 # rendered masks for a set of planar poses {name: (x_m, y_m, yaw_rad)}
 RenderMasks = Callable[[dict[str, tuple[float, float, float]]], dict[str, np.ndarray]]
+# rendered RGB image (uint8 HxWx3) for a set of planar poses, same camera
+RenderImage = Callable[[dict[str, tuple[float, float, float]]], np.ndarray]
+
+APPEARANCE_PAD_PX = 3  # window margin around the object, and the largest shift searched
+APPEARANCE_UPSAMPLE = 4  # sub-pixel shifts: both windows are upsampled before matching
 
 
 class InitEstimationError(RuntimeError):
@@ -72,13 +85,31 @@ class PoseEstimate:
 
 
 def _centroid_and_axis(mask: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centroid (u, v) and principal-axis angle of a mask (binary, or soft: pixel weights)."""
     rows, cols = np.nonzero(mask)
+    weights = np.asarray(mask, float)[rows, cols]
     u, v = cols.astype(float), rows.astype(float)
-    cu, cv_ = u.mean(), v.mean()
+    total = weights.sum()
+    cu, cv_ = (weights * u).sum() / total, (weights * v).sum() / total
     du, dv = u - cu, v - cv_
-    mu20, mu02, mu11 = (du * du).mean(), (dv * dv).mean(), (du * dv).mean()
+    mu20, mu02 = (weights * du * du).sum() / total, (weights * dv * dv).sum() / total
+    mu11 = (weights * du * dv).sum() / total
     angle = 0.5 * np.arctan2(2.0 * mu11, mu20 - mu02)
     return np.array([cu, cv_]), angle
+
+
+def _shifted(mask: np.ndarray, shift_uv: np.ndarray) -> np.ndarray:
+    """``mask`` translated by a sub-pixel shift (u right, v down), as a soft float mask."""
+    M = np.array([[1.0, 0.0, shift_uv[0]], [0.0, 1.0, shift_uv[1]]], np.float32)
+    h, w = mask.shape
+    return cv2.warpAffine(mask.astype(np.float32), M, (w, h), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two masks (soft masks in [0, 1]: sum of min over sum of max)."""
+    a, b = a.astype(np.float32), b.astype(np.float32)
+    union = np.maximum(a, b).sum()
+    return float(np.minimum(a, b).sum() / union) if union else 0.0
 
 
 def wrap_yaw(yaw_rad: float, symmetry: int) -> float:
@@ -106,6 +137,104 @@ def _pixel_jacobian(camera: CameraModel, point_world_m: np.ndarray, step_m: floa
     return J
 
 
+def _refine_positions(poses, observed, objects, camera, table_z_m, render_masks, max_iterations, tolerance_px,
+                      max_step_m) -> tuple[int, dict[str, float]]:
+    """Gauss-Newton on the rendered-vs-observed centroid; keeps each object's best iterate."""
+    errors = {name: float("nan") for name in poses}
+    best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        rendered = render_masks({n: tuple(p) for n, p in poses.items()})
+        residuals = {}
+        for obj in objects:
+            mask = rendered.get(obj.name)
+            if mask is None or not mask.any():
+                continue  # rendered out of view or hidden: keep the back-projection
+            residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
+            err = float(np.linalg.norm(residuals[obj.name]))
+            if err < best[obj.name][0]:
+                best[obj.name] = (err, poses[obj.name].copy())
+        if not residuals or max(np.linalg.norm(r) for r in residuals.values()) < tolerance_px:
+            break
+        for obj in objects:
+            if obj.name not in residuals:
+                continue
+            x, y, _ = poses[obj.name]
+            point = np.array([x, y, table_z_m + obj.centroid_height_m])
+            step = np.linalg.lstsq(_pixel_jacobian(camera, point), residuals[obj.name], rcond=None)[0]
+            norm = np.linalg.norm(step)
+            if norm > max_step_m:
+                step *= max_step_m / norm
+            poses[obj.name][:2] += step
+    for name, (err, pose) in best.items():
+        if np.isfinite(err):
+            poses[name][:] = pose
+            errors[name] = err
+    return iterations, errors
+
+
+def _luma(image_rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(np.ascontiguousarray(image_rgb), cv2.COLOR_RGB2GRAY).astype(np.float32)
+
+
+def _appearance_score(observed_luma: np.ndarray, rendered_luma: np.ndarray, window) -> float:
+    """Best normalised cross-correlation of the observed window within the rendered one (+-pad px)."""
+    r0, r1, c0, c1 = window
+    pad, up = APPEARANCE_PAD_PX, APPEARANCE_UPSAMPLE
+    h, w = rendered_luma.shape
+    search = rendered_luma[max(0, r0 - pad):min(h, r1 + pad), max(0, c0 - pad):min(w, c1 + pad)]
+    template = observed_luma[r0:r1, c0:c1]
+    search = cv2.resize(search, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
+    template = cv2.resize(template, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
+    if search.shape[0] < template.shape[0] or search.shape[1] < template.shape[1]:
+        return -1.0
+    return float(cv2.matchTemplate(search, template, cv2.TM_CCOEFF_NORMED).max())
+
+
+def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: tuple[int, int],
+                image_rgb: np.ndarray | None = None, render_image: RenderImage | None = None) -> float:
+    """Yaw (within one symmetry period) whose rendering best matches the frame."""
+    period = 2.0 * np.pi / obj.yaw_symmetry
+    n_coarse, n_fine = grid
+    n_coarse = max(n_coarse, int(np.ceil(period / np.deg2rad(10.0))))  # coarse steps of at most 10 deg
+
+    def trial(yaw: float) -> dict:
+        poses_ = {n: tuple(p) for n, p in poses.items()}
+        poses_[obj.name] = (poses[obj.name][0], poses[obj.name][1], yaw)
+        return poses_
+
+    if render_image is not None and image_rgb is not None:
+        observed_luma = _luma(image_rgb)
+        rows, cols = np.nonzero(observed_mask)
+        h, w = observed_mask.shape
+        window = (max(0, rows.min() - APPEARANCE_PAD_PX), min(h, rows.max() + 1 + APPEARANCE_PAD_PX),
+                  max(0, cols.min() - APPEARANCE_PAD_PX), min(w, cols.max() + 1 + APPEARANCE_PAD_PX))
+
+        def score(yaw: float) -> float:
+            return _appearance_score(observed_luma, _luma(render_image(trial(yaw))), window)
+    else:
+        observed_centroid = _centroid_and_axis(observed_mask)[0]
+
+        def score(yaw: float) -> float:
+            mask = render_masks(trial(yaw)).get(obj.name)
+            if mask is None or not mask.any():
+                return 0.0
+            # Compare shapes, not positions: the silhouette centroid moves with yaw for shapes
+            # like a lying tapered cup, and the position is refined again afterwards.
+            shift = observed_centroid - _centroid_and_axis(mask)[0]
+            return mask_iou(_shifted(mask, shift), observed_mask)
+
+    coarse = poses[obj.name][2] + np.arange(n_coarse) * period / n_coarse
+    scores = [score(y) for y in coarse]
+    best = float(coarse[int(np.argmax(scores))])
+    step = period / n_coarse
+    fine = best + np.linspace(-step, step, n_fine)
+    fine_scores = [score(y) for y in fine]
+    # Several yaws can tie on a pixel grid: take the middle of the best plateau.
+    top = np.flatnonzero(np.isclose(fine_scores, max(fine_scores)))
+    return wrap_yaw(float(np.mean(fine[top])), obj.yaw_symmetry)
+
+
 def estimate_initial_poses(
     image_rgb: np.ndarray,
     segmenter: Segmenter,
@@ -117,6 +246,8 @@ def estimate_initial_poses(
     tolerance_px: float = 0.25,
     max_step_m: float = 0.03,
     offsets: Mapping[str, Sequence[float]] | None = None,
+    yaw_grid: tuple[int, int] = (16, 11),
+    render_image: RenderImage | None = None,
 ) -> dict[str, PoseEstimate]:
     """Estimate each object's planar pose from `image_rgb`; see the module docstring."""
     masks = segmenter.segment(image_rgb)
@@ -140,33 +271,16 @@ def estimate_initial_poses(
     errors = {name: float("nan") for name in poses}
     iterations = 0
     if render_masks is not None:
-        best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
-        for iterations in range(1, max_iterations + 1):
-            rendered = render_masks({n: tuple(p) for n, p in poses.items()})
-            residuals = {}
-            for obj in objects:
-                mask = rendered.get(obj.name)
-                if mask is None or not mask.any():
-                    continue  # rendered out of view or hidden: keep the back-projection
-                residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
-                err = float(np.linalg.norm(residuals[obj.name]))
-                if err < best[obj.name][0]:
-                    best[obj.name] = (err, poses[obj.name].copy())
-            if not residuals or max(np.linalg.norm(r) for r in residuals.values()) < tolerance_px:
-                break
-            for obj in objects:
-                if obj.name not in residuals:
-                    continue
-                x, y, _ = poses[obj.name]
-                point = np.array([x, y, table_z_m + obj.centroid_height_m])
-                step = np.linalg.lstsq(_pixel_jacobian(camera, point), residuals[obj.name], rcond=None)[0]
-                norm = np.linalg.norm(step)
-                if norm > max_step_m:
-                    step *= max_step_m / norm
-                poses[obj.name][:2] += step
-        for name, (err, pose) in best.items():
-            if np.isfinite(err):
-                poses[name], errors[name] = pose, err
+        iterations, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
+                                               max_iterations, tolerance_px, max_step_m)
+        yawed = [obj for obj in objects if obj.yaw_symmetry]
+        if yawed:
+            for obj in yawed:
+                poses[obj.name][2] = _search_yaw(obj, poses, masks[obj.name], render_masks, yaw_grid, image_rgb,
+                                                 render_image)
+            more, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
+                                             max_iterations, tolerance_px, max_step_m)
+            iterations += more
 
     offsets = offsets or {}
     estimates = {}

@@ -1,7 +1,8 @@
 """Object segmentation of a camera frame. Pluggable: anything with `segment(image) -> masks`.
 
-The bundled HSV segmenter suits objects of distinct saturated colours (our suite); an
-open-vocabulary backend can implement the same protocol for cluttered real scenes.
+The bundled HSV segmenter (the default) suits objects of distinct saturated colours (our
+suite); ``grounded_sam`` (``r2s_eval.calib.open_vocab``) finds objects from text prompts with
+Grounding DINO + SAM through transformers, for users who have those weights locally.
 """
 
 from __future__ import annotations
@@ -46,13 +47,17 @@ class HueRange:
 class HSVSegmenter:
     """Colour thresholds per object, keeping the largest connected blob (drops speckle)."""
 
-    def __init__(self, ranges: Mapping[str, HueRange], min_area_px: int = 20):
+    def __init__(self, ranges: Mapping[str, HueRange], min_area_px: int = 20, blur_px: int = 0):
         self.ranges = dict(ranges)
         self.min_area_px = min_area_px
+        self.blur_px = blur_px
 
     def segment(self, image_rgb: np.ndarray) -> dict[str, np.ndarray]:
-        # A light blur makes thresholds robust to sensor noise.
-        hsv = cv2.cvtColor(cv2.GaussianBlur(image_rgb, (3, 3), 0), cv2.COLOR_RGB2HSV)
+        # An optional blur makes thresholds robust to heavy sensor noise, but it rounds the
+        # corners of small objects (a block's yaw is read from them); off by default.
+        if self.blur_px:
+            image_rgb = cv2.GaussianBlur(image_rgb, (self.blur_px, self.blur_px), 0)
+        hsv = cv2.cvtColor(image_rgb, cv2.COLOR_RGB2HSV)
         return {name: self._largest_blob(rng.mask(hsv)) for name, rng in self.ranges.items()}
 
     def _largest_blob(self, mask: np.ndarray) -> np.ndarray:
@@ -68,12 +73,17 @@ class HSVSegmenter:
 def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> Segmenter:
     """Build the configured segmenter. `object_rgba` gives nominal colours for defaults.
 
-    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40,
+    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40, "blur_px": 0,
           "objects": {name: {"hue_lo":..,"hue_hi":..,"sat_min":..,"val_min":..}}}  (objects optional)
+    or {"type": "grounded_sam", ...} (see ``r2s_eval.calib.open_vocab``).
     """
     kind = cfg.get("type", "hsv")
+    if kind == "grounded_sam":
+        from r2s_eval.calib.open_vocab import make_grounded_sam
+
+        return make_grounded_sam(cfg, list(object_rgba))
     if kind != "hsv":
-        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv)")
+        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv, grounded_sam)")
     explicit = cfg.get("objects") or {}
     ranges = {}
     for name, rgba in object_rgba.items():
@@ -83,4 +93,4 @@ def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> 
             ranges[name] = HueRange.around_rgb(
                 rgba, cfg.get("hue_tol", 12), cfg.get("sat_min", 90), cfg.get("val_min", 40)
             )
-    return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20))
+    return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20), blur_px=int(cfg.get("blur_px", 0)))

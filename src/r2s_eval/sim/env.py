@@ -27,8 +27,10 @@ H = W = 128. Images carry the world's additive noise (twin), ``render()``
 returns clean images unless asked.
 
 Frames: world x away from the robot across the table, y to the robot's
-left, z up; table top at z = 0.75 m. Object poses refer to the centre of the
-object's bottom face.
+left, z up; table top at z = 0.75 m. Object body poses refer to the centre of
+the object's bottom face; planar poses ``(x_m, y_m, yaw_rad)`` (what
+``reset`` takes and ``object_poses`` reports as ``planar``) follow the task's
+placement of each object (``objects.py``: upright, upside down, on its side).
 """
 
 from __future__ import annotations
@@ -41,17 +43,13 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from r2s_eval.sim import cameras as cam_geom  # noqa: E402
+from r2s_eval.sim import objects as obj_geom  # noqa: E402
 from r2s_eval.sim import world  # noqa: E402
-from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
+from r2s_eval.sim.tasks import Task, centre_m, get_task, sample_initial_poses  # noqa: E402
 from r2s_eval.sim.twin import CAMERA_NAMES, WorldParams  # noqa: E402
 
 ACTION_DIM = 14
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
-
-
-def _yaw_from_quat(quat_wxyz: np.ndarray) -> float:
-    w, x, y, z = quat_wxyz
-    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 class TabletopEnv:
@@ -77,6 +75,8 @@ class TabletopEnv:
         self._noise_rng = np.random.default_rng(self.params.noise_seed)
         self._index_model()
         self.max_task_progress = 0.0
+        self.initial_centre_z_m: dict[str, float] = {}
+        self._eval_cache: dict = {}
         self.reset()
 
     # ------------------------------------------------------------ indexing
@@ -113,16 +113,29 @@ class TabletopEnv:
                 fingers[side] = set(np.flatnonzero(m.geom_bodyid == body_id))
             self._finger_geoms[arm] = fingers
         self._obj_geoms = {n: set(np.flatnonzero(m.geom_bodyid == b)) for n, b in self._obj_body.items()}
+        # Per-geom lookup tables, so contact queries are array indexing (they run every step).
+        self._geom_is_robot = np.isin(self._geom_label, (2, 3))
+        self._geom_object = np.full(m.ngeom, -1, dtype=np.int32)
+        for i, n in enumerate(self.task.object_names):
+            self._geom_object[list(self._obj_geoms[n])] = i
+        self._geom_finger = np.zeros(m.ngeom, dtype=np.int32)  # 1 + 2 * arm index + (0: jaw a, 1: jaw b)
+        for i, arm in enumerate(world.ARMS):
+            for k, side in enumerate(("a", "b")):
+                self._geom_finger[list(self._finger_geoms[arm][side])] = 1 + 2 * i + k
         self._tcp_site = {arm: m.site(f"{arm}_tcp").id for arm in world.ARMS}
 
     # ------------------------------------------------------------ episode
     def reset(
-        self, object_poses: dict[str, tuple[float, float, float]] | None = None, seed: int | None = None
-    ) -> dict:
-        """Robot at home, objects resting upright at planar poses {name: (x_m, y_m, yaw_rad)}.
+        self, object_poses: dict[str, tuple[float, float, float]] | None = None, seed: int | None = None,
+        settle: bool = True, observe: bool = True,
+    ) -> dict | None:
+        """Robot at home, objects resting in their task placement at planar poses {name: (x_m, y_m, yaw_rad)}.
 
         Without ``object_poses`` the task's nominal sampler is used with ``seed``.
         ``seed`` also reseeds the image-noise generator (reproducible episodes).
+        ``settle=False`` skips the 0.2 s of physics that lets objects come to rest (pure
+        kinematics, for rendering a pose hypothesis); ``observe=False`` returns None
+        instead of rendering the observation.
         """
         m, d = self.model, self.data
         if object_poses is None:
@@ -136,14 +149,29 @@ class TabletopEnv:
             d.qpos[self._finger_qpos_adr[arm]] = world.GRIPPER_OPEN_M
             d.qpos[self._finger_qpos_adr[arm] + 1] = world.GRIPPER_OPEN_M  # finger_b follows finger_a
             d.ctrl[self._grip_act[arm]] = world.GRIPPER_OPEN_M
+        missing = set(self.task.object_names) - set(object_poses)
+        if missing:
+            raise KeyError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
         for name in self.task.object_names:
             x_m, y_m, yaw_rad = object_poses[name]
-            quat = np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
-            self.set_object_pose(name, [x_m, y_m, self.table_top_z_m + 0.0005], quat, forward=False)
+            placement = self.task.placement(name)
+            support_z_m = self.table_top_z_m + 0.0005
+            parent = self.task.init_regions[name].relative_to if name in self.task.init_regions else None
+            if parent is not None:  # resting on (inside) another object that starts upright
+                parent_kind = self.task.object(parent).kind
+                support_z_m += obj_geom.support_top_m(parent_kind, self._obj_dims[parent]) + 0.0005
+            kind = self.task.object(name).kind
+            origin = obj_geom.placement_origin_m(kind, self._obj_dims[name], placement, x_m, y_m, yaw_rad, support_z_m)
+            quat = obj_geom.placement_quat(placement, yaw_rad, kind, self._obj_dims[name])
+            self.set_object_pose(name, origin, quat, forward=False)
         mujoco.mj_forward(m, d)
-        mujoco.mj_step(m, d, nstep=SETTLE_STEPS)
+        if settle:
+            mujoco.mj_step(m, d, nstep=SETTLE_STEPS)
         d.time = 0.0
         self.max_task_progress = 0.0
+        self.initial_centre_z_m = {n: float(centre_m(self, n)[2]) for n in self.task.object_names}
+        if not observe:
+            return None
         return self.observation()
 
     def step(self, action: np.ndarray) -> dict:
@@ -251,11 +279,19 @@ class TabletopEnv:
         )
 
     def object_poses(self) -> dict[str, dict]:
-        """Ground-truth poses: {name: dict(pos_world_m, quat_wxyz, yaw_rad)} (bottom centre)."""
+        """Ground-truth poses: {name: dict(pos_world_m, quat_wxyz, yaw_rad, planar)}.
+
+        ``pos_world_m``/``quat_wxyz`` are the body pose (bottom centre); ``planar`` is the
+        ``(x_m, y_m, yaw_rad)`` in the object's task placement (what ``reset`` takes), and
+        ``yaw_rad`` its yaw.
+        """
         out = {}
         for name in self.task.object_names:
             s = self.object_state(name)
-            out[name] = dict(pos_world_m=s["pos_world_m"], quat_wxyz=s["quat_wxyz"], yaw_rad=_yaw_from_quat(s["quat_wxyz"]))
+            kind = self.task.object(name).kind
+            planar = obj_geom.planar_pose(kind, self._obj_dims[name], self.task.placement(name), s["pos_world_m"],
+                                          s["quat_wxyz"])
+            out[name] = dict(pos_world_m=s["pos_world_m"], quat_wxyz=s["quat_wxyz"], yaw_rad=planar[2], planar=planar)
         return out
 
     def object_dims(self, name: str) -> dict:
@@ -294,42 +330,60 @@ class TabletopEnv:
         n = self.data.ncon
         return self.data.contact.geom1[:n], self.data.contact.geom2[:n]
 
-    def _contacts_between(self, geoms_a: set, geoms_b: set) -> np.ndarray:
+    def _robot_object_contacts(self, name: str | None = None) -> np.ndarray:
+        """Indices of robot-object contacts (with object ``name``, or with any task object)."""
         g1, g2 = self._contacts()
-        a = np.fromiter(geoms_a, int)
-        b = np.fromiter(geoms_b, int)
-        hit = (np.isin(g1, a) & np.isin(g2, b)) | (np.isin(g1, b) & np.isin(g2, a))
+        o1, o2 = self._geom_object[g1], self._geom_object[g2]
+        if name is None:
+            hit = (self._geom_is_robot[g1] & (o2 >= 0)) | (self._geom_is_robot[g2] & (o1 >= 0))
+        else:
+            i = self.task.object_names.index(name)
+            hit = (self._geom_is_robot[g1] & (o2 == i)) | (self._geom_is_robot[g2] & (o1 == i))
         return np.flatnonzero(hit)
 
     def robot_touches(self, name: str) -> bool:
-        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
-        return len(self._contacts_between(robot, self._obj_geoms[name])) > 0
+        return len(self._robot_object_contacts(name)) > 0
 
     def grasped(self, name: str) -> str | None:
         """Arm whose two jaws both touch object ``name``, else None."""
-        for arm in world.ARMS:
-            fingers = self._finger_geoms[arm]
-            if all(len(self._contacts_between(fingers[s], self._obj_geoms[name])) for s in ("a", "b")):
+        g1, g2 = self._contacts()
+        i = self.task.object_names.index(name)
+        fingers = np.concatenate([self._geom_finger[g1][self._geom_object[g2] == i],
+                                  self._geom_finger[g2][self._geom_object[g1] == i]])
+        for k, arm in enumerate(world.ARMS):
+            if np.any(fingers == 1 + 2 * k) and np.any(fingers == 2 + 2 * k):
                 return arm
         return None
 
     def contact_force_n(self) -> float:
         """Total normal contact force (N) between the robot and all task objects."""
-        robot = self._robot_geoms["left"] | self._robot_geoms["right"]
-        objects = set().union(*self._obj_geoms.values())
         force = np.zeros(6)
         total = 0.0
-        for i in self._contacts_between(robot, objects):
+        for i in self._robot_object_contacts():
             mujoco.mj_contactForce(self.model, self.data, int(i), force)
             total += abs(force[0])
         return float(total)
 
     # ------------------------------------------------------------ task
+    def _state_key(self) -> bytes:
+        d = self.data
+        return d.qpos.tobytes() + d.qvel.tobytes() + np.float64(d.time).tobytes() + np.int64(d.ncon).tobytes()
+
+    def _evaluated(self, what: str, fn) -> float:
+        # The rollout loop asks for success and progress of the same state several times per
+        # step; both are pure functions of the state, so each is computed once per state.
+        key = self._state_key()
+        if self._eval_cache.get("key") != key:
+            self._eval_cache = {"key": key}
+        if what not in self._eval_cache:
+            self._eval_cache[what] = fn(self)
+        return self._eval_cache[what]
+
     def is_success(self) -> bool:
-        return bool(self.task.success(self))
+        return bool(self._evaluated("success", self.task.success))
 
     def task_progress(self) -> float:
-        return float(self.task.progress(self))
+        return float(self._evaluated("progress", self.task.progress))
 
     def close(self) -> None:
         for r in self._renderers.values():

@@ -15,16 +15,37 @@ arm (the task's ``arm`` rule), keeps the other at its home pose, and keeps
 its own commanded joint configuration as the IK seed, as a teleoperation
 rig does.
 
-Phases for ``cup_on_plate``: pregrasp (above the cup) -> approach (down) ->
-close -> [regrasp: open, back off, re-approach, close] -> lift -> carry
-(over the plate, corrected for where the cup sits in the hand) -> lower ->
-release -> retreat.
+Plans. Six tasks are one pick-and-place (``PickPlace``): pregrasp (above the
+object, gripper pre-shaped) -> approach (down) -> close -> [regrasp: open, back
+off, re-approach, close] -> lift -> carry (over the target, corrected for where
+the object sits in the hand) -> lower -> release -> retreat. What differs is the
+object, the grasp height, the pre-shape and the release pose:
+
+==============  ========  ======================================================
+task            grasps    releases it
+==============  ========  ======================================================
+cover_ball      cup       rim 6 mm above the table, centred on the ball
+ball_in_box     ball      2 cm above the box rim, over the box centre (drops in)
+ball_in_cup     ball      2 cm above the cup rim, over the cup (drops in)
+cup_on_plate    cup       bottom 6 mm above the plate, over its centre
+stack_blocks    block_a   bottom 6 mm above block_b's top face
+block_from_box  block_a   on the table beside the box, towards the centre line
+==============  ========  ======================================================
+
+``upright_cup`` grasps the lying cup across its middle, lifts it, pitches the
+hand by 90 deg about the jaw axis (the cup's opening turns up), lowers it onto
+the table, lets go and backs off along the hand's axis. Blocks are grasped
+with the jaws square to their faces; the hand turns (for round objects in
+22.5 deg steps, for blocks among their face pairs) to stay close to the natural
+reach direction while keeping its jaws and long palm from sweeping into an
+object within 15 cm. Before closing, the operator waits until the arm has
+caught up with its command (the servos lag).
 
 Human-like variability (seeded by ``rng``): per-segment speed factor, short
 pauses, overshoot-and-correct on free-space moves, millimetre aiming error,
 and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps).
 
-Success rate: ``python -m r2s_eval.sim.teleop --episodes 20 [--twin]``.
+Success rate: ``python -m r2s_eval.sim.teleop --task <key|all> --episodes 20 [--twin]``.
 """
 
 from __future__ import annotations
@@ -34,10 +55,12 @@ from dataclasses import dataclass
 
 import mink
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim import world
 from r2s_eval.sim.env import ACTION_DIM, TabletopEnv
-from r2s_eval.sim.tasks import Task, get_task
+from r2s_eval.sim.objects import height_m
+from r2s_eval.sim.tasks import TASKS, Task, centre_m, get_task
 
 
 @dataclass(frozen=True)
@@ -57,6 +80,13 @@ class OperatorConfig:
     carry_tcp_height_m: float = 0.18  # tcp above the table while carrying
     place_clearance_m: float = 0.006  # cup bottom above the plate when released
     retreat_m: float = 0.10
+    preshape_margin_m: float = 0.012  # jaw opening beyond a ball's/block's half width
+    drop_height_m: float = 0.02  # gap under a ball released over a container
+    put_down_margin_m: float = 0.03  # gap between a block put down and the box
+    upright_lift_tcp_height_m: float = 0.16  # tcp above the table while turning a cup
+    turn_speed_rad_s: float = 1.2  # hand rotation speed
+    settle_m: float = 0.006  # before closing, wait until the real tcp is this close to the grasp pose
+    neighbour_radius_m: float = 0.15  # objects this close turn the hand so its jaws miss them
     ik_iterations: int = 4
     max_steps_per_segment: int = 60
 
@@ -70,6 +100,8 @@ class Segment:
     gripper: float
     speed_m_s: float
     hold_steps: int = 0
+    R_world: np.ndarray | None = None  # gripper orientation to reach; None keeps the current one
+    settle_m: float | None = None  # also wait until the real tcp is this close to the target
 
 
 def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
@@ -142,16 +174,53 @@ class ScriptedOperator:
         self._plan = PLANS[task.key](self)
 
     # ------------------------------------------------------------ scene reads (what a person sees)
-    def _obj_pos(self, name: str) -> np.ndarray:
-        return self.env.object_poses()[name]["pos_world_m"].copy()
+    def object_height_m(self, name: str) -> float:
+        return height_m(self.task.object(name).kind, self.env.object_dims(name))
 
     def _choose_arm(self) -> str:
         if self.task.arm in world.ARMS:
             return self.task.arm
-        poses = self.env.object_poses()
-        mid_y = np.mean([p["pos_world_m"][1] for p in poses.values()])
         bases = self.env.arm_base_positions()
+        if self.task.arm == "behind_axis":  # the arm from whose side the object's axis points away
+            name = self.task.manipulated
+            yaw = self.env.object_poses()[name]["yaw_rad"]
+            axis = np.array([np.cos(yaw), np.sin(yaw)])
+            xy = centre_m(self.env, name)[:2]
+
+            def alignment(arm):
+                reach = xy - bases[arm][:2]
+                return float(axis @ reach / np.linalg.norm(reach))
+
+            return max(world.ARMS, key=alignment)
+        mid_y = np.mean([centre_m(self.env, n)[1] for n in self.task.object_names])
         return min(world.ARMS, key=lambda a: abs(bases[a][1] - mid_y))
+
+    def _grasp_yaw(self) -> float:
+        """Approach yaw of the top-down hand (its jaws close across it).
+
+        Along the reach for round objects, square to a block's or box's faces; and, like a
+        person, turned so the jaws and the long palm do not sweep into a close neighbour.
+        """
+        name = self.task.manipulated
+        xy = centre_m(self.env, name)[:2]
+        reach = xy - self.env.arm_base_positions()[self.arm][:2]
+        reach_yaw = float(np.arctan2(reach[1], reach[0]))
+        obj_yaw = self.env.object_poses()[name]["yaw_rad"]
+        if self.task.placement(name) == "on_side":
+            return obj_yaw  # jaws across the lying axis; the hand's z axis along it
+        kind = self.task.object(name).kind
+        step = np.pi / 2 if kind in ("block", "box") else np.pi / 8
+        base = obj_yaw if kind in ("block", "box") else reach_yaw
+        candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
+        others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
+        near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
+
+        def cost(yaw: float) -> float:
+            turn = abs(np.angle(np.exp(1j * (yaw - reach_yaw))))
+            jaw_axis = np.array([-np.sin(yaw), np.cos(yaw)])
+            return turn + sum(2.0 * abs(float(jaw_axis @ d)) for d in near)
+
+        return float(min(candidates, key=cost))
 
     def _speed(self, base_m_s: float) -> float:
         j = self.cfg.speed_jitter_rel
@@ -182,10 +251,7 @@ class ScriptedOperator:
     def _start(self, state: np.ndarray) -> None:
         self._ik = ArmIK(self.arm, state)
         self._cmd_pos, _ = self._ik.tcp_pose()
-        bases = self.env.arm_base_positions()
-        cup_xy = self._obj_pos(self.task.objects[0].name)[:2]
-        reach = cup_xy - bases[self.arm][:2]
-        self._R_cmd = top_down_rotation(float(np.arctan2(reach[1], reach[0])))
+        self._R_cmd = top_down_rotation(self._grasp_yaw())
         self._action = np.zeros(ACTION_DIM)
         for i, a in enumerate(world.ARMS):
             self._action[7 * i : 7 * i + 6] = state[7 * i : 7 * i + 6] if a == self.arm else world.home_arm_q(a)
@@ -219,11 +285,22 @@ class ScriptedOperator:
         dist = float(np.linalg.norm(delta))
         max_step = seg.speed_m_s * world.CONTROL_DT_S
         self._cmd_pos = seg.pos_world_m.copy() if dist <= max_step else self._cmd_pos + delta / dist * max_step
+        turned = True
+        if seg.R_world is not None:
+            rotvec = Rotation.from_matrix(seg.R_world @ self._R_cmd.T).as_rotvec()
+            angle = float(np.linalg.norm(rotvec))
+            max_turn = self.cfg.turn_speed_rad_s * world.CONTROL_DT_S
+            if angle > max_turn:
+                rotvec *= max_turn / angle
+                turned = False
+            self._R_cmd = Rotation.from_rotvec(rotvec).as_matrix() @ self._R_cmd
         rate = self.cfg.gripper_rate_per_step
         self._gripper_cmd += float(np.clip(seg.gripper - self._gripper_cmd, -rate, rate))
         self._action[self._arm_slice] = self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
         self._action[self._grip_index] = self._gripper_cmd
-        arrived = dist <= max_step and abs(seg.gripper - self._gripper_cmd) < 1e-9
+        arrived = dist <= max_step and turned and abs(seg.gripper - self._gripper_cmd) < 1e-9
+        if arrived and seg.settle_m is not None:  # the arm lags its command: wait until it is there
+            arrived = float(np.linalg.norm(self.env.ee_positions()[self.arm] - self._cmd_pos)) <= seg.settle_m
         if arrived:
             if self._hold_left > 0:
                 self._hold_left -= 1
@@ -234,33 +311,52 @@ class ScriptedOperator:
 
 
 # ---------------------------------------------------------------- task plans
-def _cup_on_plate_plan(op: ScriptedOperator) -> list[Callable[[], list[Segment]]]:
+@dataclass(frozen=True)
+class PickPlace:
+    """One pick-and-place: grasp ``obj`` top-down, carry it, lower it, let go.
+
+    ``grasp_tcp_z_m(op)``: tcp height (world) when closing; ``place_centre_m(op)``: where
+    the object's centre should be when released (world, recomputed when lowering);
+    ``open_cmd``: gripper pre-shape while approaching (0 = fully open).
+    """
+
+    obj: str
+    grasp_tcp_z_m: Callable[[ScriptedOperator], float]
+    place_centre_m: Callable[[ScriptedOperator], np.ndarray]
+    open_cmd: float = 0.0
+    hover_z_m: Callable[[ScriptedOperator], float] | None = None
+
+
+def _aim(op: ScriptedOperator) -> np.ndarray:
+    return op.rng.normal(0.0, op.cfg.aim_error_m, 2)
+
+
+def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[], list[Segment]]]:
     cfg, env = op.cfg, op.env
     table_z = env.table_top_z_m
-    cup_h = env.object_dims("cup")["height_m"]
-    plate_top_m = env.object_dims("plate")["thickness_m"]
-    grasp_z = table_z + cfg.grasp_tcp_height_m
-    hover_z = table_z + cup_h + cfg.hover_above_cup_m
-    state: dict = {}
+    open_cmd = pp.open_cmd
 
-    def aim() -> np.ndarray:
-        return op.rng.normal(0.0, cfg.aim_error_m, 2)
+    def hover_z() -> float:
+        if pp.hover_z_m is not None:
+            return pp.hover_z_m(op)
+        return centre_m(env, pp.obj)[2] + 0.5 * op.object_height_m(pp.obj) + cfg.hover_above_cup_m
 
     def pregrasp():
-        cup = op._obj_pos("cup")
-        return op._free_move("pregrasp", np.r_[cup[:2] + aim(), hover_z], 0.0)
+        obj = centre_m(env, pp.obj)
+        return op._free_move("pregrasp", np.r_[obj[:2] + _aim(op), hover_z()], open_cmd)
 
     def approach():
-        cup = op._obj_pos("cup")  # re-aim on the cup as seen now
-        return [Segment("approach", np.r_[cup[:2] + aim(), grasp_z], 0.0, op._speed(cfg.fine_speed_m_s))]
+        obj = centre_m(env, pp.obj)  # re-aim on the object as seen now
+        return [Segment("approach", np.r_[obj[:2] + _aim(op), pp.grasp_tcp_z_m(op)], open_cmd,
+                        op._speed(cfg.fine_speed_m_s), settle_m=cfg.settle_m)]
 
     def close():
-        segs = [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
+        segs = close_only()
         if op.rng.random() < cfg.regrasp_prob:
             backoff = op._cmd_pos + np.array([0.0, 0.0, 0.04])
             segs += [
-                Segment("regrasp_open", op._cmd_pos.copy(), 0.0, cfg.fine_speed_m_s, hold_steps=1),
-                Segment("regrasp_backoff", backoff, 0.0, op._speed(cfg.fine_speed_m_s)),
+                Segment("regrasp_open", op._cmd_pos.copy(), open_cmd, cfg.fine_speed_m_s, hold_steps=1),
+                Segment("regrasp_backoff", backoff, open_cmd, op._speed(cfg.fine_speed_m_s)),
             ]
             op._plan[:0] = [approach, close_only]
         return segs
@@ -273,30 +369,183 @@ def _cup_on_plate_plan(op: ScriptedOperator) -> list[Callable[[], list[Segment]]
                         op._speed(cfg.fine_speed_m_s * 1.5))]
 
     def carry():
-        # Where the cup sits in the hand, as seen: place the cup, not the tcp, over the plate.
-        cup, plate = op._obj_pos("cup"), op._obj_pos("plate")
-        state["tcp_minus_cup"] = env.ee_positions()[op.arm] - cup
-        target_xy = plate[:2] + state["tcp_minus_cup"][:2]
+        # Where the object sits in the hand, as seen: place the object, not the tcp.
+        tcp_minus_obj = env.ee_positions()[op.arm] - centre_m(env, pp.obj)
+        target_xy = pp.place_centre_m(op)[:2] + tcp_minus_obj[:2]
         return op._free_move("carry", np.r_[target_xy, op._cmd_pos[2]], 1.0)
 
     def lower():
-        cup, plate = op._obj_pos("cup"), op._obj_pos("plate")
-        tcp_minus_cup = env.ee_positions()[op.arm] - cup
-        target_xy = op._cmd_pos[:2] + (plate[:2] - cup[:2])  # final horizontal correction
-        target_z = plate[2] + plate_top_m + cfg.place_clearance_m + tcp_minus_cup[2]
-        return [Segment("lower", np.r_[target_xy, target_z], 1.0, op._speed(cfg.fine_speed_m_s))]
+        obj, target = centre_m(env, pp.obj), pp.place_centre_m(op)
+        tcp_minus_obj = env.ee_positions()[op.arm] - obj
+        target_xy = op._cmd_pos[:2] + (target[:2] - obj[:2])  # final horizontal correction
+        return [Segment("lower", np.r_[target_xy, target[2] + tcp_minus_obj[2]], 1.0, op._speed(cfg.fine_speed_m_s))]
 
     def release():
-        return [Segment("release", op._cmd_pos.copy(), 0.0, cfg.fine_speed_m_s, hold_steps=2)]
+        return [Segment("release", op._cmd_pos.copy(), open_cmd, cfg.fine_speed_m_s, hold_steps=2)]
 
     def retreat():
-        return [Segment("retreat", op._cmd_pos + np.array([0.0, 0.0, cfg.retreat_m]), 0.0,
+        return [Segment("retreat", op._cmd_pos + np.array([0.0, 0.0, cfg.retreat_m]), open_cmd,
                         op._speed(cfg.free_speed_m_s))]
 
     return [pregrasp, approach, close, lift, carry, lower, release, retreat]
 
 
-PLANS: dict[str, Callable[[ScriptedOperator], list]] = {"cup_on_plate": _cup_on_plate_plan}
+def _centre_xy(op: ScriptedOperator, name: str) -> np.ndarray:
+    return centre_m(op.env, name)[:2]
+
+
+def _cup_on_plate_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    cup, plate = env.object_dims("cup"), env.object_dims("plate")
+
+    def place(op):
+        plate_pos = env.object_state("plate")["pos_world_m"]
+        return np.r_[plate_pos[:2], plate_pos[2] + plate["thickness_m"] + cfg.place_clearance_m + cup["height_m"] / 2]
+
+    return _pick_and_place_plan(op, PickPlace("cup", lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m, place))
+
+
+def _cover_ball_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    cup_h = env.object_dims("cup")["height_m"]
+
+    def place(op):  # the upside-down cup's rim just above the table, centred on the ball
+        return np.r_[_centre_xy(op, "ball"), env.table_top_z_m + cfg.place_clearance_m + cup_h / 2]
+
+    return _pick_and_place_plan(op, PickPlace("cup", lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m - 0.005, place))
+
+
+def _ball_grasp(op: ScriptedOperator) -> tuple[Callable, float]:
+    r = op.env.object_dims("ball")["radius_m"]
+    # tcp slightly above the ball's centre keeps the fingertips off the table.
+    grasp_z = lambda op: centre_m(op.env, "ball")[2] + 0.006  # noqa: E731
+    return grasp_z, _jaw_cmd(r + op.cfg.preshape_margin_m)
+
+
+def _jaw_cmd(jaw_opening_m: float) -> float:
+    """Gripper command that opens each jaw ``jaw_opening_m`` from the centre."""
+    return float(np.clip(1.0 - jaw_opening_m / world.GRIPPER_OPEN_M, 0.0, 1.0))
+
+
+def _ball_in_cup_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    r, cup_h = env.object_dims("ball")["radius_m"], env.object_dims("cup")["height_m"]
+    grasp_z, open_cmd = _ball_grasp(op)
+
+    def place(op):  # drop the ball from just above the rim
+        cup = env.object_state("cup")["pos_world_m"]
+        return np.r_[cup[:2], cup[2] + cup_h + r + cfg.drop_height_m]
+
+    return _pick_and_place_plan(op, PickPlace("ball", grasp_z, place, open_cmd))
+
+
+def _ball_in_box_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    r, box_h = env.object_dims("ball")["radius_m"], env.object_dims("box")["height_m"]
+    grasp_z, open_cmd = _ball_grasp(op)
+
+    def place(op):
+        box = env.object_state("box")["pos_world_m"]
+        return np.r_[box[:2], box[2] + box_h + r + cfg.drop_height_m]
+
+    return _pick_and_place_plan(op, PickPlace("ball", grasp_z, place, open_cmd))
+
+
+def _block_pick(op: ScriptedOperator, name: str) -> tuple[Callable, float]:
+    size = op.env.object_dims(name)["size_m"]
+    grasp_z = lambda op: centre_m(op.env, name)[2] + 0.006  # noqa: E731
+    return grasp_z, _jaw_cmd(size / 2 + op.cfg.preshape_margin_m)
+
+
+def _stack_blocks_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    size = env.object_dims("block_b")["size_m"]
+    grasp_z, open_cmd = _block_pick(op, "block_a")
+
+    def place(op):
+        below = env.object_state("block_b")["pos_world_m"]
+        return np.r_[below[:2], below[2] + size + cfg.place_clearance_m + env.object_dims("block_a")["size_m"] / 2]
+
+    return _pick_and_place_plan(op, PickPlace("block_a", grasp_z, place, open_cmd))
+
+
+def _block_from_box_plan(op: ScriptedOperator):
+    env, cfg = op.env, op.cfg
+    grasp_z, open_cmd = _block_pick(op, "block_a")
+    box = env.object_dims("box")
+    block_half_diag = env.object_dims("block_a")["size_m"] / np.sqrt(2)
+    box_pos = env.object_state("box")["pos_world_m"]
+    # Put the block down beside the box, on the side of the table's centre line.
+    side = -np.sign(box_pos[1]) if abs(box_pos[1]) > 0.03 else (1.0 if op.arm == "right" else -1.0)
+    box_yaw = env.object_poses()["box"]["yaw_rad"]
+    c, s = np.cos(box_yaw), np.sin(box_yaw)
+    corners = np.array([[c * sx * box["length_m"] / 2 - s * sy * box["width_m"] / 2,
+                         s * sx * box["length_m"] / 2 + c * sy * box["width_m"] / 2] for sx in (-1, 1) for sy in (-1, 1)])
+    reach_y = float(np.max(corners[:, 1] * side)) + block_half_diag + cfg.put_down_margin_m
+    target_xy = box_pos[:2] + np.array([0.0, side * reach_y])
+
+    def place(op):
+        return np.r_[target_xy, env.table_top_z_m + cfg.place_clearance_m + env.object_dims("block_a")["size_m"] / 2]
+
+    # Hover high enough that the fingertips clear the box walls.
+    hover = lambda op: env.table_top_z_m + box["height_m"] + cfg.hover_above_cup_m + 0.03  # noqa: E731
+    return _pick_and_place_plan(op, PickPlace("block_a", grasp_z, place, open_cmd, hover))
+
+
+def _upright_cup_plan(op: ScriptedOperator):
+    """Grasp the lying cup across its middle, lift, pitch the hand 90 deg, set it down, let go."""
+    env, cfg = op.env, op.cfg
+    table_z = env.table_top_z_m
+    dims = env.object_dims("cup")
+    axis_yaw = env.object_poses()["cup"]["yaw_rad"]
+    axis = np.array([np.cos(axis_yaw), np.sin(axis_yaw), 0.0])
+    # Rotating about (axis x up) by +90 deg turns the cup's axis (bottom -> opening) upwards.
+    R_turn = Rotation.from_rotvec(np.cross(axis, [0.0, 0.0, 1.0]) * (np.pi / 2)).as_matrix()
+
+    def pregrasp():
+        cup = centre_m(env, "cup")
+        return op._free_move("pregrasp", np.r_[cup[:2] + _aim(op), table_z + 2 * dims["radius_m"] + cfg.hover_above_cup_m], 0.0)
+
+    def approach():
+        cup = centre_m(env, "cup")
+        return [Segment("approach", np.r_[cup[:2] + _aim(op), cup[2] + 0.004], 0.0, op._speed(cfg.fine_speed_m_s),
+                        settle_m=cfg.settle_m)]
+
+    def close():
+        return [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
+
+    def lift():
+        return [Segment("lift", np.r_[op._cmd_pos[:2], table_z + cfg.upright_lift_tcp_height_m], 1.0,
+                        op._speed(cfg.fine_speed_m_s * 1.5))]
+
+    def turn():
+        return [Segment("turn", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, R_world=R_turn @ op._R_cmd)]
+
+    def lower():
+        bottom_z = env.object_state("cup")["pos_world_m"][2]  # body origin = bottom centre
+        drop = bottom_z - (table_z + cfg.place_clearance_m)
+        return [Segment("lower", op._cmd_pos - np.array([0.0, 0.0, drop]), 1.0, op._speed(cfg.fine_speed_m_s))]
+
+    def release():
+        return [Segment("release", op._cmd_pos.copy(), 0.0, cfg.fine_speed_m_s, hold_steps=2)]
+
+    def retreat():  # back off along the hand's approach axis, then up
+        back = op._cmd_pos - op._R_cmd[:, 0] * 0.08
+        return [Segment("retreat", back, 0.0, op._speed(cfg.fine_speed_m_s)),
+                Segment("retreat_up", back + np.array([0.0, 0.0, 0.06]), 0.0, op._speed(cfg.free_speed_m_s))]
+
+    return [pregrasp, approach, close, lift, turn, lower, release, retreat]
+
+
+PLANS: dict[str, Callable[[ScriptedOperator], list]] = {
+    "cover_ball": _cover_ball_plan,
+    "ball_in_box": _ball_in_box_plan,
+    "ball_in_cup": _ball_in_cup_plan,
+    "cup_on_plate": _cup_on_plate_plan,
+    "stack_blocks": _stack_blocks_plan,
+    "block_from_box": _block_from_box_plan,
+    "upright_cup": _upright_cup_plan,
+}
 
 
 def make_operator(
@@ -326,7 +575,8 @@ def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = Fa
 
     successes = 0
     for i in range(episodes):
-        params = sample_twin_params(np.random.default_rng([seed, i, 1])) if twin else None
+        objects = get_task(task).object_names
+        params = sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=objects) if twin else None
         env = TabletopEnv(task, params=params, cameras=())
         obs = env.reset(seed=seed * 100_000 + i)
         operator = make_operator(task, env, np.random.default_rng([seed, i, 2]))
@@ -339,10 +589,11 @@ if __name__ == "__main__":
     import argparse
 
     parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator.")
-    parser.add_argument("--task", default="cup_on_plate")
+    parser.add_argument("--task", default="all", help="task key, or 'all'")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--twin", action="store_true", help="perturbed twin worlds instead of nominal")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    rate = success_rate(args.task, args.episodes, args.twin, args.seed)
-    print(f"{args.task} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed")
+    for key in TASKS if args.task == "all" else [args.task]:
+        rate = success_rate(key, args.episodes, args.twin, args.seed)
+        print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed", flush=True)

@@ -33,6 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
+# Every object of the bundled suite (the twin perturbs each physical object once, whichever
+# task it appears in).
+ALL_OBJECT_NAMES = ("ball", "block_a", "block_b", "box", "cup", "plate")
 
 
 @dataclass
@@ -83,7 +86,7 @@ class TwinMagnitudes:
 def sample_twin_params(
     rng: np.random.Generator,
     magnitudes: TwinMagnitudes | None = None,
-    object_names: tuple[str, ...] = ("cup", "plate"),
+    object_names: tuple[str, ...] = ALL_OBJECT_NAMES,
     camera_names: tuple[str, ...] = CAMERA_NAMES,
 ) -> WorldParams:
     """Draw one perturbed world. Same rng state -> same parameters."""

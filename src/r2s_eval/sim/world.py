@@ -83,6 +83,9 @@ def _apply_physics_params(model: mujoco.MjModel, params: WorldParams, objects) -
         body_id = model.body(obj.name).id
         model.body_mass[body_id] *= params.mass_scale(obj.name)
         model.body_inertia[body_id] *= params.mass_scale(obj.name)
+    # Quantities derived from masses at compile time (subtree masses, the inverse weights
+    # that scale soft contacts) must follow, or a heavier light object's contacts go unstable.
+    mujoco.mj_setConst(model, mujoco.MjData(model))
 
 
 def build_model(

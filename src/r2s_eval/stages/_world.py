@@ -7,14 +7,16 @@ from pathlib import Path
 
 import dataclasses
 
-import numpy as np
 
 from r2s_eval.calib import CameraModel, ObjectGeometry
 from r2s_eval.sim import TabletopEnv, Task, WorldParams, get_task
-from r2s_eval.sim.tasks import Region
+from r2s_eval.sim.objects import height_m, support_top_m
 
-# Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric).
+# Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric,
+# n: looks the same after 2*pi/n). A cup lying on its side has none (1): its opening
+# points one way.
 YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2}
+PLACEMENT_YAW_SYMMETRY = {("cup", "on_side"): 1}
 
 
 def image_size(world_cfg: dict) -> tuple[int, int]:
@@ -31,7 +33,10 @@ def configured_task(key: str, suite_cfg: dict | None) -> Task:
     for name, r in regions.items():
         if name not in new:
             raise KeyError(f"suite.{key}.init_regions: task {key!r} has no object {name!r} (objects: {sorted(new)})")
-        new[name] = Region(tuple(r["x_range_m"]), tuple(r["y_range_m"]), tuple(r.get("yaw_range_rad", (-np.pi, np.pi))))
+        new[name] = dataclasses.replace(
+            new[name], x_range_m=tuple(r["x_range_m"]), y_range_m=tuple(r["y_range_m"]),
+            yaw_range_rad=tuple(r.get("yaw_range_rad", new[name].yaw_range_rad)),
+        )
     return dataclasses.replace(task, init_regions=new)
 
 
@@ -51,7 +56,8 @@ def load_world_params(path: str | Path) -> WorldParams:
 
 
 def yaw_symmetry(env: TabletopEnv, name: str) -> int:
-    return YAW_SYMMETRY[env.task.object(name).kind]
+    kind = env.task.object(name).kind
+    return PLACEMENT_YAW_SYMMETRY.get((kind, env.task.placement(name)), YAW_SYMMETRY[kind])
 
 
 def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
@@ -59,8 +65,13 @@ def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
     geoms = []
     for name in env.task.object_names:
         dims = env.object_dims(name)
-        height = dims.get("height_m", dims.get("thickness_m", 0.01) + dims.get("rim_height_m", 0.0))
-        geoms.append(ObjectGeometry(name, centroid_height_m=0.5 * height, yaw_symmetry=yaw_symmetry(env, name)))
+        kind = env.task.object(name).kind
+        height = dims["radius_m"] * 2 if env.task.placement(name) == "on_side" else height_m(kind, dims)
+        base = 0.0
+        parent = env.task.init_regions[name].relative_to
+        if parent is not None:  # resting inside another object (a block in a box)
+            base = support_top_m(env.task.object(parent).kind, env.object_dims(parent))
+        geoms.append(ObjectGeometry(name, centroid_height_m=base + 0.5 * height, yaw_symmetry=yaw_symmetry(env, name)))
     return geoms
 
 

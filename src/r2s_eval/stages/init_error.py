@@ -1,6 +1,8 @@
 """Stage: score the initial-pose estimates against the reality twin's recorded truth.
 
-This is the only reader of the truth file; nothing downstream consumes its output.
+Besides the offset fit (which reads the truth of the held-out calibration episodes only),
+this is the only reader of the truth file; nothing downstream consumes its output. The
+calibration episodes are left out of the scores.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ def summarise(errors: pd.DataFrame) -> dict:
 
 def main(args) -> None:
     estimates = pd.read_parquet(args.estimates)
+    if "calibration" in estimates:  # held out for the offset fit: never scored as test data
+        estimates = estimates[~estimates["calibration"]].drop(columns="calibration")
     truth = pd.read_parquet(args.truth)[["episode_index", "object", "x_m", "y_m", "yaw_rad"]]
     errors = score(estimates, truth)
     write_parquet(args.table, errors)

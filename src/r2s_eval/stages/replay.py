@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import pandas as pd
@@ -39,17 +40,21 @@ def main(args) -> None:
             if est.empty:
                 raise ValueError(f"episode {ep.episode_index}: no initial-pose estimate")
             poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in est.itertuples()}
+            symmetry = {r.object: int(r.yaw_symmetry) for r in est.itertuples()}
             actions = np.stack(episode_frames(args.dataset, meta, ep.episode_index)[ACTION_KEY].to_numpy())
             if actions.shape[1] != ACTION_DIM:
                 raise ValueError(f"episode {ep.episode_index}: actions have {actions.shape[1]} dims, expected {ACTION_DIM}")
+            started = time.perf_counter()
             rng = np.random.default_rng([cfg["seed"], int(ep.episode_index)])
             result = replay_episode(
                 env, actions, poses, rng, replay["max_attempts"], replay["perturb_xy_m"], replay["perturb_yaw_rad"],
-                seed=int(ep.episode_index),
+                seed=int(ep.episode_index), yaw_symmetry=symmetry,
             )
             sim_index = rec.add_episode(result.frames, ep.instruction) if result.success else -1
             row = {"episode_index": int(ep.episode_index), "task": ep.task, "success": result.success,
-                   "attempts": result.attempts, "sim_episode_index": sim_index}
+                   "attempts": result.attempts, "sim_episode_index": sim_index,
+                   "calibration": bool(est["calibration"].iloc[0]) if "calibration" in est else False,
+                   "wall_s": time.perf_counter() - started}
             for name, (x, y, yaw) in result.poses.items():
                 row.update({f"{name}.x_m": x, f"{name}.y_m": y, f"{name}.yaw_rad": yaw})
             rows.append(row)

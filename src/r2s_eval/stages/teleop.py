@@ -8,6 +8,7 @@ the initial-pose estimates.
 from __future__ import annotations
 
 import logging
+import time
 
 import numpy as np
 import pandas as pd
@@ -42,22 +43,24 @@ def main(args) -> None:
             while kept < teleop["episodes_per_task"]:
                 if tries >= teleop["max_attempts_factor"] * teleop["episodes_per_task"]:
                     raise RuntimeError(f"task {task}: only {kept} successful demonstrations in {tries} attempts")
+                started = time.perf_counter()
                 poses = env.sample_initial_poses(rng)
                 obs = env.reset(poses, seed=int(rng.integers(2**31)))
                 initial = env.object_poses()
                 steps = run_episode(env, make_operator(task, env, rng, operator_cfg), teleop["max_steps"], obs)
                 success = bool(env.is_success())
                 tries += 1
-                attempts.append({"task": task, "attempt": tries, "success": success, "length": len(steps)})
+                attempts.append({"task": task, "attempt": tries, "success": success, "length": len(steps),
+                                 "wall_s": time.perf_counter() - started})
                 if not success and not teleop["keep_failed"]:
                     continue
                 index = rec.add_episode(steps, get_task(task).instruction)
                 kept += 1
                 progress.update()
                 for name, pose in initial.items():
-                    x, y, _ = pose["pos_world_m"]
+                    x, y, yaw = pose["planar"]  # the convention of reset() and of the estimates
                     truth.append({"episode_index": index, "task": task, "object": name, "x_m": float(x), "y_m": float(y),
-                                  "yaw_rad": float(pose["yaw_rad"]), "yaw_symmetry": yaw_symmetry(env, name)})
+                                  "yaw_rad": float(yaw), "yaw_symmetry": yaw_symmetry(env, name)})
             progress.close()
             env.close()
             rate = np.mean([a["success"] for a in attempts if a["task"] == task])

@@ -22,3 +22,4 @@ rule all:
     input:
         REPORTS,  # every table and figure (workflow/rules/report.smk); alone: `snakemake reports`
         "results/init/error_summary.json" if TWIN else [],
+        "results/world/report.json" if TWIN else [],  # per-task teleop, pose error, replay

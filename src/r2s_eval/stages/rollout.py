@@ -29,6 +29,9 @@ def main(args) -> None:
     rollout, world = cfg["rollout"], cfg["world"]
     params = load_world_params(args.twin) if args.twin else None
     inits = pd.read_parquet(args.inits)
+    if cfg["arm"] == "real" and rollout.get("real_inits_per_task") is not None:
+        # The same seeded configurations, fewer of them: a prefix of every task's inits.
+        inits = inits[inits["init_id"] < int(rollout["real_inits_per_task"])]
     runner = load_policy(args.policy, chunk_size=rollout["chunk_size"], n_action_steps=rollout["n_action_steps"], seed=cfg["seed"])
     # Render only what the policy looks at: the other cameras cost time and change nothing.
     cameras = [k.removeprefix("observation.images.") for k in runner.image_keys]

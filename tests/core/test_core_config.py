@@ -18,7 +18,7 @@ def test_experiments_compose():
     smoke = compose_config(CONF, "smoke")
     demo = compose_config(CONF, "demo")
     assert smoke["teleop"]["episodes_per_task"] < demo["teleop"]["episodes_per_task"]
-    assert set(smoke["policies"]) == {"act", "act_half", "act_weak"}
+    assert set(smoke["policies"]) == {"act", "act_subset", "act_weak"}
     assert set(compose_config(CONF, "paper")["policies"]) == {"act", "diffusion", "act_weak"}
     assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
     assert "experiment" not in smoke

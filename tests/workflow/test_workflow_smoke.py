@@ -29,7 +29,7 @@ def test_report_has_real_numbers(smoke_run):
     ranking = (smoke_run.workdir / "reports" / "ranking.txt").read_text()
     assert "act_weak" in ranking and "real success %" in ranking
     reference = pd.read_parquet(smoke_run.workdir / "results" / "reference" / "success.parquet")
-    assert set(reference["policy"]) == {"act", "act_half", "act_weak"}
+    assert set(reference["policy"]) == {"act", "act_subset", "act_weak"}
     assert (reference["trials"] > 0).all()
     rates = reference.set_index("policy")["success_rate"]
     # Real, different success rates: the full budget learns the task, the weak baseline is clearly lowest.
@@ -46,7 +46,7 @@ def test_each_stage_contract(smoke_run):
     replay = pd.read_parquet(results / "replay" / "log.parquet")
     assert replay["attempts"].between(1, 9).all() and replay["success"].any()
     for arm in ("real", "sim"):
-        for policy in ("act", "act_half", "act_weak"):
+        for policy in ("act", "act_subset", "act_weak"):
             folder = results / "rollout" / arm / policy
             episodes = pd.read_parquet(folder / "episodes.parquet")
             assert len(episodes) == 6

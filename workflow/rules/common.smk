@@ -16,7 +16,7 @@ JUDGES = sorted(CFG["judges"])
 ARMS = ["real", "sim"]
 TWIN = CFG["real"]["source"] == "twin"
 PY = sys.executable
-# Scheduling: ingest -> init_estimate -> replay ahead of trains (train.smk ranks those).
+# Scheduling: ingest -> init_offsets -> init_estimate -> replay ahead of trains (train.smk ranks those).
 SIM_CHAIN_PRIORITY = 1_000_000
 ASSETS = str(Path(workflow.basedir) / "assets")
 

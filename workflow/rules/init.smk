@@ -10,6 +10,7 @@ def measured_poses(wildcards):
 
 
 rule init_offsets:
+    priority: SIM_CHAIN_PRIORITY
     input:
         unpack(measured_poses),
         index="results/ingest/episodes.parquet",

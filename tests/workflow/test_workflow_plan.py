@@ -1,0 +1,22 @@
+"""The plan of a fresh smoke run (dry run only: seconds, no slow marker)."""
+
+from __future__ import annotations
+
+import re
+
+from .conftest import snakemake
+
+
+def test_sim_chain_is_scheduled_before_any_training(tmp_path):
+    # With two cores, a training that starts first would hold back the calibrated sim's chain
+    # (ingest -> init_offsets -> init_estimate -> replay) and everything sim-side after it.
+    out = snakemake(tmp_path, "-n").stdout
+    priority: dict[str, list[int]] = {}
+    for block in re.split(r"\n(?=(?:local)?rule \w+:)", out):
+        m = re.match(r"(?:local)?rule (\w+):", block.strip())
+        if m:
+            p = re.search(r"priority: (\d+)", block)
+            priority.setdefault(m.group(1), []).append(int(p.group(1)) if p else 0)
+    chain = ["ingest", "init_offsets", "init_estimate", "replay"]
+    assert all(rule in priority for rule in [*chain, "train"]), sorted(priority)
+    assert min(min(priority[r]) for r in chain) > max(priority["train"]), priority

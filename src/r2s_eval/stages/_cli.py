@@ -7,7 +7,11 @@ import json
 import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar("T")
 
 
 def parser(description: str, cfg: bool = True) -> argparse.ArgumentParser:
@@ -29,3 +33,8 @@ def run(main: Callable[[argparse.Namespace], None], p: argparse.ArgumentParser, 
     start = time.perf_counter()
     main(args)
     logging.getLogger("r2s_eval").info("stage done in %.1f s", time.perf_counter() - start)
+
+
+def by_judge(paths: Iterable[str], read: Callable[[str], T]) -> dict[str, T]:
+    """Per-judge artefacts (`.../<judge>.parquet`, `.../<judge>.json`) read into {judge: content}."""
+    return {Path(p).stem: read(p) for p in paths}

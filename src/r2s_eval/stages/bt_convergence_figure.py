@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pandas as pd
 
 from r2s_eval.report import convergence_figure, save_figure
@@ -12,7 +10,7 @@ from r2s_eval.stages import _cli
 
 def main(args) -> None:
     opts = args.cfg["report.bt_convergence"]
-    fits = {Path(p).stem: pd.read_parquet(p) for p in args.fits}
+    fits = _cli.by_judge(args.fits, pd.read_parquet)
     save_figure(convergence_figure(fits, opts), args.pdf, args.png, dpi=opts["dpi"])
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pandas as pd
 
 from r2s_eval.report import bt_scores_table
@@ -14,7 +12,7 @@ from r2s_eval.utils.io import atomic_path
 
 def main(args) -> None:
     opts = args.cfg["report.bt_scores_table"]
-    fits = {Path(p).stem: pd.read_parquet(p) for p in args.fits}
+    fits = _cli.by_judge(args.fits, pd.read_parquet)
     reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
     with atomic_path(args.out) as tmp:
         tmp.write_text(bt_scores_table(fits, reference, decimals=int(opts["decimals"]), show_ci=bool(opts["show_ci"])))

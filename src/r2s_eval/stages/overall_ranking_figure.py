@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pandas as pd
 
 from r2s_eval.report import judge_averaged_scores, ranking_figure, save_figure
@@ -13,7 +11,7 @@ from r2s_eval.stages.validate import reference_rates
 
 def main(args) -> None:
     opts = args.cfg["report.overall_ranking"]
-    averaged = judge_averaged_scores({Path(p).stem: pd.read_parquet(p) for p in args.fits})
+    averaged = judge_averaged_scores(_cli.by_judge(args.fits, pd.read_parquet))
     reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
     save_figure(ranking_figure(averaged, reference, opts), args.pdf, args.png, dpi=opts["dpi"])
     print(averaged.round(2).to_string())

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pandas as pd
 
 from r2s_eval.report import ranking_text, realsim_table
@@ -12,15 +10,11 @@ from r2s_eval.stages.validate import reference_rates
 from r2s_eval.utils.io import atomic_path, read_json
 
 
-def _judge_name(path: str) -> str:
-    return Path(path).stem
-
-
 def main(args) -> None:
     opts = args.cfg["report.realsim_table"]
-    validations = {_judge_name(p): read_json(p) for p in args.validation}
-    audits = {_judge_name(p): read_json(p) for p in args.audits}
-    fits = {_judge_name(p): pd.read_parquet(p) for p in args.fits}
+    validations = _cli.by_judge(args.validation, read_json)
+    audits = _cli.by_judge(args.audits, read_json)
+    fits = _cli.by_judge(args.fits, pd.read_parquet)
     reference = reference_rates(pd.read_parquet(args.reference))
     table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
     with atomic_path(args.table) as tmp:

@@ -5,4 +5,9 @@ import os
 # Headless rendering unless the user chose a GL backend; must precede any mujoco import.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from r2s_eval.utils.numerics import pin_cpu_numerics  # noqa: E402
+
+# Same bytes on every machine of a kind: before torch, oneDNN or MKL initialise.
+pin_cpu_numerics()
+
 __version__ = "0.1.0"

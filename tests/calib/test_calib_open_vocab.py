@@ -51,7 +51,9 @@ def checkpoints(tmp_path_factory):
                                    window_size=2, out_features=["stage2", "stage3", "stage4"]),
         text_config=BertConfig(vocab_size=len(vocab), hidden_size=32, num_hidden_layers=1, num_attention_heads=2,
                                intermediate_size=32),
-        d_model=32, encoder_layers=1, decoder_layers=1, encoder_attention_heads=2, decoder_attention_heads=2,
+        # decoder_layers >= 2: with the default decoder_bbox_embed_share the model ties bbox_embed.1.. to
+        # bbox_embed.0, and transformers 5 rejects a tie pattern with nothing to tie (one decoder layer).
+        d_model=32, encoder_layers=1, decoder_layers=2, encoder_attention_heads=2, decoder_attention_heads=2,
         encoder_ffn_dim=32, decoder_ffn_dim=32, num_queries=5, num_feature_levels=3, max_text_len=16,
         encoder_n_points=1, decoder_n_points=1,
     )
@@ -105,6 +107,14 @@ def test_missing_checkpoint_is_named_and_never_downloaded(tmp_path):
                        OBJECTS)
     with pytest.raises(ValueError, match="sam_path is required"):
         make_segmenter({"type": "grounded_sam", "detector_path": str(tmp_path)}, OBJECTS)
+
+
+def test_unloadable_checkpoint_names_the_folder(checkpoints, tmp_path):
+    det, _ = checkpoints
+    empty = tmp_path / "empty_sam"
+    empty.mkdir()
+    with pytest.raises(RuntimeError, match=r"sam_path: could not load .* from .*empty_sam"):
+        make_segmenter({"type": "grounded_sam", "detector_path": str(det), "sam_path": str(empty)}, OBJECTS)
 
 
 def test_hsv_stays_the_default():

@@ -13,6 +13,7 @@ import pytest
 from r2s_eval.policies import (
     DatasetContractError,
     PolicyConfigError,
+    PolicyError,
     candidate_config,
     candidate_configs,
     load_policy,
@@ -114,7 +115,7 @@ def test_policies_missing_image_key_is_named(dataset_root, tmp_path):
     assert not (tmp_path / "run").exists()
     with pytest.raises(FileNotFoundError, match="info.json"):
         train_policy(tmp_path / "nowhere", REPO_ID, _tiny("act"), tmp_path / "run2", seed=0)
-    with pytest.raises(FileNotFoundError, match="config.json"):
+    with pytest.raises(PolicyError, match="config.json"):
         load_policy(tmp_path / "no_checkpoint")
 
 
@@ -192,11 +193,11 @@ def test_policies_observation_errors(trained):
     runner = load_policy(trained["act"])
     obs = _obs(np.random.default_rng(0))
     del obs[HEAD]
-    with pytest.raises(KeyError, match=HEAD):
+    with pytest.raises(PolicyError, match=HEAD):
         runner.act(obs)
     obs = _obs(np.random.default_rng(0))
     obs[HEAD] = obs[HEAD].astype(np.float32)
-    with pytest.raises(ValueError, match="uint8"):
+    with pytest.raises(PolicyError, match="uint8"):
         runner.act(obs)
 
 

@@ -1,7 +1,8 @@
 """A full smoke-experiment run, shared by the workflow tests (one per test session).
 
-The run is killed part-way (SIGKILL of the whole process group, like a lost machine), then
-resumed; the resumed run must finish and must not redo jobs that had finished.
+The run is killed twice at points the fixture controls (SIGKILL of the whole process group, like
+a lost machine), then resumed with the plain command; it must finish and must not redo jobs whose
+end Snakemake had recorded.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import psutil
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -51,31 +53,90 @@ def finished_rules(log_text: str) -> list[str]:
 @dataclass
 class SmokeRun:
     workdir: Path
-    killed_after: list[str]  # rules that had finished when the run was killed
-    resumed_output: str  # snakemake's output of the resumed run
+    killed_after: list[list[str]]  # per kill: rules whose end Snakemake had recorded by then
+    resumed_output: str  # snakemake's output of the last, uninterrupted run
     wall_s: float
+    ingest_outputs_at_kill: list[str]  # ingest's outputs on disk when the first run was killed
+    first_resume_output: str = ""
+
+
+def _stage_processes(leader: int, stage: str) -> list[psutil.Process]:
+    """Running (not zombie) processes of `python -m r2s_eval.stages.<stage>` under `leader`."""
+    found = []
+    for proc in psutil.Process(leader).children(recursive=True):
+        try:
+            if proc.status() != psutil.STATUS_ZOMBIE and f"r2s_eval.stages.{stage}" in " ".join(proc.cmdline()):
+                found.append(proc)
+        except psutil.NoSuchProcess:
+            continue
+    return found
+
+
+def _wait_for_stage(proc: subprocess.Popen, stage: str, log_path: Path, timeout_s: float = 900) -> list[psutil.Process]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, f"the run ended before {stage} started:\n{log_path.read_text()[-3000:]}"
+        found = _stage_processes(proc.pid, stage)
+        if found:
+            return found
+        time.sleep(0.2)
+    raise AssertionError(f"{stage} did not start within {timeout_s} s")
+
+
+def kill_after_job_exits(cmd: list[str], stage: str, log_path: Path) -> None:
+    """Kill the run between jobs: `stage` has written its outputs and exited, Snakemake has not
+    yet recorded it (Snakemake is frozen first, so it cannot start the next job either)."""
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        job = _wait_for_stage(proc, stage, log_path)[0]
+        os.kill(proc.pid, signal.SIGSTOP)
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline and _stage_processes(proc.pid, stage):
+            time.sleep(0.2)
+        assert not job.is_running() or job.status() == psutil.STATUS_ZOMBIE, f"{stage} did not finish"
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def kill_inside_job(cmd: list[str], stage: str, log_path: Path, after_rule: str) -> None:
+    """Kill the run while a `stage` job is running (frozen first, so it cannot finish meanwhile),
+    once Snakemake has recorded that `after_rule` finished."""
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + 900
+        while after_rule not in finished_rules(log_path.read_text()):
+            assert proc.poll() is None and time.monotonic() < deadline, log_path.read_text()[-3000:]
+            time.sleep(0.2)
+        for job in _wait_for_stage(proc, stage, log_path):
+            job.suspend()
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 @pytest.fixture(scope="session")
 def smoke_run(tmp_path_factory) -> SmokeRun:
+    """The smoke experiment, killed twice like a lost machine and resumed with the plain command.
+
+    First kill: one job at a time, right after ingest wrote its outputs but before Snakemake
+    recorded the job (the resume must redo it, not stop on incomplete files). Second kill: inside
+    a training job. A hard kill leaves Snakemake's lock behind; `--unlock` is the documented step.
+    """
     workdir = tmp_path_factory.mktemp("smoke")
-    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "-d", str(workdir), "-j", "2", "--config", "experiment=smoke"]
+    base = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "-d", str(workdir)]
     start = time.monotonic()
-    log_path = workdir.parent / "first_run.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        # Kill once a training job is under way (the longest stage), i.e. mid-DAG.
-        deadline = time.monotonic() + 600
-        while time.monotonic() < deadline and proc.poll() is None:
-            if list((workdir / "logs" / "train").glob("*/*.log")):
-                time.sleep(3)
-                break
-            time.sleep(1)
-        assert proc.poll() is None, f"the run ended before it could be interrupted:\n{log_path.read_text()[-3000:]}"
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-    killed_after = finished_rules(log_path.read_text())
-    # A hard kill leaves Snakemake's lock behind; unlocking is the documented first step.
+    first_log = workdir.parent / "first_run.log"
+    kill_after_job_exits([*base, "-j", "1", "--config", "experiment=smoke"], "ingest", first_log)
+    ingest_outputs = sorted(p.name for p in (workdir / "results" / "ingest").iterdir())
+    killed_after = [finished_rules(first_log.read_text())]
+    snakemake(workdir, "--unlock")
+
+    second_log = workdir.parent / "second_run.log"
+    kill_inside_job([*base, "-j", "2", "--config", "experiment=smoke"], "train", second_log, after_rule="ingest")
+    second_text = second_log.read_text()
+    killed_after.append(finished_rules(second_text))
     snakemake(workdir, "--unlock")
     resumed = snakemake(workdir, "-j", "2")
-    return SmokeRun(workdir, killed_after, resumed.stdout + resumed.stderr, time.monotonic() - start)
+    return SmokeRun(
+        workdir, killed_after, resumed.stdout + resumed.stderr, time.monotonic() - start,
+        ingest_outputs, second_text,
+    )

@@ -31,10 +31,16 @@ def test_report_has_real_numbers(smoke_run):
     reference = pd.read_parquet(smoke_run.workdir / "results" / "reference" / "success.parquet")
     assert set(reference["policy"]) == {"act", "act_subset", "act_weak"}
     assert (reference["trials"] > 0).all()
-    rates = reference.set_index("policy")["success_rate"]
-    # Real, different success rates: the full budget learns the task, the weak baseline is clearly lowest.
-    assert rates["act"] > rates["act_weak"], rates.to_dict()
-    assert rates["act_weak"] < rates.drop("act_weak").min(), rates.to_dict()
+    # Six rollouts per policy cannot order the policies significantly (the demo's reference is
+    # where orderings are judged); what must hold is that the reference is exactly what the
+    # real-side rollouts recorded, per policy and task.
+    for row in reference.itertuples():
+        episodes = pd.read_parquet(smoke_run.workdir / "results" / "rollout" / "real" / row.policy / "episodes.parquet")
+        episodes = episodes[episodes["task"] == row.task]
+        assert row.trials == len(episodes) == 6
+        assert row.successes == int(episodes["success"].sum())
+        assert row.success_rate == pytest.approx(row.successes / row.trials)
+        assert f"{100 * row.success_rate:.1f}" in ranking, (row.policy, ranking)
 
 
 def test_each_stage_contract(smoke_run):
@@ -60,13 +66,27 @@ def test_each_stage_contract(smoke_run):
 
 
 def test_kill_and_resume_redoes_only_unfinished_jobs(smoke_run):
-    assert smoke_run.killed_after, "nothing had finished before the kill"
-    redone = Counter(finished_rules(smoke_run.resumed_output))
-    for rule in set(smoke_run.killed_after) - {"train", "rollout"}:
-        assert redone[rule] == 0, f"{rule} finished before the kill but ran again"
+    first, second = smoke_run.killed_after
+    assert first and second, "nothing had finished before a kill"
+    # Each run after a kill must not redo what had finished (and was recorded) before it.
+    later_runs = [smoke_run.first_resume_output + smoke_run.resumed_output, smoke_run.resumed_output]
+    for finished, later in zip((first, second), later_runs):
+        redone = Counter(finished_rules(later))
+        for rule in set(finished) - {"train", "rollout"}:
+            assert redone[rule] == 0, f"{rule} finished before a kill but ran again"
     # No half-written artefact is left where a finished one belongs.
     for leftover in smoke_run.workdir.joinpath("results").rglob("*.tmp"):
         assert leftover.name.startswith("."), leftover
+
+
+def test_job_killed_before_it_was_recorded_is_redone(smoke_run):
+    # Ingest had written every output when the first run died, but Snakemake never recorded
+    # the job: the plain command must redo it rather than stop on incomplete files.
+    assert smoke_run.ingest_outputs_at_kill == ["episodes.parquet", "first_frames", "report.json"]
+    assert "ingest" not in smoke_run.killed_after[0]
+    assert "IncompleteFilesException" not in smoke_run.first_resume_output
+    assert "Finished jobid" in smoke_run.first_resume_output
+    assert "ingest" in finished_rules(smoke_run.first_resume_output)
 
 
 def test_second_invocation_plans_nothing(smoke_run):

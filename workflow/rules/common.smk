@@ -11,6 +11,27 @@ _overrides = config.get("overrides", [])
 OVERRIDES = [_overrides] if isinstance(_overrides, str) else list(_overrides)
 CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
 
+
+
+class _ResumingWorkflow(type(workflow)):
+    """A killed run resumes with the plain command: a job cut off before Snakemake recorded its
+    end is redone (outputs deleted first), as `--rerun-incomplete` asks. Our stages publish by
+    rename, so such outputs can look whole; they are never trusted. Snakemake hands the DAG
+    settings over right after reading the Snakefile, so the switch is set at that moment."""
+
+    @property
+    def dag_settings(self):
+        return self.__dict__.get("_resuming_dag_settings")
+
+    @dag_settings.setter
+    def dag_settings(self, settings):
+        if settings is not None:
+            settings.force_incomplete = True
+        self.__dict__["_resuming_dag_settings"] = settings
+
+
+workflow.__class__ = _ResumingWorkflow
+
 POLICIES = sorted(CFG["policies"])
 JUDGES = sorted(CFG["judges"])
 ARMS = ["real", "sim"]

@@ -25,6 +25,17 @@ from pathlib import Path
 import numpy as np
 
 
+def _load(label: str, path: str | Path, cls):
+    """``cls.from_pretrained`` on a local folder only; a failure names the config key and the folder."""
+    try:
+        return cls.from_pretrained(path, local_files_only=True)
+    except Exception as exc:
+        raise RuntimeError(
+            f"calib.segmenter.{label}: could not load {cls.__name__} from {path} "
+            f"(a local checkpoint saved with save_pretrained; weights are never downloaded): {exc}"
+        ) from exc
+
+
 class GroundedSAMSegmenter:
     """One detector query per object (its best box), then one SAM pass for all boxes."""
 
@@ -43,10 +54,10 @@ class GroundedSAMSegmenter:
         self.device = device
         self.prompts = dict(prompts)
         self.box_threshold, self.text_threshold = box_threshold, text_threshold
-        self.det_processor = AutoProcessor.from_pretrained(detector_path, local_files_only=True)
-        self.detector = AutoModelForZeroShotObjectDetection.from_pretrained(detector_path, local_files_only=True)
-        self.sam_processor = SamProcessor.from_pretrained(sam_path, local_files_only=True)
-        self.sam = SamModel.from_pretrained(sam_path, local_files_only=True)
+        self.det_processor = _load("detector_path", detector_path, AutoProcessor)
+        self.detector = _load("detector_path", detector_path, AutoModelForZeroShotObjectDetection)
+        self.sam_processor = _load("sam_path", sam_path, SamProcessor)
+        self.sam = _load("sam_path", sam_path, SamModel)
         self.detector.to(device).eval()
         self.sam.to(device).eval()
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 
@@ -46,24 +47,50 @@ class FrameCachedDataset(LeRobotDataset):
 
     def __init__(self, repo_id: str, root: str | Path, camera_keys: list[str], **kwargs):
         super().__init__(repo_id, root=root, **kwargs)
+        # lerobot 0.6 reads through a DatasetReader: swap in ours, same settings, same indexing.
+        self.reader = _FrameCachedReader(
+            camera_keys,
+            meta=self.meta,
+            root=self.root,
+            episodes=self.episodes,
+            tolerance_s=self.tolerance_s,
+            video_backend=self._video_backend,
+            delta_timestamps=self.delta_timestamps,
+            image_transforms=self.image_transforms,
+        )
+        self.reader.load_and_activate()
+        self.reader.cache()
+
+    def image_stats(self) -> dict[str, dict[str, np.ndarray]]:
+        return self.reader.image_stats()
+
+
+class _FrameCachedReader(DatasetReader):
+    """lerobot's reader with the video and numeric-column queries served from memory."""
+
+    def __init__(self, camera_keys: list[str], **kwargs):
+        super().__init__(**kwargs)
         self.camera_keys_used = list(camera_keys)
         # (video file path) -> (frame times [s], frames uint8 (N, C, H, W))
         self._decoded: dict[Path, tuple[np.ndarray, torch.Tensor]] = {}
         # (episode, camera) -> (video file, start time of the episode in that file)
         self._video_span: dict[tuple[int, str], tuple[Path, float]] = {}
-        episodes = self.episodes if self.episodes is not None else range(self.meta.total_episodes)
+        self._columns: dict[str, torch.Tensor] = {}
+
+    def cache(self) -> None:
+        meta = self._meta
+        episodes = self.episodes if self.episodes is not None else range(meta.total_episodes)
         for ep_idx in episodes:
-            ep = self.meta.episodes[ep_idx]
+            ep = meta.episodes[ep_idx]
             for key in self.camera_keys_used:
-                path = self.root / self.meta.get_video_file_path(ep_idx, key)
+                path = self.root / meta.get_video_file_path(ep_idx, key)
                 self._video_span[(ep_idx, key)] = (path, float(ep[f"videos/{key}/from_timestamp"]))
                 if path not in self._decoded:
                     self._decoded[path] = _decode_all_frames(path)
         # Numeric columns queried through delta timestamps (action chunk, state history), held as
         # tensors: row-wise Arrow access costs milliseconds per sample.
-        self._columns: dict[str, torch.Tensor] = {}
         for key in self.delta_indices or {}:
-            if key not in self.meta.video_keys:
+            if key not in meta.video_keys:
                 self._columns[key] = torch.from_numpy(np.stack(self.hf_dataset.with_format("numpy")[key]))
 
     def image_stats(self) -> dict[str, dict[str, np.ndarray]]:
@@ -91,20 +118,19 @@ class FrameCachedDataset(LeRobotDataset):
             wanted = from_ts + np.asarray(query_timestamps[key])
             idx = np.abs(times[None, :] - wanted[:, None]).argmin(axis=1)
             err = np.abs(times[idx] - wanted)
-            if (err > self.tolerance_s).any():
+            if (err > self._tolerance_s).any():
                 raise ValueError(
-                    f"camera {key!r} episode {ep_idx}: no video frame within {self.tolerance_s}s of "
+                    f"camera {key!r} episode {ep_idx}: no video frame within {self._tolerance_s}s of "
                     f"t={wanted[err.argmax()]:.4f}s in {path}"
                 )
             # Same layout as lerobot's decoders: float32 in [0, 1], channel first.
             item[key] = (frames[idx].float() / 255.0).squeeze(0)
         return item
 
-
     def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:
         result = {}
         for key, q_idx in query_indices.items():
-            if key in self.meta.video_keys:
+            if key in self._meta.video_keys:
                 continue
             to_rel = self._absolute_to_relative_idx
             rel = q_idx if to_rel is None else [to_rel[i] for i in q_idx]

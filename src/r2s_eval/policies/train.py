@@ -19,20 +19,20 @@ import torch
 
 from r2s_eval.policies.config import make_lerobot_config, validate_policy_cfg
 from r2s_eval.data import open_metadata
+from r2s_eval.policies.lerobot_policy import CHECKPOINT_SUBDIR, RUNNER_CONFIG
 from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
 from r2s_eval.utils.io import atomic_dir
+from r2s_eval.utils.numerics import deterministic_torch
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT_SUBDIR = "pretrained_model"
 TRAIN_LOG = "train_log.json"
-RUNNER_CONFIG = "runner_config.json"  # our receding-horizon settings, next to lerobot's files
 
 
 def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
     """Our validated config and the lerobot config, with the inputs restricted to the listed cameras."""
     from lerobot.configs.types import FeatureType, PolicyFeature
-    from lerobot.datasets.utils import dataset_to_policy_features
+    from lerobot.utils.feature_utils import dataset_to_policy_features
     from lerobot.utils.constants import ACTION, OBS_STATE
 
     cfg = validate_policy_cfg(policy_cfg)
@@ -134,7 +134,7 @@ def train_policy(
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     cfg = validate_policy_cfg(policy_cfg)
-    torch.set_num_threads(int(cfg["threads"]))
+    deterministic_torch(int(cfg["threads"]))
     set_seed(seed)
 
     meta = open_metadata(dataset_root, repo_id)
@@ -209,6 +209,7 @@ def train_policy(
         "s_per_step": loop_s / max(1, int(cfg["steps"])),
         "torch_version": torch.__version__,
         "python": platform.python_version(),
+        "cpu_capability": torch.backends.cpu.get_cpu_capability(),  # kernels used (pinned on import)
     }
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:

@@ -20,11 +20,13 @@ from r2s_eval.sim import get_task
 from r2s_eval.stages import _cli
 from r2s_eval.stages._world import load_world_params, make_env
 from r2s_eval.utils.io import atomic_dir, write_parquet
+from r2s_eval.utils.numerics import deterministic_torch
 
 log = logging.getLogger("r2s_eval.rollout")
 
 
 def main(args) -> None:
+    deterministic_torch(1)  # the rule gives this job one core
     cfg = args.cfg
     rollout, world = cfg["rollout"], cfg["world"]
     params = load_world_params(args.twin) if args.twin else None

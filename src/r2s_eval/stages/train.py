@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import torch
-
 from r2s_eval.policies import train_policy
 from r2s_eval.stages import _cli
+from r2s_eval.utils.numerics import deterministic_torch
 
 
 def main(args) -> None:
-    torch.set_num_threads(args.threads)
+    deterministic_torch(args.threads)
     policy_cfg = dict(args.cfg["policy"], name=args.cfg["name"], threads=args.threads)
     train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]))
 

@@ -19,7 +19,7 @@ def test_experiments_compose():
     demo = compose_config(CONF, "demo")
     assert smoke["teleop"]["episodes_per_task"] < demo["teleop"]["episodes_per_task"]
     assert set(smoke["policies"]) == {"act", "act_subset", "act_weak"}
-    assert set(compose_config(CONF, "paper")["policies"]) == {"act", "diffusion", "act_weak"}
+    assert set(compose_config(CONF, "paper")["policies"]) == {"pi0", "pi05", "smolvla", "xvla"}
     assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
     assert "experiment" not in smoke
 

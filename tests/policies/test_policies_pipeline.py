@@ -19,6 +19,7 @@ from r2s_eval.policies import (
     load_policy,
     make_lerobot_config,
     train_policy,
+    validate_policy_cfg,
 )
 from r2s_eval.utils.io import file_sha256
 
@@ -48,11 +49,22 @@ def dataset_root(tmp_path_factory) -> Path:
     )
 
 
+CONF = Path(__file__).resolve().parents[2] / "conf"
+
+
+def _line_up(line_up: str = "default") -> dict[str, dict]:
+    """The candidates of conf/policies/<line_up>.yaml at their own budgets."""
+    from omegaconf import OmegaConf
+
+    entries = OmegaConf.to_container(OmegaConf.load(CONF / "policies" / f"{line_up}.yaml"), resolve=True)
+    return {name: validate_policy_cfg(dict(cfg, name=name)) for name, cfg in entries.items()}
+
+
 def _tiny(name: str, **changes) -> dict:
-    """A candidate config shrunk to test size (small images, few steps)."""
+    """A candidate of the ACT / Diffusion line-up shrunk to test size (small images, few steps)."""
     base = {"steps": 6, "batch_size": 8, "log_every": 1, "image_size": [24, 24], "threads": 1}
     base.update(changes)
-    return candidate_config(name, "paper", **base)
+    return validate_policy_cfg({**_line_up()[name], **base})
 
 
 @pytest.fixture(scope="module")
@@ -79,8 +91,9 @@ def _obs(rng: np.random.Generator) -> dict[str, np.ndarray]:
 
 
 def test_policies_candidates_build_lerobot_configs():
-    for experiment in ("smoke", "demo", "paper"):
-        candidates = candidate_configs(experiment)
+    line_ups = {experiment: candidate_configs(experiment) for experiment in ("smoke", "demo")}
+    line_ups["default"] = _line_up("default")
+    for candidates in line_ups.values():
         assert "act_weak" in candidates and len(candidates) >= 3
         for name, cfg in candidates.items():
             lr_cfg = make_lerobot_config(cfg)
@@ -95,6 +108,22 @@ def test_policies_candidates_build_lerobot_configs():
         assert candidates["act_weak"]["steps"] * 4 <= candidates["act"]["steps"]
 
 
+def test_policies_paper_line_up_is_the_vla_recipe():
+    candidates = candidate_configs("paper")
+    assert set(candidates) == {"pi0", "pi05", "smolvla", "xvla"}
+    for name, cfg in candidates.items():
+        assert cfg["type"] == name and cfg["steps"] >= 10_000 and cfg["batch_size"] == 32
+        assert (cfg["lr"], cfg["decay_lr"], cfg["scheduler"], cfg["warmup_steps"]) == (2.5e-5, 2.5e-6, "cosine", 2000)
+        assert (cfg["betas"], cfg["ema_decay"]) == ([0.9, 0.95], 0.9999)
+        assert (cfg["chunk_size"], cfg["image_size"], len(cfg["image_keys"])) == (25, [224, 224], 4)
+        assert cfg["pretrained_path"].startswith("checkpoints/") and cfg["tokenizer_path"].startswith("checkpoints/")
+        # Composing needs no checkpoint; building the lerobot config (training) names what is missing.
+        if not Path(cfg["pretrained_path"]).exists():  # a lab's machine may hold the real ones
+            with pytest.raises(PolicyConfigError, match=rf"policies\.{name}\.pretrained_path.*{cfg['pretrained_path']}"):
+                make_lerobot_config(cfg)
+    assert set(_line_up("vla")) == set(candidates)
+
+
 def test_policies_unknown_override_key_is_named():
     cfg = candidate_config("act", "smoke")
     cfg["overrides"]["dim_modle"] = 64
@@ -102,7 +131,7 @@ def test_policies_unknown_override_key_is_named():
         make_lerobot_config(cfg)
     with pytest.raises(PolicyConfigError, match="stepz"):
         candidate_config("act", "smoke", stepz=3)
-    bad = candidate_config("diffusion", "paper")
+    bad = _line_up()["diffusion"]
     bad["overrides"]["horizon"] = 16
     with pytest.raises(PolicyConfigError, match="horizon"):
         make_lerobot_config(bad)

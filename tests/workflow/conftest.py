@@ -7,6 +7,7 @@ end Snakemake had recorded.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -23,10 +24,15 @@ REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 
+def overrides_arg(overrides: list[str]) -> str:
+    # Each override quoted: Snakemake reads the list as YAML, and a Hydra dict has commas.
+    return "overrides=[" + ",".join(json.dumps(o) for o in overrides) + "]"
+
+
 def snakemake(workdir: Path, *args: str, overrides: list[str] | None = None, check: bool = True) -> subprocess.CompletedProcess:
     cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "-d", str(workdir), *args, "--config", "experiment=smoke"]
     if overrides:
-        cmd.append("overrides=[" + ",".join(overrides) + "]")
+        cmd.append(overrides_arg(overrides))
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-6000:]}")

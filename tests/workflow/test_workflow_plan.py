@@ -20,3 +20,13 @@ def test_sim_chain_is_scheduled_before_any_training(tmp_path):
     chain = ["ingest", "init_offsets", "init_estimate", "replay"]
     assert all(rule in priority for rule in [*chain, "train"]), sorted(priority)
     assert min(min(priority[r]) for r in chain) > max(priority["train"]), priority
+
+
+def test_bad_checkpoint_candidate_stops_the_plan(tmp_path):
+    # A checkpoint candidate whose folder is not a LeRobot policy fails when the DAG is planned,
+    # before any job (and so any rollout) starts.
+    bad = tmp_path / "not_a_policy"
+    bad.mkdir()
+    proc = snakemake(tmp_path / "run", "-n", overrides=[f"+policies.lab={{type:checkpoint,path:'{bad}'}}"], check=False)
+    assert proc.returncode != 0
+    assert "policy 'lab'" in proc.stdout + proc.stderr and "no LeRobot policy at" in proc.stdout + proc.stderr

@@ -4,6 +4,15 @@ import sys
 from pathlib import Path
 
 from r2s_eval.config import compose_config, select, to_json
+from r2s_eval.policies.sources import (
+    check_checkpoint,
+    checkpoint_hash,
+    for_arm,
+    is_external,
+    result_identity,
+    validate_source_cfg,
+)
+from r2s_eval.sim.env import ACTION_DIM
 
 CONF_DIR = Path(workflow.basedir) / "conf"
 EXPERIMENT = config.get("experiment", "demo")
@@ -33,6 +42,13 @@ class _ResumingWorkflow(type(workflow)):
 workflow.__class__ = _ResumingWorkflow
 
 POLICIES = sorted(CFG["policies"])
+# Candidates trained here; checkpoint and server candidates skip training.
+TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p])]
+EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if p not in TRAINED}
+for _name, _source in EXTERNAL.items():
+    if _source["type"] == "checkpoint":  # a wrong folder fails now, before any rollout
+        for _arm in ("real", "sim"):
+            check_checkpoint(for_arm(_source, _arm), _name, ACTION_DIM)
 JUDGES = sorted(CFG["judges"])
 ARMS = ["real", "sim"]
 TWIN = CFG["real"]["source"] == "twin"
@@ -55,6 +71,39 @@ def params_of(*paths):
 
 def policy_params(wildcards):
     return to_json({"policy": CFG["policies"][wildcards.policy], "seed": CFG["seed"], "name": wildcards.policy})
+
+
+class Untracked:
+    """A rule param handed to the job but left out of Snakemake's rerun comparison (it compares
+    plain values only): where a checkpoint or server lies changes no result."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def __str__(self):
+        return to_json(self.value)
+
+
+CHECKPOINT_HASH_MEMO = "results/.cache/checkpoint_hashes.json"
+
+
+def rollout_policy_cfg(wildcards):
+    """What decides a candidate's rollouts: its type, or a checkpoint's content, or a server's
+    config without its address."""
+    if wildcards.policy in TRAINED:
+        return {"type": CFG["policies"][wildcards.policy]["type"]}
+    source = for_arm(EXTERNAL[wildcards.policy], wildcards.arm)
+    identity = result_identity(source)
+    if source["type"] == "checkpoint":
+        identity["content_sha256"] = checkpoint_hash(source["path"], CHECKPOINT_HASH_MEMO)
+    return identity
+
+
+def rollout_transport(wildcards):
+    if wildcards.policy in TRAINED:
+        return Untracked({})
+    source = for_arm(EXTERNAL[wildcards.policy], wildcards.arm)
+    return Untracked({k: v for k, v in source.items() if k not in result_identity(source)})
 
 
 def judge_params(wildcards):

@@ -12,7 +12,9 @@ rule rollout_inits:
 
 
 def rollout_inputs(wildcards):
-    inputs = {"policy": f"results/train/{wildcards.arm}/{wildcards.policy}", "inits": "results/rollout/inits.parquet"}
+    inputs = {"inits": "results/rollout/inits.parquet"}
+    if wildcards.policy in TRAINED:
+        inputs["policy"] = f"results/train/{wildcards.arm}/{wildcards.policy}"
     if wildcards.arm == "real":
         inputs["twin"] = "results/real/twin_params.json"
     return inputs
@@ -25,14 +27,20 @@ rule rollout:
     output:
         directory("results/rollout/{arm}/{policy}"),
     params:
-        cfg=lambda w: to_json({**select(CFG, "rollout", "world", "seed"), "arm": w.arm, "policy": w.policy}),
+        cfg=lambda w: to_json({
+            **select(CFG, "rollout", "world", "seed"), "arm": w.arm, "policy": w.policy,
+            "policy_cfg": rollout_policy_cfg(w),
+        }),
+        trained=lambda w, input: f"--policy {input.policy}" if "policy" in input.keys() else "",
         twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
+        transport=rollout_transport,
     threads: 1
     log:
         "logs/rollout/{arm}/{policy}.log",
     shell:
         "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
-        " --policy {input.policy} --inits {input.inits} {params.twin} --out {output} > {log} 2>&1"
+        " {params.trained} --inits {input.inits} {params.twin} --transport {params.transport:q}"
+        " --out {output} > {log} 2>&1"
 
 
 if TWIN:

@@ -10,6 +10,8 @@ def train_priority(wildcards):
 
 
 rule train:
+    wildcard_constraints:
+        policy="|".join(TRAINED) or "(?!)",  # checkpoint and server candidates are not trained
     input:
         dataset=train_dataset,
     output:

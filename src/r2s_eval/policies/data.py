@@ -64,6 +64,25 @@ class FrameCachedDataset(LeRobotDataset):
     def image_stats(self) -> dict[str, dict[str, np.ndarray]]:
         return self.reader.image_stats()
 
+    def with_quantiles(self, stats: dict, keys: tuple[str, ...] = (OBS_STATE, ACTION)) -> dict:
+        """`stats` with the quantiles lerobot's QUANTILES / QUANTILE10 normalisers read (q01, q10,
+        q50, q90, q99) added for `keys` where missing, measured on the frames trained on."""
+        out = dict(stats)
+        for key in keys:
+            have = dict(out.get(key) or {})
+            missing = [q for q in QUANTILES if q not in have]
+            if not missing:
+                continue
+            values = self.reader.column(key).astype(np.float64)
+            for q in missing:
+                have[q] = np.quantile(values, QUANTILES[q], axis=0).astype(np.float32)
+            out[key] = have
+        return out
+
+
+# lerobot's quantile statistics (names as in its stats files).
+QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
+
 
 class _FrameCachedReader(DatasetReader):
     """lerobot's reader with the video and numeric-column queries served from memory."""
@@ -92,6 +111,13 @@ class _FrameCachedReader(DatasetReader):
         for key in self.delta_indices or {}:
             if key not in meta.video_keys:
                 self._columns[key] = torch.from_numpy(np.stack(self.hf_dataset.with_format("numpy")[key]))
+
+    def column(self, key: str) -> np.ndarray:
+        """A numeric column over the selected episodes' frames, (N, D)."""
+        if key in self._columns:
+            # Held for delta-timestamp queries; same rows as the dataset.
+            return self._columns[key].numpy()
+        return np.stack(self.hf_dataset.with_format("numpy")[key])
 
     def image_stats(self) -> dict[str, dict[str, np.ndarray]]:
         """Per-channel mean/std/min/max in [0, 1] of every cached camera, shaped (3, 1, 1)."""

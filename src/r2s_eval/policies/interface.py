@@ -63,6 +63,9 @@ class ChunkPolicy:
     def observe(self, slot: int, obs: dict) -> None:
         """Every control step's observation (policies that condition on a history keep it)."""
 
+    def release(self, slot: int) -> None:
+        """The slot's episode is over for good (a server's connection closed): drop its state."""
+
     def predict_chunks(self, slots: Sequence[int], observations: Sequence[dict]) -> np.ndarray:
         """Float32 array (len(slots), T, spec.action_dim), T <= spec.max_chunk."""
         raise NotImplementedError

@@ -3,6 +3,9 @@
 Mirrors `lerobot_train.py` (make_policy from dataset metadata, make_pre_post_processors with the
 dataset stats, delta timestamps from the policy config, the policy's optimiser preset, gradient
 clipping, EpisodeAwareSampler where the policy asks for it) without accelerate, hub or env eval.
+
+The VLA types (pi0, pi05, smolvla, xvla) fine-tune a pretrained checkpoint (`finetune.py`), with
+an optional cosine schedule and an EMA of the weights (the checkpoint then holds the EMA weights).
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import platform
 import time
 from pathlib import Path
@@ -17,7 +21,14 @@ from typing import Any
 
 import torch
 
-from r2s_eval.policies.config import make_lerobot_config, validate_policy_cfg
+from r2s_eval.policies.config import (
+    VLA_TYPES,
+    cosine_floor_lr,
+    make_lerobot_config,
+    resolve_tokenizer_path,
+    validate_policy_cfg,
+)
+from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
 from r2s_eval.data import open_metadata
 from r2s_eval.policies.lerobot_policy import CHECKPOINT_SUBDIR, RUNNER_CONFIG
 from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
@@ -49,6 +60,11 @@ def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
     if cfg["image_size"] is not None and cfg["type"] == "diffusion":
         # Diffusion resizes inside its RGB encoder (handles the observation-history axis).
         lr_cfg.resize_shape = tuple(cfg["image_size"])
+    if cfg["type"] in VLA_TYPES:
+        # The VLAs pad state and action to these widths: grow them when the robot is wider.
+        lr_cfg.max_state_dim = max(int(lr_cfg.max_state_dim), int(features[OBS_STATE].shape[0]))
+        lr_cfg.max_action_dim = max(int(lr_cfg.max_action_dim), int(features[ACTION].shape[0]))
+        resolve_tokenizer_path(cfg, lr_cfg)  # fail now, before the data is decoded
     return cfg, lr_cfg
 
 
@@ -60,6 +76,8 @@ def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", sta
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
     cfg, lr_cfg = policy_config(policy_cfg, meta, device)
+    if cfg["type"] in VLA_TYPES:
+        return build_vla_policy_and_processors(cfg, lr_cfg, meta, stats)[:5]
     policy = make_policy(lr_cfg, ds_meta=meta)
     preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=stats or meta.stats)
     if cfg["image_size"] is not None and cfg["type"] == "act":
@@ -72,11 +90,33 @@ def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", sta
     return cfg, lr_cfg, policy, preprocessor, postprocessor
 
 
+def _lr_lambda(cfg: dict):
+    """Multiplier of the base learning rate per scheduler step (None: constant)."""
+    warm, steps = int(cfg["warmup_steps"]), int(cfg["steps"])
+    if cfg["scheduler"] == "constant":
+        if warm <= 0:
+            return None
+        return lambda s: min(1.0, (s + 1) / warm)
+    floor = cosine_floor_lr(cfg) / float(cfg["lr"])
+    # Step n (1-based) runs at lambda(n - 1): the last step reaches the floor exactly.
+    span = max(1, steps - warm - 1)
+
+    def cosine(s: int) -> float:
+        if s < warm:
+            return (s + 1) / warm
+        progress = min(1.0, (s - warm) / span)
+        return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * progress))
+
+    return cosine
+
+
 def _make_optimizer(cfg: dict, lr_cfg, policy):
     preset = lr_cfg.get_optimizer_preset()
     preset.lr = cfg["lr"]
     if cfg["weight_decay"] is not None:
         preset.weight_decay = cfg["weight_decay"]
+    if cfg["betas"] is not None:
+        preset.betas = tuple(cfg["betas"])
     params = policy.get_optim_params()
     classes = {"adamw": torch.optim.AdamW, "adam": torch.optim.Adam}
     if preset.type in classes:
@@ -88,9 +128,9 @@ def _make_optimizer(cfg: dict, lr_cfg, policy):
     else:
         optimizer = preset.build(params)
     scheduler = None
-    if cfg["warmup_steps"] > 0:
-        warm = cfg["warmup_steps"]
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: min(1.0, (s + 1) / warm))
+    lr_lambda = _lr_lambda(cfg)
+    if lr_lambda is not None:
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_lambda)
     return optimizer, scheduler
 
 
@@ -147,11 +187,22 @@ def train_policy(
     # way), which would scale pixels by ~1000 before the CNN and amplify sensor noise; normalise
     # with statistics measured on the frames actually trained on.
     stats = {**meta.stats, **dataset.image_stats()}
+    vla = cfg["type"] in VLA_TYPES
+    if vla:
+        stats = dataset.with_quantiles(stats)  # pi0.5 normalises with q01 / q99
     set_seed(seed)  # initial weights depend on the seed alone, not on what loading the data drew
-    cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device, stats)
+    load_report = None
+    if vla:
+        cfg, lr_cfg, policy, preprocessor, postprocessor, load_report = build_vla_policy_and_processors(
+            cfg, lr_cfg, meta, stats
+        )
+    else:
+        cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device, stats)
     loader = _make_loader(dataset, lr_cfg, cfg["batch_size"], seed)
     optimizer, scheduler = _make_optimizer(cfg, lr_cfg, policy)
-    grad_clip = float(cfg["grad_clip_norm"])
+    clip = cfg["grad_clip_norm"]
+    grad_clip = float(clip if clip is not None else lr_cfg.get_optimizer_preset().grad_clip_norm)
+    ema = EMA(policy, cfg["ema_decay"]) if cfg["ema_decay"] is not None else None
 
     losses: list[dict[str, float]] = []
     window: list[float] = []
@@ -171,6 +222,8 @@ def train_policy(
         optimizer.zero_grad(set_to_none=True)
         if scheduler is not None:
             scheduler.step()
+        if ema is not None:
+            ema.update()
         window.append(loss.item())
         if step % cfg["log_every"] == 0 or step == cfg["steps"] or step == 1:
             losses.append(
@@ -178,7 +231,8 @@ def train_policy(
                     "step": step,
                     "loss": sum(window) / len(window),  # mean over the steps since the last entry
                     "grad_norm": float(grad_norm),
-                    "lr": optimizer.param_groups[0]["lr"],
+                    # X-VLA's first group is its VLM at lr / 10: log the base rate.
+                    "lr": max(g["lr"] for g in optimizer.param_groups) if vla else optimizer.param_groups[0]["lr"],
                     "elapsed_s": time.perf_counter() - t_loop,
                 }
             )
@@ -186,6 +240,9 @@ def train_policy(
     loop_s = time.perf_counter() - t_loop
     loop_cpu_s = time.process_time() - cpu_loop
     policy.eval()
+    if ema is not None:
+        ema.copy_to()
+        log.info("the checkpoint holds the EMA weights (decay %s), not the last optimiser step's", cfg["ema_decay"])
 
     n_params = sum(p.numel() for p in policy.parameters())
     summary = {
@@ -211,6 +268,15 @@ def train_policy(
         "python": platform.python_version(),
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),  # kernels used (pinned on import)
     }
+    if vla:
+        summary["weights"] = "ema" if ema is not None else "last"
+        summary["ema_decay"] = cfg["ema_decay"]
+        summary["grad_clip_norm"] = grad_clip
+        summary["pretrained"] = {
+            "path": load_report["pretrained_path"],
+            "tokenizer_path": load_report["tokenizer_path"],
+            **load_report["counts"],
+        }
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
         ckpt = tmp / CHECKPOINT_SUBDIR
@@ -223,10 +289,19 @@ def train_policy(
             "image_keys": cfg["image_keys"],
             "policy_type": cfg["type"],
         }
+        if vla:
+            # Saved pipelines name the hub id; reloads read the tokenizer from this folder.
+            runner_cfg.update(
+                tokenizer_path=load_report["tokenizer_path"],
+                pretrained_path=load_report["pretrained_path"],
+                weights=summary["weights"],
+            )
         (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
         summary["wall_s"] = time.perf_counter() - t_start
         summary["cpu_s"] = time.process_time() - cpu_start
         train_log = {"summary": summary, "config": cfg, "losses": losses}
+        if vla:
+            train_log["pretrained_load"] = {k: load_report[k] for k in ("counts", "loaded", "resized", "new", "unused")}
         (tmp / TRAIN_LOG).write_text(json.dumps(train_log, indent=2, sort_keys=True) + "\n")
     log.info(
         "trained %s (%s) on %s: %d steps, loss %.4f -> %.4f, %.1fs",

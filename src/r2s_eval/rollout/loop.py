@@ -76,8 +76,9 @@ def run_episode(
     obs = env.reset(object_poses, seed=seed)
     frames = [frame(obs)]
     rows, held = [], 0
+    instruction = env.task.instruction  # language-conditioned policies read it
     for step in range(max_steps):
-        action = policy.act(obs)
+        action = policy.act({**obs, "task": instruction})
         obs = env.step(action)
         rows.append(_record(env, step, obs, action))
         frames.append(frame(obs))

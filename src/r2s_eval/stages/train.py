@@ -10,7 +10,8 @@ from r2s_eval.utils.numerics import deterministic_torch
 def main(args) -> None:
     deterministic_torch(args.threads)
     policy_cfg = dict(args.cfg["policy"], name=args.cfg["name"], threads=args.threads)
-    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]))
+    device = policy_cfg.get("device", "cpu")
+    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), device=device)
 
 
 if __name__ == "__main__":

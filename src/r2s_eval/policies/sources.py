@@ -1,0 +1,189 @@
+"""Where a candidate comes from: trained here, a checkpoint folder you have, or a policy server.
+
+Trained candidates (`type: act | diffusion | pi0 | ...`) are configured in `config.py`. The two
+kinds here need no training:
+
+    type: checkpoint        a local LeRobot `pretrained_model` folder
+      path: ...             for both arms, or per arm under `arms: {real: {path}, sim: {path}}`
+    type: server            an openpi-protocol policy server
+      host, port            per arm overridable under `arms:` like `path`
+      api_key_env           name of the environment variable holding the key (never the key)
+      spec                  what a foreign server consumes and returns, when its metadata
+                            does not say (ours does): cameras, action_dim, max_chunk, ...
+
+Both take `action_map` (robot index per policy action dimension; default: identity).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
+
+SOURCE_TYPES = ("checkpoint", "server")
+ARMS = ("real", "sim")
+
+_COMMON = {"type": None, "name": None, "arms": {}, "action_map": None, "device": None}
+_PER_TYPE = {
+    "checkpoint": {"path": None},
+    "server": {
+        "host": "127.0.0.1", "port": None, "api_key_env": None, "spec": None,
+        "connect_timeout_s": 10.0, "reply_timeout_s": 120.0, "connect_retries": 3,
+    },
+}
+# Where a server runs and how patiently we talk to it change no result: not part of what
+# makes a rollout rerun.
+# A checkpoint's content (hashed) decides its results, not the folder it lies in.
+TRANSPORT_KEYS = frozenset({"path", "host", "port", "api_key_env", "connect_timeout_s", "reply_timeout_s", "connect_retries", "device"})
+
+
+def is_external(cfg: Mapping) -> bool:
+    return cfg.get("type") in SOURCE_TYPES
+
+
+def validate_source_cfg(cfg: Mapping, name: str | None = None) -> dict:
+    """Completed copy of a checkpoint/server entry; unknown keys are errors naming them."""
+    from r2s_eval.policies.config import PolicyConfigError
+
+    who = f"policy {name or cfg.get('name') or '?'!r}"
+    kind = cfg.get("type")
+    if kind not in SOURCE_TYPES:
+        raise PolicyConfigError(f"{who}: type must be one of {SOURCE_TYPES}, got {kind!r}")
+    allowed = {**_COMMON, **_PER_TYPE[kind]}
+    unknown = sorted(set(cfg) - set(allowed))
+    if unknown:
+        raise PolicyConfigError(f"{who} ({kind}): unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    out = {**copy.deepcopy(allowed), **copy.deepcopy(dict(cfg))}
+    out["arms"] = dict(out["arms"] or {})
+    for arm, over in out["arms"].items():
+        if arm not in ARMS:
+            raise PolicyConfigError(f"{who}: arms has {arm!r}; arms are {ARMS}")
+        bad = sorted(set(over or {}) - (set(_PER_TYPE[kind]) | {"action_map"}))
+        if bad:
+            raise PolicyConfigError(f"{who}: arms.{arm} cannot set {bad}")
+    for arm in ARMS:
+        arm_cfg = for_arm(out, arm)
+        if kind == "checkpoint" and not arm_cfg["path"]:
+            raise PolicyConfigError(f"{who}: no checkpoint path for the {arm} arm (set path, or arms.{arm}.path)")
+        if kind == "server" and arm_cfg["port"] is None:
+            raise PolicyConfigError(f"{who}: no server port for the {arm} arm (set port, or arms.{arm}.port)")
+    if out["action_map"] is not None:
+        out["action_map"] = [int(i) for i in out["action_map"]]
+    return out
+
+
+def for_arm(cfg: Mapping, arm: str) -> dict:
+    """The entry with the arm's overrides applied (`arms` removed)."""
+    merged = {k: v for k, v in cfg.items() if k != "arms"}
+    merged.update((cfg.get("arms") or {}).get(arm) or {})
+    return merged
+
+
+def result_identity(cfg: Mapping) -> dict:
+    """The part of an external entry that decides what its rollouts are (not where it runs)."""
+    return {k: v for k, v in cfg.items() if k not in TRANSPORT_KEYS}
+
+
+def action_map(cfg: Mapping, robot_dim: int) -> ActionMap:
+    indices = cfg.get("action_map")
+    return ActionMap(robot_dim, tuple(indices) if indices is not None else None)
+
+
+def checkpoint_hash(path: str | os.PathLike, memo_file: str | os.PathLike | None = None) -> str:
+    """SHA-256 over a checkpoint folder's file names and contents.
+
+    Hashing a multi-GB VLA checkpoint takes seconds, and the workflow asks on every plan, so
+    digests are remembered per file by (size, mtime_ns, inode) in `memo_file`.
+    """
+    root = Path(path)
+    if not root.exists():
+        raise PolicyError(f"checkpoint {root} does not exist")
+    files = sorted(p for p in root.rglob("*") if p.is_file()) if root.is_dir() else [root]
+    memo: dict[str, Any] = {}
+    if memo_file and Path(memo_file).is_file():
+        try:
+            memo = json.loads(Path(memo_file).read_text())
+        except (OSError, ValueError):
+            memo = {}
+    digest = hashlib.sha256()
+    changed = False
+    for f in files:
+        st = f.stat()
+        stamp = [st.st_size, st.st_mtime_ns, st.st_ino]
+        key = str(f.resolve())
+        entry = memo.get(key)
+        if not entry or entry["stamp"] != stamp:
+            h = hashlib.sha256()
+            with open(f, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(block)
+            entry = memo[key] = {"stamp": stamp, "sha256": h.hexdigest()}
+            changed = True
+        digest.update(f.relative_to(root).as_posix().encode() if root.is_dir() else b"")
+        digest.update(entry["sha256"].encode())
+    if memo_file and changed:
+        Path(memo_file).parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(memo_file).with_suffix(".tmp")
+        tmp.write_text(json.dumps(memo))
+        tmp.replace(memo_file)
+    return digest.hexdigest()
+
+
+def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int) -> dict:
+    """Read a checkpoint's config (no model load) and check it can drive the robot.
+
+    Runs when the workflow is planned, so a wrong folder fails before any rollout starts.
+    """
+    from r2s_eval.policies.lerobot_policy import resolve_checkpoint
+
+    try:
+        folder = resolve_checkpoint(cfg["path"])
+    except PolicyError as exc:
+        raise PolicyError(f"policy {name!r}: {exc}") from exc
+    try:
+        config = json.loads((folder / "config.json").read_text())
+        action_dim = int(config["output_features"]["action"]["shape"][0])
+        policy_type = str(config["type"])
+    except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+        raise PolicyError(f"policy {name!r}: {folder}/config.json is not a LeRobot policy config ({exc!r})") from exc
+    indices = cfg.get("action_map")
+    if indices is None and action_dim != robot_action_dim:
+        raise PolicyError(
+            f"policy {name!r}: checkpoint {folder} returns {action_dim}-D actions, the robot takes "
+            f"{robot_action_dim}-D; set action_map (the robot index of each action dimension)"
+        )
+    if indices is not None and (len(indices) != action_dim or len(set(indices)) != len(indices)
+                                or min(indices) < 0 or max(indices) >= robot_action_dim):
+        raise PolicyError(
+            f"policy {name!r}: action_map {list(indices)} must list {action_dim} distinct robot indices "
+            f"below {robot_action_dim} for checkpoint {folder}"
+        )
+    return {"folder": str(folder), "type": policy_type, "action_dim": action_dim}
+
+
+def open_policy(cfg: Mapping, name: str, trained_dir: str | os.PathLike | None = None, device: str = "cpu") -> ChunkPolicy:
+    """The candidate as a ChunkPolicy: a trained folder, a checkpoint, or a server connection.
+
+    In-process models run on `device` (a checkpoint entry's own `device` wins)."""
+    from r2s_eval.policies.lerobot_policy import load_lerobot_policy
+
+    if not is_external(cfg):
+        if trained_dir is None:
+            raise PolicyError(f"policy {name!r} is trained here, but no trained folder was given")
+        return load_lerobot_policy(trained_dir, device=device, name=name)
+    if cfg["type"] == "checkpoint":
+        return load_lerobot_policy(cfg["path"], device=cfg.get("device") or device, name=name)
+    from r2s_eval.serving.client import ServerPolicy
+
+    spec = dict(cfg.get("spec") or {})
+    return ServerPolicy(
+        name, cfg["host"], int(cfg["port"]), api_key_env=cfg.get("api_key_env"),
+        connect_timeout_s=float(cfg["connect_timeout_s"]), reply_timeout_s=float(cfg["reply_timeout_s"]),
+        connect_retries=int(cfg["connect_retries"]), **spec,
+    )

@@ -98,3 +98,23 @@ def test_serving_cli_clean_errors(tmp_path, capsys, monkeypatch):
     monkeypatch.delenv("SERVING_TEST_UNSET", raising=False)
     assert serve_main([str(missing), "--api-key-env", "SERVING_TEST_UNSET"]) == 2
     assert "SERVING_TEST_UNSET" in capsys.readouterr().err
+
+
+def test_serving_cli_sim_episode_against_the_served_policy(served):
+    # A closed-loop episode in our MuJoCo world, every chunk fetched from the subprocess server,
+    # recorded exactly as the rollout stage records it.
+    from r2s_eval.rollout import run_episode
+    from r2s_eval.sim import TabletopEnv
+
+    env = TabletopEnv("cup_on_plate", image_size=(32, 32), cameras=("head_left",))
+    policy = ServerPolicy("act", "127.0.0.1", served["open"].port)
+    try:
+        runner = RecedingHorizon(policy, chunk_size=CHUNK, n_action_steps=5)
+        runner.reset(seed=7)
+        result = run_episode(env, runner, None, seed=7, max_steps=20, video_camera="head_left")
+    finally:
+        policy.close()
+    assert result.length == 20 and len(result.frames) == 21
+    assert runner.stats["model_calls"] == 4
+    actions = np.stack(result.trajectory["action"].to_list())
+    assert actions.shape == (20, 14) and np.isfinite(actions).all()

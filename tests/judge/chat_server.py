@@ -11,10 +11,13 @@ exercised end to end. Its answers depend only on what it is shown, the way a mod
   is a sentence first and a letter once asked again;
 * compare videos (one step): the brighter video wins.
 
+Images (``image_url``) and videos (``video_url``, an mp4 data URL) are both understood.
+
 Scripted faults: ``fail_plan`` answers the first requests with those HTTP statuses; ``hold_after``
 answers that many requests and then holds every later one until ``release()`` (to kill a client
 mid-stage deterministically); ``latency_s`` delays every answer. ``log`` records each request:
-its status, the sha256 of its body and the full prompt text.
+its status, the sha256 of its body, the full prompt text, its text parts in order (``texts``:
+(role, text)), its image count and, per video part, the decoded frame count, rate and duration.
 """
 
 from __future__ import annotations
@@ -40,6 +43,19 @@ _BRIGHT_RE = re.compile(r"brightness (\d\.\d+)")
 def _brightness(url: str) -> float:
     data = base64.b64decode(url.split(",", 1)[1])
     return float(np.asarray(Image.open(io.BytesIO(data)).convert("RGB"), dtype=float).mean() / 255.0)
+
+
+def _video(url: str) -> tuple[float, dict]:
+    """Mean brightness of an mp4 data URL's frames, and what its container says about timing."""
+    import av
+
+    with av.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))) as container:
+        stream = container.streams.video[0]
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+        meta = {"frames": len(frames), "fps": float(stream.average_rate or 0),
+                "duration_s": float(stream.duration * stream.time_base) if stream.duration else None,
+                "container_duration": container.duration}
+    return float(np.mean([f.mean() for f in frames]) / 255.0), meta
 
 
 def _in(x: float, band: tuple[float, float]) -> bool:
@@ -101,10 +117,11 @@ class ChatServer:
 
     def handle(self, path: str, body: bytes) -> tuple[int, dict, dict]:
         req = json.loads(body)
-        text, images = self._flatten(req["messages"])
-        kind = ("describe" if "Describe the robot" in text else
-                "compare_videos" if "Rollout A (" in text else "compare")
+        text, media, texts, videos = self._flatten(req["messages"])
+        kind = ("describe" if "Describe what the robot does" in text else
+                "compare_videos" if media else "compare")
         entry = {"kind": kind, "sha": hashlib.sha256(body).hexdigest(), "text": text, "status": None,
+                 "texts": texts, "n_images": sum(1 for _, _, v in media if v is None), "videos": videos,
                  "model": req.get("model"), "temperature": req.get("temperature"), "max_tokens": req.get("max_tokens")}
         with self._lock:
             self.log.append(entry)
@@ -123,35 +140,44 @@ class ChatServer:
             entry["status"] = 404
             return 404, {"error": {"message": f"no route {path}"}}, {}
         time.sleep(self.latency_s)
-        reply = self._answer(kind, text, images, req["messages"])
+        reply = self._answer(kind, text, media, req["messages"])
         entry["status"] = 200
         return 200, {
             "id": "cmpl-" + entry["sha"][:12], "object": "chat.completion", "created": 0, "model": req.get("model"),
             "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": reply}}],
-            "usage": {"prompt_tokens": len(text.split()) + 10 * len(images), "completion_tokens": len(reply.split()),
+            "usage": {"prompt_tokens": len(text.split()) + 10 * len(media) + sum(v["frames"] for v in videos),
+                      "completion_tokens": len(reply.split()),
                       "total_tokens": 0},
         }, {}
 
     @staticmethod
-    def _flatten(messages: list[dict]) -> tuple[str, list[tuple[int, str]]]:
-        """All text (system, user, assistant) and the image URLs with the text length before them."""
-        text, images = "", []
+    def _flatten(messages: list[dict]) -> tuple[str, list[tuple[int, float, dict | None]], list, list]:
+        """All text (system, user, assistant); every image or video part as (text length before it,
+        mean brightness, video timing or None for an image); the text parts as (role, text); the
+        video parts' timing."""
+        text, media, texts, videos = "", [], [], []
         for m in messages:
             content = m["content"]
             if isinstance(content, str):
                 text += content + "\n"
+                texts.append((m["role"], content))
                 continue
             for part in content:
                 if part["type"] == "text":
                     text += part["text"]
+                    texts.append((m["role"], part["text"]))
                 elif part["type"] == "image_url":
-                    images.append((len(text), part["image_url"]["url"]))
+                    media.append((len(text), _brightness(part["image_url"]["url"]), None))
+                elif part["type"] == "video_url":
+                    b, meta = _video(part["video_url"]["url"])
+                    media.append((len(text), b, meta))
+                    videos.append(meta)
             text += "\n"
-        return text, images
+        return text, media, texts, videos
 
-    def _answer(self, kind: str, text: str, images: list[tuple[int, str]], messages: list[dict]) -> str:
+    def _answer(self, kind: str, text: str, media: list[tuple[int, float, dict | None]], messages: list[dict]) -> str:
         if kind == "describe":
-            b = float(np.mean([_brightness(u) for _, u in images]))
+            b = float(np.mean([x for _, x, _ in media]))
             label = "successful" if b >= 0.6 else "failed"
             parts = [
                 f"**Motion smoothness:** steady, brightness {b:.3f}.",
@@ -164,9 +190,9 @@ class ChatServer:
                 parts.pop(3)
             return "\n".join(parts)
         if kind == "compare_videos":
-            split = text.index("Rollout B (")
-            a = np.mean([_brightness(u) for pos, u in images if pos < split])
-            b = np.mean([_brightness(u) for pos, u in images if pos >= split])
+            split = text.index("Rollout B:")
+            a = np.mean([x for pos, x, _ in media if pos < split])
+            b = np.mean([x for pos, x, _ in media if pos >= split])
             return "A" if a >= b else "B"
         # compare two descriptions
         a_text = text[text.index("Rollout A:"): text.index("Rollout B:")]

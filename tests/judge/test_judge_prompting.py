@@ -7,14 +7,18 @@ import pytest
 
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import CRITERIA, CriterionNote, Description, make_judge
-from r2s_eval.judge.frames import sample_clip
+from r2s_eval.judge import prompting
+from r2s_eval.judge.frames import frame_indices, sample_clip
 from r2s_eval.judge.prompting import (
+    PROMPT_SETS,
     TEMPLATES,
     description_text,
     fields,
     parse_description,
     parse_letter,
     render,
+    template,
+    templates_sha,
 )
 from r2s_eval.rollout.video import write_video
 
@@ -48,14 +52,24 @@ def test_judge_description_parsing_finds_sections_and_the_label():
     assert parse_description("I cannot see a robot.", "m").missing == (*CRITERIA, "summary")
 
 
-def test_judge_templates_take_only_the_instruction_and_the_recordings():
+@pytest.mark.parametrize("prompt_set", PROMPT_SETS)
+def test_judge_templates_take_only_the_instruction_and_the_recordings(prompt_set):
     assert set(TEMPLATES) == {"system", "describe", "compare", "compare_videos", "reask"}
-    assert fields("describe") == {"instruction", "n_frames", "duration_s", "video"}
-    assert fields("compare") == {"instruction", "description_a", "description_b"}
+    expected = {"system": set(), "reask": set(), "describe": {"instruction", "video"},
+                "compare": {"instruction", "description_a", "description_b"},
+                "compare_videos": {"instruction", "video_a", "video_b"}}
+    assert {t: fields(t, prompt_set) for t in TEMPLATES} == expected
     with pytest.raises(ValueError, match="takes fields"):
-        render("compare", instruction="x", description_a="a", description_b="b", policy="act")
+        render("compare", prompt_set=prompt_set, instruction="x", description_a="a", description_b="b", policy="act")
+    with pytest.raises(ValueError, match="takes fields"):
+        render("describe", prompt_set=prompt_set, instruction="x", video="", duration_s=3.0)
     for label in ("successful", "partially successful", "failed"):
-        assert label in render("describe", instruction="x", n_frames=1, duration_s=1, video="")
+        assert label in render("describe", prompt_set=prompt_set, instruction="x", video="")
+    # No template speaks of time, length or counts of frames.
+    for t in TEMPLATES:
+        text = template(t, prompt_set).lower()
+        for word in ("second", "duration", "fps", "frame rate", "how long", "length", "{n_"):
+            assert word not in text, (t, word)
     # What the compare prompt shows of a description: the sections, not who wrote it.
     d = Description(criteria={"task_progress": CriterionNote("done", label="successful")}, summary="ok",
                     judge="secret-judge-name")
@@ -64,16 +78,34 @@ def test_judge_templates_take_only_the_instruction_and_the_recordings():
     assert "Motion smoothness: (not described)" in text
 
 
-def test_judge_frames_sampled_at_rate_within_budget(tmp_path):
+def test_judge_balanced_prompts_rank_no_criterion_first():
+    aspects = ("motion smoothness", "action continuity", "task success", "force/effort control")
+    for name in ("compare", "compare_videos"):
+        balanced, success_first = template(name, "balanced").lower(), template(name, "success_first").lower()
+        assert all(a in balanced for a in aspects) and "equal weight" in balanced
+        assert "first" not in balanced and "when both are equally successful" not in balanced
+        assert "judge task success first" in success_first
+    # The describe prompt is shared and keeps the explicit outcome label as one of four aspects.
+    assert template("describe", "balanced") == template("describe", "success_first")
+    assert "equal weight" in template("describe").lower()
+    with pytest.raises(ValueError, match="unknown prompt_set 'strict'"):
+        template("compare", "strict")
+
+
+def test_judge_frames_always_the_same_count_spread_over_the_clip(tmp_path):
     frames = [np.full((32, 48, 3), 4 * i, np.uint8) for i in range(60)]  # 3 s at 20 fps
     write_video(tmp_path / "v.mp4", frames, fps=20)
-    clip = sample_clip(tmp_path / "v.mp4", fps=10, max_frames=64)
-    assert len(clip.frames) == 30 and np.allclose(np.diff(clip.times_s), 0.1) and clip.duration_s == pytest.approx(3.0)
-    sub = sample_clip(tmp_path / "v.mp4", fps=10, max_frames=8)
-    assert len(sub.frames) == 8 and sub.times_s[0] == 0 and sub.times_s[-1] == pytest.approx(2.9)
-    cut = sample_clip(tmp_path / "v.mp4", fps=10, max_frames=8, over_budget="truncate")
-    assert cut.times_s[-1] == pytest.approx(0.7) and cut.duration_s == pytest.approx(0.8)
-    small = sample_clip(tmp_path / "v.mp4", fps=10, max_frames=8, max_side_px=24)
+    clip = sample_clip(tmp_path / "v.mp4", n_frames=8)
+    assert clip.frames.shape == (8, 32, 48, 3) and not hasattr(clip, "duration_s") and not hasattr(clip, "times_s")
+    # First and last frame included, evenly spaced in between (frame i has brightness 4 i).
+    assert np.abs(clip.frames.mean(axis=(1, 2, 3)) - 4 * frame_indices(60, 8)).max() < 2
+    assert frame_indices(60, 8).tolist() == [0, 8, 17, 25, 34, 42, 51, 59]
+    # A clip shorter than the count repeats frames: 8 frames still.
+    write_video(tmp_path / "short.mp4", frames[:3], fps=20)
+    assert sample_clip(tmp_path / "short.mp4", n_frames=8).frames.shape[0] == 8
+    assert frame_indices(3, 8).tolist() == [0, 0, 1, 1, 1, 1, 2, 2]
+    assert {len(frame_indices(n, 32)) for n in (1, 5, 31, 32, 33, 600)} == {32}
+    small = sample_clip(tmp_path / "v.mp4", n_frames=8, max_side_px=24)
     assert small.frames.shape[1:] == (16, 24, 3)
     (tmp_path / "bad.mp4").write_bytes(b"not a video")
     with pytest.raises(ValueError, match="bad.mp4"):
@@ -86,9 +118,32 @@ def test_judge_stage_options_stay_out_of_the_cache_identity():
     b = make_judge({**base, "base_url": "http://b/v1", "concurrency": 8, "swap_share": 1.0, "name": "other"})
     assert a.identity() == b.identity() and b.stage_cfg["concurrency"] == 8
     assert make_judge({**base, "max_frames": 16}).identity() != a.identity()
+    assert a.cfg["prompt_set"] == "balanced"
+    with pytest.raises(ValueError, match=r"\['fps'\] no longer exist.*exactly max_frames"):
+        make_judge({**base, "fps": 10.0})
+    with pytest.raises(ValueError, match="unknown prompt_set"):
+        make_judge({**base, "prompt_set": "strict"})
     assert make_judge({"backend": "kinematic", "swap_share": 0.5}).stage_cfg["swap_share"] == 0.5
     with pytest.raises(ValueError, match="mode must be one of"):
         make_judge({**base, "mode": "three_step"})
+
+
+def test_judge_prompt_set_and_prompt_texts_are_part_of_the_cache_identity(monkeypatch):
+    base = {"backend": "openai", "model": "m"}
+    balanced, first = make_judge(base), make_judge({**base, "prompt_set": "success_first"})
+    assert balanced.identity()["prompts"] == templates_sha("balanced") != templates_sha("success_first")
+    assert balanced.identity() != first.identity()
+    assert balanced.identity()["answer_config"] != first.identity()["answer_config"]
+    # Editing any prompt file, shared or not, changes the identity (and so every cache key).
+    read = prompting._read
+    for edited in ("describe.txt", "system.txt", "reask.txt", "compare.balanced.txt", "compare_videos.balanced.txt"):
+        monkeypatch.setattr(prompting, "_read", lambda f, e=edited: read(f) + (" (edited)" if f == e else ""))
+        assert make_judge(base).identity() != balanced.identity(), edited
+    # ...but a file of the other set does not touch this one.
+    other = "compare.success_first.txt"
+    monkeypatch.setattr(prompting, "_read", lambda f: read(f) + (" (edited)" if f == other else ""))
+    assert make_judge(base).identity() == balanced.identity()
+    assert make_judge({**base, "prompt_set": "success_first"}).identity() != first.identity()
 
 
 def test_judge_reserve_continues_the_seeded_pair_sequences(episode_table, tmp_path):

@@ -124,3 +124,17 @@ def test_pdf_is_reproducible(tmp_path, make_fit):
     a, _ = saved(convergence_figure({"j": fit}, {}), tmp_path, "a")
     b, _ = saved(convergence_figure({"j": fit}, {}), tmp_path, "b")
     assert a.read_bytes() == b.read_bytes()
+
+
+def test_figures_name_the_interval_and_show_the_reference_interval(tmp_path, make_fit):
+    fit = make_fit({10: {"a": (70, 60, 80), "b": (30, 20, 40)}})
+    fit["interval"], fit["ci_level"] = "unit", 0.95
+    assert convergence_figure({"j": fit}, {}).get_suptitle() == "bands: 95% unit-bootstrap interval"
+    fig = ranking_figure(judge_averaged_scores({"j": fit}), {"a": 0.2, "b": 0.6}, {},
+                         reference_ci={"a": (0.1, 0.35), "b": (0.5, 0.7)})
+    reference = fig.axes[1]
+    assert reference.get_xlabel() == "real success (%, mean over tasks)"
+    bars = [c for c in reference.containers if getattr(c, "errorbar", None) is not None]
+    segments = bars[0].errorbar.lines[2][0].get_segments()
+    np.testing.assert_allclose([[s[0][0], s[1][0]] for s in segments], [[10, 35], [50, 70]])
+    saved(fig, tmp_path)

@@ -22,8 +22,9 @@ def cfg():
     return compose_config(CONF, experiment="smoke")
 
 
-def run_stage(module: str, cfg: dict, slice_: str | None, *args: str) -> None:
-    argv = [module] + (["--cfg", to_json(select(cfg, slice_))] if slice_ else []) + list(args)
+def run_stage(module: str, cfg: dict, slice_: str | tuple[str, ...] | None, *args: str) -> None:
+    slices = (slice_,) if isinstance(slice_, str) else slice_
+    argv = [module] + (["--cfg", to_json(select(cfg, *slices))] if slices else []) + list(args)
     old = sys.argv
     sys.argv = argv
     try:
@@ -51,7 +52,10 @@ def run_dir(tmp_path, verdicts, sim_episodes, make_fit, monkeypatch):
     write_parquet("results/fit/kin.parquet", make_fit({1: {"a": (50, 40, 60), "b": (30, 20, 40), "c": (20, 10, 30)},
                                                       2: {"a": (55, 45, 65), "b": (30, 20, 40), "c": (15, 8, 22)}}))
     metrics = {"spearman": 1.0, "pearson": 0.9, "mmrv": 0.0, "ci_width": 20.0}
-    write_json("results/validate/kin.json", {"average": metrics, "last": metrics})
+    reference = {"success_rate": {"a": 1.0, "b": 0.5, "c": 0.0}, "ci_low": {"a": 1.0, "b": 0.0, "c": 0.0},
+                 "ci_high": {"a": 1.0, "b": 1.0, "c": 0.0}}
+    write_json("results/validate/kin.json", {"average": metrics, "last": metrics, "interval": "binomial",
+                                              "ci_level": 0.95, "reference": reference})
     pd.DataFrame({"episode_a": ["a1"], "episode_b": ["b1"], "choice": ["A"]}).to_csv("annotations.csv", index=False)
     return tmp_path
 
@@ -77,10 +81,16 @@ def test_tables_from_artefacts(run_dir, cfg):
               "results/reference/success.parquet", "--table", "reports/realsim_table.tex",
               "--ranking", "reports/ranking.txt")
     assert r"kin & 1.000 & 0.900 & 0.000 & 20.000 & 1.000 & -- & 0.500 \\" in Path("reports/realsim_table.tex").read_text()
+    assert "50.0 [0.0, 100.0]" in Path("reports/ranking.txt").read_text()  # b's reference with its CI
 
     run_stage("bt_scores_table", cfg, "report.bt_scores_table", "--fits", "results/fit/kin.parquet",
               "--reference", "results/reference/success.parquet", "--out", "reports/bt_scores_table.tex")
     assert r"a & 100.0 & 55.0 {\scriptsize [45.0, 65.0]} \\" in Path("reports/bt_scores_table.tex").read_text()
+    run_stage("bt_scores_table", cfg, "report.bt_scores_table", "--fits", "results/fit/kin.parquet",
+              "--reference", "results/reference/success.parquet", "--validation", "results/validate/kin.json",
+              "--out", "reports/bt_scores_table.tex")
+    assert r"b & 50.0 {\scriptsize [0.0, 100.0]} & 30.0 {\scriptsize [20.0, 40.0]} \\" in Path(
+        "reports/bt_scores_table.tex").read_text()
 
 
 def test_figures_from_artefacts(run_dir, cfg):
@@ -90,7 +100,8 @@ def test_figures_from_artefacts(run_dir, cfg):
                                 "results/judge/kin/verdicts.parquet"),
         "bt_convergence": ("bt_convergence_figure", "report.bt_convergence", "--fits", "results/fit/kin.parquet"),
         "overall_ranking": ("overall_ranking_figure", "report.overall_ranking", "--fits", "results/fit/kin.parquet",
-                            "--reference", "results/reference/success.parquet"),
+                            "--reference", "results/reference/success.parquet", "--validation",
+                            "results/validate/kin.json"),
         "hardware_effort": ("hardware_effort_figure", "report.hardware_effort", "--reference",
                             "results/reference/success.parquet"),
         "case_study_kin": ("case_study_figure", "report.case_study", "--judge", "kin", "--verdicts",
@@ -100,3 +111,99 @@ def test_figures_from_artefacts(run_dir, cfg):
         run_stage(module, cfg, slice_, *args, "--pdf", f"reports/{name}.pdf", "--png", f"reports/{name}.png")
         assert Path(f"reports/{name}.pdf").read_bytes().startswith(b"%PDF")
         assert Path(f"reports/{name}.png").stat().st_size > 1000
+
+
+def judged(rng: np.random.Generator, n: int = 30) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Verdicts shaped like judge_pairs output for three policies, two tasks and three inits per
+    task: every (pair, task, init) is one rollout pair with its own latent preference, judged
+    again whenever it is drawn. Also the pairs table they were judged on."""
+    theta = {"a": 0.8, "b": 0.0, "c": -0.8}
+    rows = []
+    for pi, pj in (("a", "b"), ("a", "c"), ("b", "c")):
+        latent = {}
+        for k in range(n):
+            task, init = ["cup_on_plate", "stack"][k % 2], int(rng.integers(3))
+            p = latent.setdefault((task, init), 1 / (1 + np.exp(-(theta[pi] - theta[pj] + rng.normal(0, 4)))))
+            pa, pb = (pi, pj) if k % 2 else (pj, pi)
+            win_i = rng.random() < p
+            winner = pi if win_i else pj
+            rows.append({"pair_index": k, "policy_i": pi, "policy_j": pj, "task": task, "init_id": init,
+                         "episode_a": f"{pa}-{task}-{init}", "episode_b": f"{pb}-{task}-{init}", "policy_a": pa,
+                         "policy_b": pb, "first_checkpoint": 10 * (k // 10 + 1),
+                         "verdict": "A" if winner == pa else "B", "winner": winner})
+    verdicts = pd.DataFrame(rows)
+    return verdicts, verdicts[list(verdicts.columns[:10])]
+
+
+@pytest.mark.filterwarnings("ignore:.*did not converge:RuntimeWarning")  # a few replicates at the boundary
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules:RuntimeWarning")  # runpy after an import
+def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypatch, cfg):
+    monkeypatch.chdir(tmp_path)
+    verdicts, pairs = judged(np.random.default_rng(0))
+    write_parquet("verdicts.parquet", verdicts)
+    write_parquet("pairs.parquet", pairs)
+    # Policy a: 1.0 and 0.5 on the two tasks (mean 0.75), though pooled trials would give 9/12.
+    write_parquet("success.parquet", pd.DataFrame({
+        "policy": ["a", "a", "b", "b", "c", "c"], "task": ["cup_on_plate", "stack"] * 3,
+        "trials": [8, 4, 6, 6, 6, 6], "successes": [8, 2, 3, 3, 0, 1]}))
+    run_stage("fit", cfg, ("stats", "compare", "seed"), "--verdicts", "verdicts.parquet", "--pairs", "pairs.parquet",
+              "--out", "fit.parquet", "--replicates", "replicates.parquet")
+    fit = pd.read_parquet("fit.parquet")
+    assert sorted(fit["checkpoint"].unique()) == [10, 20, 30] and (fit["interval"] == "unit").all()
+    np.testing.assert_array_equal(fit["ci_low"], fit["ci_low_unit"])
+    np.testing.assert_array_equal(fit["ci_high"], fit["ci_high_unit"])
+    assert (fit["ci_low_binomial"] <= fit["score"]).all() and (fit["score"] <= fit["ci_high_binomial"]).all()
+    # Six rollout pairs per policy pair judged five times each: the unit intervals are wider.
+    last = fit[fit["checkpoint"] == 30]
+    assert (last["units"] == 12).all()  # two policy pairs, six (task, init) each
+    unit_w = (last["ci_high_unit"] - last["ci_low_unit"]).mean()
+    assert unit_w > 1.2 * (last["ci_high_binomial"] - last["ci_low_binomial"]).mean()
+    replicates = pd.read_parquet("replicates.parquet")
+    n_boot = cfg["stats"]["n_boot"]
+    assert len(replicates) == 2 * 3 * n_boot * 3 and set(replicates["interval"]) == {"unit", "binomial"}
+    boot = replicates[(replicates["interval"] == "unit") & (replicates["checkpoint"] == 30)]
+    lows = (100 * boot.pivot(index="replicate", columns="policy", values="strength")).quantile(0.025)
+    np.testing.assert_allclose(last.set_index("policy")["ci_low"], lows.loc[["a", "b", "c"]], rtol=1e-9)
+
+    run_stage("validate", cfg, ("stats", "seed"), "--fit", "fit.parquet", "--replicates", "replicates.parquet",
+              "--reference", "success.parquet", "--out", "validate.json")
+    result = read_json("validate.json")
+    assert result["interval"] == "unit" and result["ci_level"] == 0.95
+    assert result["reference"]["success_rate"]["a"] == pytest.approx(0.75)
+    assert result["reference"]["ci_low"]["a"] < 0.75 < result["reference"]["ci_high"]["a"]
+    assert [r["checkpoint"] for r in result["per_checkpoint"]] == [10, 20, 30]
+    for record in result["per_checkpoint"] + [result["last"]]:
+        for m in ("spearman", "pearson", "mmrv"):
+            assert record[f"{m}_ci_low"] <= record[f"{m}_ci_high"]
+            assert record[f"{m}_ci_low_with_reference"] <= record[f"{m}_ci_high_with_reference"]
+        assert record["ci_width"] == pytest.approx(record["ci_width_unit"])
+        assert record["ci_width_unit"] > record["ci_width_binomial"]
+    # Coupled unit replicates: the average over checkpoints has an interval too.
+    assert result["average"]["spearman_ci_low"] is not None
+
+    # Choosing the binomial interval: the same stored intervals, the other one shown.
+    binomial_cfg = compose_config(CONF, experiment="smoke", overrides=["stats.interval=binomial"])
+    run_stage("fit", binomial_cfg, ("stats", "compare", "seed"), "--verdicts", "verdicts.parquet",
+              "--pairs", "pairs.parquet", "--out", "fit_b.parquet", "--replicates", "replicates_b.parquet")
+    fit_b = pd.read_parquet("fit_b.parquet")
+    assert (fit_b["interval"] == "binomial").all()
+    np.testing.assert_array_equal(fit_b["ci_low"], fit_b["ci_low_binomial"])
+    np.testing.assert_array_equal(fit_b["ci_low_unit"], fit["ci_low_unit"])
+    run_stage("validate", binomial_cfg, ("stats", "seed"), "--fit", "fit_b.parquet", "--replicates",
+              "replicates_b.parquet", "--reference", "success.parquet", "--out", "validate_b.json")
+    result_b = read_json("validate_b.json")
+    assert result_b["interval"] == "binomial" and result_b["average"]["spearman_ci_low"] is None
+    assert result_b["reference"] == result["reference"]  # the same seeded reference bootstrap
+
+
+def test_fit_takes_units_from_the_pairs_and_checks_them():
+    from r2s_eval.stages.fit import with_units
+
+    verdicts, pairs = judged(np.random.default_rng(1), n=10)
+    filled = with_units(verdicts.drop(columns=["task", "init_id"]), pairs)
+    pd.testing.assert_series_equal(filled["init_id"], verdicts["init_id"])
+    stale = pairs.assign(task=pairs["task"].where(pairs["pair_index"] != 3, "other"))
+    with pytest.raises(ValueError, match="disagree on the task"):
+        with_units(verdicts, stale)
+    with pytest.raises(ValueError, match="no pairs table"):
+        with_units(verdicts.drop(columns=["init_id"]))

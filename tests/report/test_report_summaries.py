@@ -54,8 +54,11 @@ def test_success_by_task_cells_and_totals(success):
     assert cells.loc[("a", "t2"), ["real", "sim"]].tolist() == pytest.approx([0.5, 0.5])
     assert cells.loc[("b", "t1"), ["real", "sim"]].tolist() == pytest.approx([0.2, 0.0])
     assert math.isnan(cells.loc[("b", "t2"), "real"]) and cells.loc[("b", "t2"), "sim"] == 1.0
-    assert cells.loc[("a", "total"), ["real", "sim"]].tolist() == pytest.approx([13 / 20, 4 / 6])
+    # Totals are the mean of the per-task rates (every task weighs the same), not pooled trials:
+    # a's sim side is (3/4 + 1/2) / 2 = 0.625, where pooling would give 4/6.
+    assert cells.loc[("a", "total"), ["real", "sim"]].tolist() == pytest.approx([(0.8 + 0.5) / 2, 0.625])
     assert cells.loc[("b", "total"), ["real", "sim"]].tolist() == pytest.approx([0.2, 0.5])
+    assert cells.loc[("a", "total"), ["real_trials", "sim_trials"]].tolist() == [20, 6]
     assert cells.loc[("a", "t1"), ["real_trials", "sim_trials"]].tolist() == [10, 4]
 
 
@@ -63,7 +66,7 @@ def test_success_gaps_in_percentage_points(success):
     gaps = success_gaps(success)
     assert gaps.loc["t1"].tolist() == pytest.approx([12.5, 20.0])  # |80-75| and |20-0|
     assert gaps.loc["t2"].tolist() == pytest.approx([0.0, 0.0])  # b has no real t2 trials
-    assert gaps.loc["total"].tolist() == pytest.approx([(5 / 3 + 30) / 2, 30.0])
+    assert gaps.loc["total"].tolist() == pytest.approx([(2.5 + 30) / 2, 30.0])  # |65-62.5|, |20-50|
 
 
 def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes):
@@ -167,3 +170,15 @@ def test_judge_averaged_scores(make_fit):
     fits["j2"] = make_fit({2: {"a": (50, 40, 60)}})
     with pytest.raises(ValueError, match=r"judge j2: no score for policies \['b'\]"):
         judge_averaged_scores(fits)
+
+
+def test_fit_interval_and_reference_interval(make_fit):
+    from r2s_eval.report import fit_interval, reference_interval
+
+    fit = make_fit({1: {"a": (60, 50, 70)}})
+    assert fit_interval({"j": fit}) == ("binomial", 0.95)  # tables from before the unit bootstrap
+    fit["interval"], fit["ci_level"] = "unit", 0.9
+    assert fit_interval({"j": fit}) == ("unit", 0.9)
+    ref = {"success_rate": {"a": 0.5}, "ci_low": {"a": 0.3}, "ci_high": {"a": 0.7}}
+    assert reference_interval({"j2": {"reference": ref}, "j1": {}}) == {"a": (0.3, 0.7)}
+    assert reference_interval({"j1": {"average": {}}}) == {}

@@ -90,10 +90,10 @@ def test_realsim_success_table():
     table = realsim_success_table(success_by_task(reference, sim))
     check_structure(table)
     assert r"\multicolumn{2}{c}{t1} & \multicolumn{2}{c}{t2} & \multicolumn{2}{c}{Total}" in table
-    assert row(table, "a ") == r"a & 80.0 & 75.0 & 50.0 & 50.0 & 65.0 & 66.7 \\"
+    assert row(table, "a ") == r"a & 80.0 & 75.0 & 50.0 & 50.0 & 65.0 & 62.5 \\"  # totals: mean over tasks
     assert row(table, "b ") == r"b & 20.0 & 0.0 & -- & 100.0 & 20.0 & 50.0 \\"
     assert row(table, "Mean") == (r"Mean $|\Delta|$ (pp) & \multicolumn{2}{c}{12.5} & \multicolumn{2}{c}{0.0}"
-                                  r" & \multicolumn{2}{c}{15.8} \\")
+                                  r" & \multicolumn{2}{c}{16.2} \\")
     assert row(table, "Largest") == (r"Largest gap (pp) & \multicolumn{2}{c}{20.0} & \multicolumn{2}{c}{0.0}"
                                      r" & \multicolumn{2}{c}{30.0} \\")
 
@@ -167,3 +167,56 @@ def test_tables_compile(tmp_path, make_fit):
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-2000:]
     assert (tmp_path / "t.pdf").stat().st_size > 1000
+
+
+def unit_fit(make_fit, scores):
+    """A fit table as the fit stage writes it: ci_low/ci_high are the unit interval."""
+    fit = make_fit(scores)
+    fit["interval"], fit["ci_level"] = "unit", 0.95
+    fit["ci_low_unit"], fit["ci_high_unit"] = fit["ci_low"], fit["ci_high"]
+    fit["ci_low_binomial"], fit["ci_high_binomial"] = fit["score"] - 1, fit["score"] + 1
+    return fit
+
+
+def test_ranking_text_names_the_interval_and_the_reference_definition(make_fit):
+    fit = unit_fit(make_fit, {10: {"a": (70.0, 60.0, 80.0), "b": (30.0, 20.0, 40.0)}})
+    text = ranking_text({"kinematic": fit}, {"a": 0.8, "b": 0.2}, {"a": (0.7, 0.9), "b": (0.1, 0.35)})
+    title, header, *rest = text.splitlines()
+    assert title.endswith("BT score [95% unit-bootstrap CI] #rank")
+    assert "real success %" in header
+    a_line = next(line for line in rest if line.startswith("a "))
+    assert "80.0 [70.0, 90.0]" in a_line and "70.0 [60.0, 80.0] #1" in a_line
+    assert any("task/init rollout pairs" in line for line in rest)
+    assert any(line.startswith("real success %: mean of the per-task success rates") for line in rest)
+    # Older fit tables (no interval column) held the binomial interval.
+    old = ranking_text({"kinematic": make_fit({10: {"a": (70.0, 60.0, 80.0)}})}, {"a": 0.8})
+    assert "[95% binomial-bootstrap CI]" in old.splitlines()[0]
+    fit_b = fit.assign(interval="binomial")
+    with pytest.raises(ValueError, match="disagree"):
+        ranking_text({"j1": fit, "j2": fit_b}, {"a": 0.8, "b": 0.2})
+
+
+def test_realsim_table_note_names_the_interval():
+    v = validation(0.5, 0.6, 0.1, 6.0)
+    v.update(interval="unit", ci_level=0.95)
+    table = realsim_table({"kinematic": v})
+    check_structure(table)
+    lines = table.strip().splitlines()
+    assert lines[-3] == r"\bottomrule"
+    assert lines[-2] == (r"\multicolumn{8}{l}{\footnotesize BT CI: mean 95\% unit-bootstrap CI width (rollout pairs"
+                         r" resampled per task); average over checkpoints.} \\")
+    v["interval"] = "binomial"
+    last = realsim_table({"kinematic": v}, metrics_at="last")
+    assert r"95\% binomial-bootstrap CI width (comparisons redrawn independently); last checkpoint." in last
+
+
+def test_bt_scores_table_reference_interval_and_note(make_fit):
+    fits = {"j1": unit_fit(make_fit, {20: {"a": (25.0, 15.0, 35.0), "b": (75.0, 65.0, 85.0)}})}
+    table = bt_scores_table(fits, {"a": 0.9, "b": 0.3}, reference_ci={"a": (0.8, 0.95), "b": (0.2, 0.4)})
+    check_structure(table.split("\n", 1)[1])
+    comment = table.splitlines()[0]
+    assert "unit-bootstrap CI" in comment and "mean of the per-task success rates" in comment
+    assert row(table, "a ") == r"a & 90.0 {\scriptsize [80.0, 95.0]} & 25.0 {\scriptsize [15.0, 35.0]} \\"
+    assert r"BT: unit bootstrap" in table
+    plain = bt_scores_table(fits, {"a": 0.9, "b": 0.3}, show_ci=False, reference_ci={"a": (0.8, 0.95)})
+    assert row(plain, "a ") == r"a & 90.0 & 25.0 \\" and "Brackets" not in plain

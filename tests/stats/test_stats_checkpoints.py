@@ -9,9 +9,11 @@ from r2s_eval.stats import (
     bootstrap_bradley_terry,
     bt_ci_width,
     checkpoint_metrics,
+    comparison_units,
     fit_bradley_terry,
     mmrv,
     spearman,
+    unit_bootstrap_bradley_terry,
 )
 
 
@@ -83,3 +85,69 @@ def test_input_checks():
         checkpoint_metrics(wins, [0.5, 0.4, 0.3], n_boot=10)
     single = checkpoint_metrics(wins, [0.6, 0.4], n_boot=10)
     assert single.per_checkpoint.shape == (1, 4)
+
+
+@pytest.fixture(scope="module")
+def unit_result():
+    """Three tasks x four inits per pair, 120 comparisons per pair, nested at 40/80/120."""
+    rng = np.random.default_rng(8)
+    theta = np.log([0.35, 0.3, 0.2, 0.15])
+    rows = []
+    for a in range(4):
+        for b in range(a + 1, 4):
+            latent = {}
+            for k in range(120):
+                key = (k % 3, int(rng.integers(4)))
+                latent.setdefault(key, 1 / (1 + np.exp(-(theta[a] - theta[b] + rng.normal(0, 1.5)))))
+                rows.append((a, b, rng.random() < latent[key], key[1], key[0], k))
+    i, j, won, init, task, pos = map(np.array, zip(*rows))
+    units = comparison_units(i, j, won, init, n_policies=4, stratum=task, position=pos, checkpoints=[40, 80, 120])
+    reference = np.array([0.7, 0.5, 0.45, 0.2])
+    reference_boot = np.random.default_rng(0).normal(reference, 0.08, size=(400, 4))
+    metrics = checkpoint_metrics(units, reference, n_boot=400, seed=2, names=list("abcd"),
+                                 reference_boot=reference_boot)
+    return units, reference, reference_boot, metrics
+
+
+def test_units_give_both_intervals_and_show_the_unit_one(unit_result):
+    units, reference, _, m = unit_result
+    assert m.interval == "unit" and set(m.boot_by_interval) == {"unit", "binomial"}
+    np.testing.assert_array_equal(m.checkpoints, [40, 80, 120])
+    np.testing.assert_array_equal(m.boot_strengths, unit_bootstrap_bradley_terry(units, n_boot=400, seed=2))
+    binomial_boot = bootstrap_bradley_terry(units.wins(), n_boot=400, seed=2)
+    np.testing.assert_array_equal(m.boot_by_interval["binomial"], binomial_boot)
+    np.testing.assert_allclose(m.per_checkpoint["ci_width"], bt_ci_width(m.boot_strengths))
+    np.testing.assert_allclose(m.ci_width_by_interval["unit"], m.per_checkpoint["ci_width"])
+    np.testing.assert_allclose(m.ci_width_by_interval["binomial"], bt_ci_width(m.boot_by_interval["binomial"]))
+    # Repeated rollout pairs: the unit interval is the wider one at every checkpoint.
+    assert (m.ci_width_by_interval["unit"] > m.ci_width_by_interval["binomial"]).all()
+    binomial = checkpoint_metrics(units, reference, n_boot=400, seed=2, interval="binomial")
+    np.testing.assert_allclose(binomial.per_checkpoint["ci_width"], m.ci_width_by_interval["binomial"])
+    with pytest.raises(ValueError, match="ComparisonUnits"):
+        checkpoint_metrics(units.wins(), reference, n_boot=10, interval="unit")
+    with pytest.raises(ValueError, match="interval must be one of"):
+        checkpoint_metrics(units, reference, n_boot=10, interval="poisson")
+
+
+def test_metric_intervals_come_from_the_replicates(unit_result):
+    _, reference, reference_boot, m = unit_result
+    boot_scores = 100 * m.boot_strengths
+    for c, label in enumerate(m.checkpoints):
+        for name, fn in (("spearman", spearman), ("mmrv", mmrv)):
+            judge_side = [fn(s, reference) for s in boot_scores[c]]
+            both = [fn(s, r) for s, r in zip(boot_scores[c], reference_boot)]
+            lo, hi = np.nanpercentile(judge_side, [2.5, 97.5])
+            assert m.metric_ci.loc[label, f"{name}_low"] == pytest.approx(lo)
+            assert m.metric_ci.loc[label, f"{name}_high"] == pytest.approx(hi)
+            lo, hi = np.nanpercentile(both, [2.5, 97.5])
+            assert m.metric_ci.loc[label, f"{name}_low_with_reference"] == pytest.approx(lo)
+            assert m.metric_ci.loc[label, f"{name}_high_with_reference"] == pytest.approx(hi)
+    # The reference's own uncertainty widens the Pearson interval.
+    judge_width = m.metric_ci["pearson_high"] - m.metric_ci["pearson_low"]
+    both_width = m.metric_ci["pearson_high_with_reference"] - m.metric_ci["pearson_low_with_reference"]
+    assert (both_width > judge_width).all()
+    # The unit bootstrap's replicates are coupled across checkpoints: the average has an interval.
+    per_replicate = np.mean([[spearman(s, reference) for s in boot_scores[c]] for c in range(3)], axis=0)
+    assert m.average_ci["spearman_low"] == pytest.approx(np.percentile(per_replicate, 2.5))
+    binomial = checkpoint_metrics(unit_result[0], reference, n_boot=50, seed=2, interval="binomial")
+    assert np.isnan(binomial.average_ci["spearman_low"])  # independent draws per checkpoint: none

@@ -112,3 +112,23 @@ def test_position_bias():
     assert math.isnan(position_bias(letters, np.zeros(6, dtype=bool)).same_outcome)
     with pytest.raises(ValueError, match="6 booleans"):
         position_bias(letters, [1, 0, 1, 0, 1, 0])
+
+
+def test_batched_metrics_match_the_scalar_ones():
+    from r2s_eval.stats import mmrv_batch, pearson_batch, spearman_batch
+
+    rng = np.random.default_rng(0)
+    scores = rng.integers(0, 5, size=(200, 6)).astype(float)  # ties on both sides
+    reference = rng.integers(0, 4, size=(200, 6)) / 4
+    scores[3] = 2.0  # a constant row: correlations undefined
+    reference[4] = 0.5
+    for batch, scalar in ((spearman_batch, spearman), (pearson_batch, pearson), (mmrv_batch, mmrv)):
+        got = batch(scores, reference)
+        want = np.array([scalar(s, r) for s, r in zip(scores, reference)])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12, equal_nan=True)
+    # A fixed reference broadcasts against a stack of replicates (..., n_boot, P).
+    stack = scores.reshape(4, 50, 6)
+    np.testing.assert_allclose(spearman_batch(stack, reference[0])[1, 7], spearman(stack[1, 7], reference[0]))
+    assert math.isnan(pearson_batch(scores, reference)[3]) and math.isnan(spearman_batch(scores, reference)[4])
+    with pytest.raises(ValueError, match="same number of policies"):
+        spearman_batch(scores, reference[:, :5])

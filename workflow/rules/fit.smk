@@ -1,29 +1,33 @@
-# Bradley-Terry fit with bootstrap CIs at every checkpoint, then validation vs the reference.
+# Bradley-Terry fit with bootstrap CIs at every checkpoint (binomial and unit bootstrap; the
+# unit of a comparison is its policy pair, task and init_id, kept in the verdicts and checked
+# against the sampled pairs), then validation vs the reference with metric CIs.
 rule fit:
     input:
         verdicts="results/judge/{judge}/verdicts.parquet",
         pairs="results/compare/pairs.parquet",
     output:
-        "results/fit/{judge}.parquet",
+        fit="results/fit/{judge}.parquet",
+        replicates="results/fit/{judge}.replicates.parquet",
     params:
         cfg=params_of("stats", "compare", "seed"),
     log:
         "logs/fit/{judge}.log",
     shell:
-        "{PY} -m r2s_eval.stages.fit --cfg {params.cfg:q} --verdicts {input.verdicts}"
-        " --out {output} > {log} 2>&1"
+        "{PY} -m r2s_eval.stages.fit --cfg {params.cfg:q} --verdicts {input.verdicts} --pairs {input.pairs}"
+        " --out {output.fit} --replicates {output.replicates} > {log} 2>&1"
 
 
 rule validate:
     input:
         fit="results/fit/{judge}.parquet",
+        replicates="results/fit/{judge}.replicates.parquet",
         reference="results/reference/success.parquet",
     output:
         "results/validate/{judge}.json",
     params:
-        cfg=params_of("stats"),
+        cfg=params_of("stats", "seed"),
     log:
         "logs/validate/{judge}.log",
     shell:
-        "{PY} -m r2s_eval.stages.validate --cfg {params.cfg:q} --fit {input.fit}"
+        "{PY} -m r2s_eval.stages.validate --cfg {params.cfg:q} --fit {input.fit} --replicates {input.replicates}"
         " --reference {input.reference} --out {output} > {log} 2>&1"

@@ -94,6 +94,7 @@ rule bt_scores_table:
     input:
         fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
         reference="results/reference/success.parquet",
+        validation=expand("results/validate/{judge}.json", judge=JUDGES),  # the reference's CI
     output:
         "reports/bt_scores_table.tex",
     params:
@@ -102,7 +103,7 @@ rule bt_scores_table:
         "logs/report/bt_scores_table.log",
     shell:
         "{PY} -m r2s_eval.stages.bt_scores_table --cfg {params.cfg:q} --fits {input.fits}"
-        " --reference {input.reference} --out {output} > {log} 2>&1"
+        " --reference {input.reference} --validation {input.validation} --out {output} > {log} 2>&1"
 
 
 rule win_rate_matrix:
@@ -139,6 +140,7 @@ rule overall_ranking:
     input:
         fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
         reference="results/reference/success.parquet",
+        validation=expand("results/validate/{judge}.json", judge=JUDGES),  # the reference's CI
     output:
         pdf="reports/overall_ranking.pdf",
         png="reports/overall_ranking.png",
@@ -148,7 +150,8 @@ rule overall_ranking:
         "logs/report/overall_ranking.log",
     shell:
         "{PY} -m r2s_eval.stages.overall_ranking_figure --cfg {params.cfg:q} --fits {input.fits}"
-        " --reference {input.reference} --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+        " --reference {input.reference} --validation {input.validation} --pdf {output.pdf} --png {output.png}"
+        " > {log} 2>&1"
 
 
 rule hardware_effort:

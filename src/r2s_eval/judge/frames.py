@@ -1,9 +1,15 @@
-"""Turn a rollout video into what a VLM is shown: frames sampled at a fixed rate, within a budget.
+"""Turn a rollout video into what a VLM is shown: the same number of frames for every clip.
 
-Frames are taken at ``fps`` (10 per second by default) from the decoded video; when that gives
-more than ``max_frames``, they are either spread uniformly over the whole video ("subsample", the
-default: the model still sees the end, where success is decided) or cut after the first
-``max_frames`` ("truncate"). ``max_side_px`` optionally shrinks frames (keeping the aspect ratio).
+Every clip becomes exactly ``n_frames`` frames (the judge's ``max_frames``, 32 by default), taken
+at evenly spaced positions from its first frame to its last; a clip with fewer decoded frames than
+that repeats some of them. Why a fixed count and not a fixed rate: episodes stop shortly after
+success and run to the time limit otherwise, so a frame count that grows with the clip (or a
+stated duration, frame rate or timestamp) would tell successes from failures without looking at
+the robot. A ``Clip`` therefore carries the pixels and nothing about timing, and the one video
+part sent in ``video`` mode is encoded at a fixed rate (``VIDEO_PART_FPS``), so its frame count,
+rate and duration are the same for every clip too. The first and last frames are always included:
+the end is where success is decided. ``max_side_px`` optionally shrinks frames (keeping the aspect
+ratio).
 """
 
 from __future__ import annotations
@@ -17,16 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-OVER_BUDGET = ("subsample", "truncate")
+# Frame rate written into the video part of ``video`` mode. Fixed, never the clip's own, so the
+# container's duration and timestamps (which e.g. Qwen-VL servers turn into text) are the same for
+# every clip: n_frames / VIDEO_PART_FPS seconds. 2 is the rate vLLM samples Qwen-VL videos at, so
+# the server keeps every frame it is sent.
+VIDEO_PART_FPS = 2
 
 
 @dataclass(frozen=True)
 class Clip:
-    """Sampled frames of one video: (T, H, W, 3) uint8, their times, and a content hash."""
+    """The frames of one video as a judge sees them: (n_frames, H, W, 3) uint8, nothing else."""
 
     frames: np.ndarray
-    times_s: np.ndarray
-    duration_s: float
 
     @property
     def sha256(self) -> str:
@@ -34,29 +42,20 @@ class Clip:
         h.update(np.ascontiguousarray(self.frames).tobytes())
         return h.hexdigest()
 
-    @property
-    def fps(self) -> float:
-        """Average rate of the sampled frames over the video."""
-        return len(self.frames) / self.duration_s if self.duration_s > 0 else float(len(self.frames))
 
-
-def _decode(path: Path) -> tuple[list[np.ndarray], np.ndarray, float]:
+def _decode(path: Path) -> list[np.ndarray]:
     import av
 
-    frames, times = [], []
+    frames = []
     try:
         with av.open(str(path)) as container:
-            stream = container.streams.video[0]
-            rate = float(stream.average_rate or stream.guessed_rate or 10)
             for f in container.decode(video=0):
                 frames.append(f.to_ndarray(format="rgb24"))
-                times.append(float(f.time) if f.time is not None else len(times) / rate)
     except (av.error.FFmpegError, IndexError) as e:
         raise ValueError(f"{path}: cannot decode video ({e})") from e
     if not frames:
         raise ValueError(f"{path}: the video has no frames")
-    t = np.asarray(times) - times[0]
-    return frames, t, float(t[-1] + 1.0 / rate)
+    return frames
 
 
 def _resize(frames: np.ndarray, max_side_px: int | None) -> np.ndarray:
@@ -70,30 +69,22 @@ def _resize(frames: np.ndarray, max_side_px: int | None) -> np.ndarray:
     return np.stack([np.asarray(Image.fromarray(f).resize(size, Image.BICUBIC)) for f in frames])
 
 
-def sample_clip(
-    path: str | Path,
-    fps: float = 10.0,
-    max_frames: int = 32,
-    over_budget: str = "subsample",
-    max_side_px: int | None = None,
-) -> Clip:
-    if fps <= 0 or max_frames < 1:
-        raise ValueError(f"frame sampling needs fps > 0 and max_frames >= 1, got {fps}, {max_frames}")
-    if over_budget not in OVER_BUDGET:
-        raise ValueError(f"over_budget must be one of {OVER_BUDGET}, got {over_budget!r}")
-    path = Path(path)
-    frames, t, duration = _decode(path)
-    targets = np.arange(0.0, duration - 1e-9, 1.0 / fps)
-    # The frame shown at each target time; a higher rate than the video's repeats no frame.
-    idx = np.unique(np.clip(np.searchsorted(t, targets + 1e-6, side="right") - 1, 0, len(frames) - 1))
-    if len(idx) > max_frames:
-        if over_budget == "subsample":
-            idx = idx[np.round(np.linspace(0, len(idx) - 1, max_frames)).astype(int)]
-        else:
-            idx = idx[:max_frames]
-            duration = float(t[idx[-1]] + 1.0 / fps)
-    arr = _resize(np.stack([frames[i] for i in idx]), max_side_px)
-    return Clip(frames=arr, times_s=t[idx], duration_s=duration)
+def frame_indices(n_decoded: int, n_frames: int) -> np.ndarray:
+    """`n_frames` indices into a clip of `n_decoded` frames, evenly spaced from the first to the last.
+
+    Always exactly `n_frames` of them, whatever `n_decoded` is (a short clip repeats frames), so the
+    number of frames shown never depends on the clip's length.
+    """
+    if n_decoded < 1 or n_frames < 1:
+        raise ValueError(f"frame sampling needs a decoded and a requested frame, got {n_decoded}, {n_frames}")
+    return np.round(np.linspace(0, n_decoded - 1, n_frames)).astype(int)
+
+
+def sample_clip(path: str | Path, n_frames: int = 32, max_side_px: int | None = None) -> Clip:
+    """Exactly `n_frames` frames of the video at `path`, spread evenly over it (see the module docstring)."""
+    frames = _decode(Path(path))
+    idx = frame_indices(len(frames), int(n_frames))
+    return Clip(frames=_resize(np.stack([frames[i] for i in idx]), max_side_px))
 
 
 def jpeg_data_urls(clip: Clip, quality: int = 90) -> list[str]:
@@ -108,7 +99,7 @@ def jpeg_data_urls(clip: Clip, quality: int = 90) -> list[str]:
 
 
 def mp4_data_url(clip: Clip) -> str:
-    """The sampled frames as one H.264 video at their own rate (for servers that take video parts)."""
+    """The frames as one H.264 video at ``VIDEO_PART_FPS`` (for servers that take video parts)."""
     from r2s_eval.rollout.video import write_video
 
     frames = clip.frames
@@ -117,7 +108,7 @@ def mp4_data_url(clip: Clip) -> str:
         frames = frames[:, : h // 2 * 2, : w // 2 * 2]
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "clip.mp4"
-        write_video(out, list(frames), fps=max(1, round(clip.fps)))
+        write_video(out, list(frames), fps=VIDEO_PART_FPS)
         return "data:video/mp4;base64," + base64.b64encode(out.read_bytes()).decode()
 
 

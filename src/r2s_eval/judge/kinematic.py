@@ -13,7 +13,8 @@ Describe (per rollout, from the trajectory only):
     end-effector direction reversals per second;
   * task progress: max and final progress, label "successful" (final progress reaches
     ``success_progress``), "partially successful" (max progress >= ``partial_min_progress``)
-    or "failed". The episode table's success column is never read;
+    or "failed". The episode table's success column is never read, and the description states
+    neither the episode's duration nor when it reached completion;
   * force/effort control: peak contact force, mean force while in contact, impacts (force
     rises of more than ``impact_jump_n`` within one step).
 
@@ -116,7 +117,7 @@ def _g(x: float) -> str:
 class KinematicJudge(Judge):
     """Offline trajectory-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
-    prompt_version = "kinematic-v1"
+    prompt_version = "kinematic-v2"  # v2: descriptions state no episode duration
     inputs = ("trajectory",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -146,6 +147,10 @@ class KinematicJudge(Judge):
         prog = T.progress_metrics(tr, c["success_progress"], c["partial_min_progress"])
         force = T.force_metrics(tr, c["contact_threshold_n"], c["impact_jump_n"])
         label = prog.pop("label")
+        # Episodes stop soon after success, so the episode's length (and when it reached
+        # completion) would restate the outcome: the description states neither.
+        for key in ("duration_s", "time_to_success_s", "time_to_max_progress_s"):
+            prog.pop(key)
 
         words = {k: self._word(k, ev) for k, ev in
                  (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
@@ -159,11 +164,8 @@ class KinematicJudge(Judge):
             f"(longest idle {_g(cont['longest_idle_s'])} s), {cont['pauses']} stop-and-go pauses, "
             f"{cont['reversals']} end-effector direction reversals ({_g(cont['reversals_per_s'])}/s)."
         )
-        when = (f"reached completion at {_g(prog['time_to_success_s'])} s"
-                if prog["time_to_success_s"] is not None else "never reached completion")
         p_text = (
-            f"Task {label}: progress peaked at {prog['max_progress']:.2f} and ended at {prog['final_progress']:.2f} "
-            f"over {_g(prog['duration_s'])} s; it {when}."
+            f"Task {label}: progress peaked at {prog['max_progress']:.2f} and ended at {prog['final_progress']:.2f}."
         )
         f_text = (
             f"Contact is {words['force_control']}: peak force {_g(force['peak_force_n'])} N, mean "

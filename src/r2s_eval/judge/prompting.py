@@ -1,8 +1,20 @@
 """Prompt templates (package data under ``prompts/``), rendering, and strict parsing of replies.
 
 The templates take the task instruction and the recordings (or the two descriptions) and nothing
-else: no policy, checkpoint, file name or outcome can reach a prompt, because no template has a
-field for it and ``render`` refuses fields a template does not name.
+else: no policy, checkpoint, file name, outcome, duration, frame count or frame rate can reach a
+prompt, because no template has a field for it and ``render`` refuses fields a template does not
+name.
+
+Prompt sets (the VLM judges' ``prompt_set`` key) pick the compare wording:
+
+* ``balanced`` (default): the four criteria (motion smoothness, action continuity, task success,
+  force/effort control) are weighed together, none before the others, as the method prescribes;
+* ``success_first``: task success decides first, the other criteria break ties (an option, not
+  the method).
+
+The describe, system and re-ask prompts are shared. Every set's resolved texts are hashed into
+the judge's cache identity (``templates_sha``), so answers of different sets, or of an edited
+prompt, never mix.
 """
 
 from __future__ import annotations
@@ -17,6 +29,14 @@ from typing import Any
 from r2s_eval.judge.base import CRITERIA, CriterionNote, Description
 
 TEMPLATES: tuple[str, ...] = ("system", "describe", "compare", "compare_videos", "reask")
+DEFAULT_PROMPT_SET = "balanced"
+# Template name -> file under prompts/, per prompt set (flat files: the package data is prompts/*.txt).
+_SHARED = {"system": "system.txt", "describe": "describe.txt", "reask": "reask.txt"}
+PROMPT_FILES: dict[str, dict[str, str]] = {
+    s: {**_SHARED, "compare": f"compare.{s}.txt", "compare_videos": f"compare_videos.{s}.txt"}
+    for s in ("balanced", "success_first")
+}
+PROMPT_SETS: tuple[str, ...] = tuple(PROMPT_FILES)
 
 # Section headings as they appear in a description, in order; "task_progress" is asked for as
 # "Task success" (the label is the explicit outcome).
@@ -59,31 +79,42 @@ _LETTER_RE = re.compile(
 )
 
 
+def check_prompt_set(prompt_set: str) -> str:
+    if prompt_set not in PROMPT_FILES:
+        raise ValueError(f"unknown prompt_set {prompt_set!r}; known: {list(PROMPT_SETS)}")
+    return prompt_set
+
+
 @cache
-def template(name: str) -> str:
+def _read(filename: str) -> str:
+    return resources.files("r2s_eval.judge").joinpath("prompts", filename).read_text(encoding="utf-8")
+
+
+def template(name: str, prompt_set: str = DEFAULT_PROMPT_SET) -> str:
     if name not in TEMPLATES:
         raise KeyError(f"unknown prompt template {name!r}; known: {TEMPLATES}")
-    return resources.files("r2s_eval.judge").joinpath("prompts", f"{name}.txt").read_text(encoding="utf-8")
+    return _read(PROMPT_FILES[check_prompt_set(prompt_set)][name])
 
 
-def templates_sha() -> str:
-    """sha256 over all templates: part of every VLM cache key, so an edited prompt is asked anew."""
-    h = hashlib.sha256()
+def templates_sha(prompt_set: str = DEFAULT_PROMPT_SET) -> str:
+    """sha256 over the set's name and every template text it uses: part of every VLM cache key, so
+    an edited prompt is asked anew and answers of different prompt sets never mix."""
+    h = hashlib.sha256(b"prompt_set\0" + check_prompt_set(prompt_set).encode() + b"\0")
     for name in TEMPLATES:
-        h.update(name.encode() + b"\0" + template(name).encode() + b"\0")
+        h.update(name.encode() + b"\0" + template(name, prompt_set).encode() + b"\0")
     return h.hexdigest()
 
 
-def fields(name: str) -> set[str]:
-    return {f for _, f, _, _ in string.Formatter().parse(template(name)) if f}
+def fields(name: str, prompt_set: str = DEFAULT_PROMPT_SET) -> set[str]:
+    return {f for _, f, _, _ in string.Formatter().parse(template(name, prompt_set)) if f}
 
 
-def render(name: str, **values: Any) -> str:
-    """Fill template `name`; every field must be given and no other value is accepted."""
-    need = fields(name)
+def render(name: str, *, prompt_set: str = DEFAULT_PROMPT_SET, **values: Any) -> str:
+    """Fill template `name` of `prompt_set`; every field must be given and no other value is accepted."""
+    need = fields(name, prompt_set)
     if set(values) != need:
         raise ValueError(f"prompt {name!r} takes fields {sorted(need)}, got {sorted(values)}")
-    return template(name).format(**values).strip()
+    return template(name, prompt_set).format(**values).strip()
 
 
 def split_on(text: str, *markers: str) -> list[str]:

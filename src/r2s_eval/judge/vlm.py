@@ -9,6 +9,11 @@
   reply is asked once more (``reask`` prompt), then ``InvalidAnswer`` is raised;
 * compare_videos (one-step mode): show both videos directly (``compare_videos`` prompt).
 
+What a model receives besides the pixels is the same for every episode of a task: the prompt text
+of the chosen ``prompt_set`` with the task instruction filled in (no duration, frame count, frame
+rate, file name or id), and exactly ``max_frames`` frames per clip whatever its length. Episodes
+stop soon after success, so any of those would tell a success from a failure without looking.
+
 Messages are backend-neutral: ``[{"role": ..., "content": [str | Clip, ...]}]``. Every request is
 kept in a content-addressed request cache when the stage driver attaches one, so a run killed
 between an invalid answer and its re-ask repeats neither.
@@ -26,8 +31,10 @@ from typing import Any, ClassVar
 
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
-from r2s_eval.judge.frames import OVER_BUDGET, Clip, sample_clip
+from r2s_eval.judge.frames import Clip, sample_clip
 from r2s_eval.judge.prompting import (
+    DEFAULT_PROMPT_SET,
+    check_prompt_set,
     description_text,
     parse_description,
     parse_letter,
@@ -46,9 +53,10 @@ COMMON_DEFAULTS: dict[str, Any] = {
     "backend": None,
     "name": None,
     "model": None,  # required: the served model name, or a checkpoint path / hub id
-    "fps": 10.0,  # frames sampled per second of video
-    "max_frames": 32,  # frame budget per video
-    "over_budget": "subsample",  # or "truncate"
+    # Frames shown per video: always exactly this many, spread evenly from the first frame to the
+    # last (a short clip repeats frames), so the count never reveals the episode's length.
+    "max_frames": 32,
+    "prompt_set": DEFAULT_PROMPT_SET,  # "balanced" (the four criteria weighed equally) or "success_first"
     "max_side_px": None,  # shrink frames so the longer side is at most this
     "max_new_tokens": 1024,
     "system_role": True,  # False: the system text opens the user turn (models without a system role)
@@ -74,7 +82,7 @@ def merge_config(kind: str, defaults: Mapping[str, Any], cfg: Mapping[str, Any])
 class VLMJudge(Judge):
     """Base of the VLM backends (see the module docstring)."""
 
-    prompt_version = "vlm-v1"
+    prompt_version = "vlm-v2"  # v2: fixed frame count, no durations in prompts, prompt sets
     inputs = ("video",)
     DEFAULTS: ClassVar[dict[str, Any]] = COMMON_DEFAULTS
     # Keys that say how to reach or run the model, not what it answers: outside the cache keys.
@@ -82,20 +90,32 @@ class VLMJudge(Judge):
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         super().__init__(cfg)
+        removed = sorted({"fps", "over_budget"} & set(self.cfg))
+        if removed:
+            raise ValueError(
+                f"{self.backend} judge: {removed} no longer exist; every video is shown as exactly max_frames "
+                "frames spread over the whole clip, so the number of frames cannot reveal its length"
+            )
         self.cfg = merge_config(self.backend, self.DEFAULTS, self.cfg)
         if self.cfg["backend"] != self.backend:
             raise ValueError(f"{self.backend} judge built with backend {self.cfg['backend']!r}")
         if not self.cfg["model"]:
             raise ValueError(f"{self.backend} judge needs a 'model'")
-        if self.cfg["over_budget"] not in OVER_BUDGET:
-            raise ValueError(f"{self.backend} judge: over_budget must be one of {OVER_BUDGET}")
-        if not float(self.cfg["fps"]) > 0 or int(self.cfg["max_frames"]) < 1 or int(self.cfg["max_new_tokens"]) < 1:
-            raise ValueError(f"{self.backend} judge: fps, max_frames and max_new_tokens must be positive")
+        try:
+            check_prompt_set(self.cfg["prompt_set"])
+        except ValueError as e:
+            raise ValueError(f"{self.backend} judge: {e}") from None
+        if int(self.cfg["max_frames"]) < 1 or int(self.cfg["max_new_tokens"]) < 1:
+            raise ValueError(f"{self.backend} judge: max_frames and max_new_tokens must be positive")
+        self.prompt_set = str(self.cfg["prompt_set"])
         self._requests: AnswerCache | None = None
+        # Every key that changes an answer is in the cache identity: the answer config (prompt_set
+        # included) and the hash of the set's prompt texts, so another set or an edited prompt
+        # file gets new keys at both cache levels (per stage answer and per request).
         self._identity = {
             "backend": self.backend,
             "answer_config": config_hash({k: v for k, v in self.cfg.items() if k not in self.TRANSPORT_KEYS}),
-            "prompts": templates_sha(),
+            "prompts": templates_sha(self.prompt_set),
             "prompt_version": self.prompt_version,
         }
 
@@ -104,8 +124,9 @@ class VLMJudge(Judge):
         return str(self.cfg.get("name") or self.cfg["model"])
 
     def identity(self) -> dict[str, str]:
-        """Model, generation and frame settings, and the prompt templates; not the judge's name or
-        server address, so every judge entry and rerun using the same model shares the answers."""
+        """Model, generation and frame settings, the prompt set and its template texts; not the
+        judge's name or server address, so every judge entry and rerun using the same model shares
+        the answers."""
         return dict(self._identity)
 
     def attach_cache(self, cache_dir: str | Path) -> None:
@@ -139,7 +160,7 @@ class VLMJudge(Judge):
         return reply
 
     def _messages(self, content: list[Any]) -> list[dict[str, Any]]:
-        system = render("system")
+        system = render("system", prompt_set=self.prompt_set)
         if self.cfg["system_role"]:
             return [{"role": "system", "content": [system]}, {"role": "user", "content": content}]
         return [{"role": "user", "content": [system + "\n\n", *content]}]
@@ -147,8 +168,7 @@ class VLMJudge(Judge):
     def _clip(self, path: Path | None) -> Clip:
         if path is None:
             raise ValueError(f"the {self.backend} judge watches videos; the rollout input has no video_path")
-        c = self.cfg
-        return sample_clip(path, float(c["fps"]), int(c["max_frames"]), c["over_budget"], c["max_side_px"])
+        return sample_clip(path, int(self.cfg["max_frames"]), self.cfg["max_side_px"])
 
     def _ask_letter(self, content: list[Any]) -> Verdict:
         messages = self._messages(content)
@@ -159,7 +179,7 @@ class VLMJudge(Judge):
         record_usage(reasks=1)
         again = messages + [
             {"role": "assistant", "content": [first.text]},
-            {"role": "user", "content": [render("reask")]},
+            {"role": "user", "content": [render("reask", prompt_set=self.prompt_set)]},
         ]
         second = self._chat(again)
         letter = parse_letter(second.text)
@@ -170,25 +190,20 @@ class VLMJudge(Judge):
     # ------------------------------------------------------------------ the method
     def describe(self, rollout: RolloutInput) -> Description:
         clip = self._clip(rollout.video_path)
-        text = render(
-            "describe", instruction=rollout.instruction, n_frames=len(clip.frames),
-            duration_s=f"{clip.duration_s:.1f}", video=_VIDEO,
-        )
+        text = render("describe", prompt_set=self.prompt_set, instruction=rollout.instruction, video=_VIDEO)
         content = [clip if p == _VIDEO else p for p in split_on(text, _VIDEO)]
         return parse_description(self._chat(self._messages(content)).text, judge=str(self.cfg["model"]))
 
     def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
         text = render(
-            "compare", instruction=instruction, description_a=description_text(a), description_b=description_text(b)
+            "compare", prompt_set=self.prompt_set, instruction=instruction,
+            description_a=description_text(a), description_b=description_text(b),
         )
         return self._ask_letter([text])
 
     def compare_videos(self, a: RolloutInput, b: RolloutInput, instruction: str) -> Verdict:
         ca, cb = self._clip(a.video_path), self._clip(b.video_path)
-        text = render(
-            "compare_videos", instruction=instruction,
-            n_frames_a=len(ca.frames), duration_a_s=f"{ca.duration_s:.1f}", video_a=_VIDEO_A,
-            n_frames_b=len(cb.frames), duration_b_s=f"{cb.duration_s:.1f}", video_b=_VIDEO_B,
-        )
+        text = render("compare_videos", prompt_set=self.prompt_set, instruction=instruction,
+                      video_a=_VIDEO_A, video_b=_VIDEO_B)
         clips = {_VIDEO_A: ca, _VIDEO_B: cb}
         return self._ask_letter([clips.get(p, p) for p in split_on(text, _VIDEO_A, _VIDEO_B)])

@@ -16,10 +16,12 @@ from r2s_eval.report.figures import (
 from r2s_eval.report.frames import sample_frames
 from r2s_eval.report.summaries import (
     agreement_with_annotations,
+    fit_interval,
     judge_audit,
     judge_averaged_scores,
     last_checkpoint,
     pick_case_study,
+    reference_interval,
     success_by_task,
     success_gaps,
     swap_consistency,
@@ -40,6 +42,7 @@ __all__ = [
     "bt_scores_table",
     "case_study_figure",
     "convergence_figure",
+    "fit_interval",
     "hardware_effort_figure",
     "judge_audit",
     "judge_averaged_scores",
@@ -51,6 +54,7 @@ __all__ = [
     "ranking_text",
     "realsim_success_table",
     "realsim_table",
+    "reference_interval",
     "sample_frames",
     "save_figure",
     "success_by_task",

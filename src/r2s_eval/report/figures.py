@@ -19,6 +19,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from r2s_eval.report.summaries import fit_interval
 from r2s_eval.stats import spearman
 from r2s_eval.utils.io import atomic_path
 
@@ -78,8 +79,8 @@ def win_rate_figure(rates: pd.DataFrame, judge: str, opts: Mapping) -> Figure:
 
 def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figure:
     """One panel per judge: each policy's BT score over the checkpoints with its bootstrap
-    interval as a band. Options: columns (panels per row), band_alpha, marker; width_in and
-    height_in are per panel."""
+    interval as a band (the fits' ``interval``, named in the figure title). Options: columns
+    (panels per row), band_alpha, marker; width_in and height_in are per panel."""
     judges = sorted(fits)
     if not judges:
         raise ValueError("no fit tables to plot")
@@ -111,16 +112,21 @@ def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figur
             ax.set_visible(False)
         handles, labels = axes.flat[0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="outside lower center", ncols=min(len(labels), 4), frameon=False)
+        interval, level = fit_interval(dict(fits))
+        fig.suptitle(f"bands: {100 * level:g}% {interval}-bootstrap interval", fontsize="medium")
     return fig
 
 
 # -------------------------------------------------------------- overall ranking
 
 
-def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], opts: Mapping) -> Figure:
+def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], opts: Mapping,
+                   reference_ci: Mapping[str, tuple] | None = None) -> Figure:
     """Two panels sharing the policy axis, ordered by reference success: the judge-averaged
     BT score at the last checkpoint (bars, judge-averaged bootstrap interval as error bars,
-    each judge as a dot) and the reference success rate. Options: score_color, reference_color."""
+    each judge as a dot) and the reference performance, the mean of the per-task success
+    rates (with ``reference_ci``, {policy: (low, high)} as fractions, as error bars).
+    Options: score_color, reference_color."""
     missing = sorted(set(averaged.index) - set(reference_rate))
     if missing:
         raise ValueError(f"no reference success rate for policies {missing}")
@@ -140,8 +146,14 @@ def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], 
         ax_s.set_yticks(y, policies)
         ax_s.set_xlabel("BT score $s$ (judge average)")
         ax_s.set_title(f"Preference ({len(judges)} judge{'s' if len(judges) != 1 else ''})")
-        ax_r.barh(y, ref, color=opts.get("reference_color", "#55A868"))
-        ax_r.set_xlabel("real success rate (%)")
+        ref_err = None
+        if reference_ci:
+            bounds = np.array([[100 * (reference_ci.get(p) or (np.nan, np.nan))[k] for p in policies] for k in (0, 1)],
+                              dtype=float)
+            ref_err = np.nan_to_num(np.vstack([ref - bounds[0], bounds[1] - ref]).clip(min=0))
+        ax_r.barh(y, ref, xerr=ref_err, color=opts.get("reference_color", "#55A868"),
+                  capsize=3 if ref_err is not None else 0)
+        ax_r.set_xlabel("real success (%, mean over tasks)")
         ax_r.set_xlim(0, 100)
         ax_r.set_title("Reference")
         rho = spearman(avg["score"].to_numpy(), ref) if len(policies) > 1 else float("nan")

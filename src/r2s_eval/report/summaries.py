@@ -54,13 +54,14 @@ def task_summary(index: pd.DataFrame, replay_log: pd.DataFrame) -> pd.DataFrame:
 
 
 def success_by_task(reference: pd.DataFrame, sim_episodes: pd.DataFrame) -> pd.DataFrame:
-    """Real and sim success rate per (policy, task), plus each policy's pooled total.
+    """Real and sim success rate per (policy, task), plus each policy's total.
 
     ``reference``: the reference table (policy, task, trials, successes); ``sim_episodes``:
     sim rollout episodes (policy, task, success). Returns one row per (policy, task) that
     either side has, with columns policy, task, real, sim (fractions; NaN where a side lacks
-    that cell), real_trials, sim_trials, and rows with task ``"total"`` holding the
-    trials-weighted rate over the tasks a side has.
+    that cell), real_trials, sim_trials, and rows with task ``"total"`` holding the mean of
+    the per-task rates over the tasks a side has (the method's policy-level performance:
+    every task weighs the same) and the summed trials.
     """
     _require(reference, ["policy", "task", "trials", "successes"], "reference success table")
     _require(sim_episodes, ["policy", "task", "success"], "sim rollout episodes")
@@ -68,16 +69,16 @@ def success_by_task(reference: pd.DataFrame, sim_episodes: pd.DataFrame) -> pd.D
     sim = sim_episodes.assign(success=sim_episodes["success"].astype(bool)).groupby(["policy", "task"])["success"].agg(
         successes_sim="sum", trials_sim="size")
     cells = real.join(sim, how="outer")
-    totals = cells.groupby(level="policy").sum(min_count=1)
-    totals.index = pd.MultiIndex.from_product([totals.index, ["total"]], names=["policy", "task"])
-    both = pd.concat([cells, totals])
-    out = pd.DataFrame({
-        "real": both["successes_real"] / both["trials_real"],
-        "sim": both["successes_sim"] / both["trials_sim"],
-        "real_trials": both["trials_real"].fillna(0).astype(int),
-        "sim_trials": both["trials_sim"].fillna(0).astype(int),
+    rates = pd.DataFrame({
+        "real": cells["successes_real"] / cells["trials_real"].where(cells["trials_real"] > 0),
+        "sim": cells["successes_sim"] / cells["trials_sim"].where(cells["trials_sim"] > 0),
+        "real_trials": cells["trials_real"].fillna(0).astype(int),
+        "sim_trials": cells["trials_sim"].fillna(0).astype(int),
     })
-    return out.reset_index()
+    by_policy = rates.groupby(level="policy")
+    totals = pd.concat([by_policy[["real", "sim"]].mean(), by_policy[["real_trials", "sim_trials"]].sum()], axis=1)
+    totals.index = pd.MultiIndex.from_product([totals.index, ["total"]], names=["policy", "task"])
+    return pd.concat([rates, totals])[["real", "sim", "real_trials", "sim_trials"]].reset_index()
 
 
 def success_gaps(success: pd.DataFrame) -> pd.DataFrame:
@@ -237,6 +238,32 @@ def judge_averaged_scores(fits: dict[str, pd.DataFrame]) -> pd.DataFrame:
     for judge in sorted(last):
         out[f"score:{judge}"] = last[judge].loc[policies, "score"].to_numpy()
     return out
+
+
+def fit_interval(fits: dict[str, pd.DataFrame] | pd.DataFrame) -> tuple[str, float]:
+    """(interval, level) of the score intervals in fit tables: the bootstrap that their
+    ``ci_low``/``ci_high`` columns come from (``interval``, ``ci_level`` columns; tables
+    without them predate the unit bootstrap and hold the binomial one at 95%). Judges must
+    agree."""
+    tables = [fits] if isinstance(fits, pd.DataFrame) else list(fits.values())
+    found = set()
+    for fit in tables:
+        interval = str(fit["interval"].iloc[0]) if "interval" in fit.columns and len(fit) else "binomial"
+        level = float(fit["ci_level"].iloc[0]) if "ci_level" in fit.columns and len(fit) else 0.95
+        found.add((interval, level))
+    if len(found) > 1:
+        raise ValueError(f"fit tables disagree on their score interval: {sorted(found)}")
+    return found.pop() if found else ("binomial", 0.95)
+
+
+def reference_interval(validations: dict[str, dict]) -> dict[str, tuple[float | None, float | None]]:
+    """{policy: (ci_low, ci_high)} of the reference performance from validate's JSON (every
+    judge's holds the same reference); empty when none carries one."""
+    for judge in sorted(validations):
+        ref = validations[judge].get("reference") or {}
+        if "ci_low" in ref and "ci_high" in ref:
+            return {p: (ref["ci_low"][p], ref["ci_high"].get(p)) for p in ref["ci_low"]}
+    return {}
 
 
 # -------------------------------------------------------------------- case study

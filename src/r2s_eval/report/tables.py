@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from r2s_eval.report.summaries import last_checkpoint, success_gaps
+from r2s_eval.report.summaries import fit_interval, last_checkpoint, success_gaps
 
 _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
                   "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
@@ -39,12 +39,38 @@ def _row(cells: Sequence[str]) -> str:
     return " & ".join(cells) + r" \\"
 
 
-def _tabular(colspec: str, header: Sequence[str], body: Sequence[str], footer: Sequence[str] = ()) -> str:
+def _tabular(colspec: str, header: Sequence[str], body: Sequence[str], footer: Sequence[str] = (),
+             notes: Sequence[str] = ()) -> str:
+    """A booktabs tabular; ``notes`` (LaTeX text) become footnote rows under the bottom rule."""
     lines = [rf"\begin{{tabular}}{{{colspec}}}", r"\toprule", *header, r"\midrule", *body]
     if footer:
         lines += [r"\midrule", *footer]
-    lines += [r"\bottomrule", r"\end{tabular}"]
+    lines += [r"\bottomrule"]
+    n = len([ch for ch in colspec if ch in "lcr"])
+    lines += [_row([rf"\multicolumn{{{n}}}{{l}}{{\footnotesize {note}}}"]) for note in notes]
+    lines += [r"\end{tabular}"]
     return "\n".join(lines) + "\n"
+
+
+# What each bootstrap resamples, for table notes and the ranking.
+INTERVAL_TEXT = {
+    "unit": "the distinct task/init rollout pairs of each policy pair resampled within each task",
+    "binomial": "every comparison redrawn independently",
+}
+
+
+# The same, short enough for a note under a table.
+INTERVAL_SHORT = {"unit": "rollout pairs resampled per task", "binomial": "comparisons redrawn independently"}
+
+
+def interval_label(interval: str, level: float) -> str:
+    """E.g. "95% unit-bootstrap CI"."""
+    return f"{100 * level:g}% {interval}-bootstrap CI"
+
+
+def interval_text(interval: str, level: float) -> str:
+    """E.g. "95% unit-bootstrap CI (the distinct task/init rollout pairs ...)" (plain text)."""
+    return f"{interval_label(interval, level)} ({INTERVAL_TEXT.get(interval, 'bootstrap')})"
 
 
 def _nanmean(values) -> float:
@@ -72,7 +98,7 @@ def tasks_table(summary: pd.DataFrame, decimals: int = 1) -> str:
 
 
 def realsim_success_table(success: pd.DataFrame, decimals: int = 1) -> str:
-    """Per policy (rows) and task (column pairs): real and sim success %, the pooled totals,
+    """Per policy (rows) and task (column pairs): real and sim success %, the totals (mean of the per-task rates),
     and two footer rows with the mean absolute real-sim difference and the largest gap over
     policies, in percentage points. ``success`` is
     :func:`~r2s_eval.report.summaries.success_by_task`. The totals appear with two or more tasks."""
@@ -125,7 +151,8 @@ def realsim_table(validations: Mapping[str, dict], audits: Mapping[str, dict] | 
     checkpoints, the paper's convention) or "last" (the last checkpoint). ``audits``: the
     judge-audit JSON per judge. A judge without human annotations, without swapped answers
     or without an audit shows a dash in those columns; the average row averages the judges
-    that have a value.
+    that have a value. A note under the table names the bootstrap behind the BT CI column
+    (validate's ``interval``; older JSON without it: binomial).
     """
     if metrics_at not in ("average", "last"):
         raise ValueError(f"metrics_at must be 'average' or 'last', got {metrics_at!r}")
@@ -140,47 +167,78 @@ def realsim_table(validations: Mapping[str, dict], audits: Mapping[str, dict] | 
         means = [_nanmean(col) for col in zip(*values.values())]
         footer = [_row(["Average"] + [_fmt(m, decimals) for m in means])]
     header = [_row(["Judge"] + [title for title, _, _ in _REALSIM_COLUMNS])]
-    return _tabular("l" + "c" * len(_REALSIM_COLUMNS), header, body, footer)
+    shown = sorted({(str(v.get("interval", "binomial")), float(v.get("ci_level", 0.95))) for v in validations.values()})
+    where = "average over checkpoints" if metrics_at == "average" else "last checkpoint"
+    notes = [latex_escape(f"BT CI: mean {interval_label(interval, level)} width "
+                          f"({INTERVAL_SHORT.get(interval, 'bootstrap')}); {where}.")
+             for interval, level in shown]
+    return _tabular("l" + "c" * len(_REALSIM_COLUMNS), header, body, footer, notes)
 
 
 # ------------------------------------------------------------------- BT scores
 
 
+def _with_ci(value, ci, decimals: int, scale: float = 1.0) -> str:
+    cell = _fmt(None if _missing(value) else scale * value, decimals)
+    if ci is not None and not _missing(ci[0]) and not _missing(ci[1]):
+        cell += rf" {{\scriptsize [{_fmt(scale * ci[0], decimals)}, {_fmt(scale * ci[1], decimals)}]}}"
+    return cell
+
+
 def bt_scores_table(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float], decimals: int = 1,
-                    show_ci: bool = True) -> str:
+                    show_ci: bool = True, reference_ci: Mapping[str, tuple] | None = None) -> str:
     """Per policy (rows, by reference success) and judge (columns): the Bradley-Terry score
     s = 100 b at the judge's last checkpoint, with its bootstrap interval; the first column is
-    the reference (real) success rate."""
+    the reference performance, the mean of the per-task real success rates, with its
+    interval where ``reference_ci`` ({policy: (low, high)} as fractions) is given. A note
+    under the table names the bootstrap behind the score intervals."""
     last = {j: last_checkpoint(fits[j]) for j in sorted(fits)}
     policies = sorted(set(reference_rate) | set().union(*(set(t.index) for t in last.values())),
                       key=lambda p: (-reference_rate.get(p, -1.0), p))
+    reference_ci = reference_ci or {}
     body = []
     for p in policies:
-        row = [latex_escape(p), _pct(reference_rate.get(p), decimals)]
+        real_ci = reference_ci.get(p) if show_ci else None
+        row = [latex_escape(p), _with_ci(reference_rate.get(p), real_ci, decimals, scale=100)]
         for table in last.values():
             if p not in table.index:
                 row.append(DASH)
                 continue
-            cell = _fmt(table.loc[p, "score"], decimals)
-            if show_ci:
-                cell += rf" {{\scriptsize [{_fmt(table.loc[p, 'ci_low'], decimals)}, {_fmt(table.loc[p, 'ci_high'], decimals)}]}}"
-            row.append(cell)
+            ci = (table.loc[p, "ci_low"], table.loc[p, "ci_high"]) if show_ci else None
+            row.append(_with_ci(table.loc[p, "score"], ci, decimals))
         body.append(_row(row))
     checkpoints = ", ".join(f"{latex_escape(j)}: {int(t['checkpoint'].max())}" for j, t in fits.items())
     header = [_row(["Policy", r"Real (\%)"] + [latex_escape(j) for j in last])]
-    # The checkpoint each column stands at, as a comment so the table stays a plain tabular.
-    return f"% BT score s = 100 b [bootstrap CI] at the last checkpoint ({checkpoints})\n" + _tabular(
-        "lr" + "c" * len(last), header, body)
+    interval, level = fit_interval(dict(fits))
+    note = "Real: mean over tasks."
+    if show_ci:
+        note += f" Brackets: {100 * level:g}% CIs; BT: {interval} bootstrap."
+    # The checkpoint each column stands at and the interval in full, as a comment so the
+    # table stays a plain tabular; a short note under it names the interval.
+    comment = (f"% BT score s = 100 b [{interval_text(interval, level)}] at the last checkpoint ({checkpoints});"
+               " Real: mean of the per-task success rates" + (f" [{100 * level:g}% CI]" if reference_ci else ""))
+    return comment + "\n" + _tabular("lr" + "c" * len(last), header, body, notes=[latex_escape(note)])
 
 
 # ---------------------------------------------------------------- console ranking
 
 
-def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float]) -> str:
-    """Plain-text ranking at the last checkpoint, each judge beside the reference success rate."""
+def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float],
+                 reference_ci: Mapping[str, tuple] | None = None) -> str:
+    """Plain-text ranking at the last checkpoint, each judge beside the reference performance
+    (the mean of the per-task success rates, with its interval where ``reference_ci`` gives
+    one). The title names the bootstrap behind the score intervals."""
     policies = sorted(reference_rate, key=lambda p: -reference_rate[p])
-    header = f"{'policy':<16}{'real success %':>16}"
-    rows = {p: f"{p:<16}{100 * reference_rate[p]:>16.1f}" for p in policies}
+    reference_ci = reference_ci or {}
+    width = 24 if reference_ci else 16
+    header = f"{'policy':<16}{'real success %':>{width}}"
+    rows = {}
+    for p in policies:
+        cell = f"{100 * reference_rate[p]:.1f}"
+        ci = reference_ci.get(p)
+        if ci is not None and not _missing(ci[0]) and not _missing(ci[1]):
+            cell += f" [{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+        rows[p] = f"{p:<16}{cell:>{width}}"
     for judge in sorted(fits):
         fit = fits[judge]
         last = fit[fit["checkpoint"] == fit["checkpoint"].max()].set_index("policy")
@@ -190,5 +248,10 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
             cell = f"{last.loc[p, 'score']:.1f} [{last.loc[p, 'ci_low']:.1f}, {last.loc[p, 'ci_high']:.1f}] #{order[p]}"
             rows[p] += f"{cell:>34}"
     n = int(max(f["checkpoint"].max() for f in fits.values())) if fits else 0
-    title = f"Ranking at the last checkpoint ({n} comparisons per policy pair): BT score [95% CI] #rank"
-    return "\n".join([title, header, *rows.values()]) + "\n"
+    interval, level = fit_interval(dict(fits)) if fits else ("binomial", 0.95)
+    title = (f"Ranking at the last checkpoint ({n} comparisons per policy pair): "
+             f"BT score [{interval_label(interval, level)}] #rank")
+    notes = [f"BT CI: {interval} bootstrap, {INTERVAL_TEXT.get(interval, 'bootstrap')}",
+             "real success %: mean of the per-task success rates"
+             + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
+    return "\n".join([title, header, *rows.values(), *notes]) + "\n"

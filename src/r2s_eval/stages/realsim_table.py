@@ -1,10 +1,14 @@
-"""Stage: the real-to-sim validation table (one row per judge) and the printed ranking."""
+"""Stage: the real-to-sim validation table (one row per judge) and the printed ranking.
+
+Both say which bootstrap their intervals come from; the ranking shows the reference as the
+mean of the per-task success rates, with the interval validate computed for it.
+"""
 
 from __future__ import annotations
 
 import pandas as pd
 
-from r2s_eval.report import ranking_text, realsim_table
+from r2s_eval.report import ranking_text, realsim_table, reference_interval
 from r2s_eval.stages import _cli
 from r2s_eval.stages.validate import reference_rates
 from r2s_eval.utils.io import atomic_path, read_json
@@ -19,7 +23,7 @@ def main(args) -> None:
     table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
     with atomic_path(args.table) as tmp:
         tmp.write_text(table)
-    text = ranking_text(fits, reference.to_dict())
+    text = ranking_text(fits, reference.to_dict(), reference_interval(validations))
     with atomic_path(args.ranking) as tmp:
         tmp.write_text(text)
     print(text)

@@ -2,6 +2,13 @@
 
 From closed-loop rollouts on the real side (the twin, or a robot logged the same way), or
 from a CSV of hardware trials with columns policy, task, trials, successes.
+
+The table stays per task: a policy's reference performance is the mean of its per-task
+rates (every task weighs the same), and its bootstrap interval resamples the trials within
+each task, so both are computed from these counts where they are used
+(``r2s_eval.stages.validate.reference_rates``; the interval in the validate stage, with the
+statistics config and seed). Nothing here depends on that config, so changing it does not
+rerun the reference.
 """
 
 from __future__ import annotations

@@ -175,3 +175,58 @@ def position_bias(letters: Sequence, same_outcome_mask=None) -> PositionBias:
     n_same = int(mask.sum())
     same = float(is_a[mask].mean()) if n_same else float("nan")
     return PositionBias(float(is_a.mean()), same, int(arr.size), n_same)
+
+
+# ------------------------------------------------------------- batched ranking metrics
+
+
+def _paired_batch(scores, reference) -> tuple[np.ndarray, np.ndarray]:
+    x = np.asarray(scores, dtype=np.float64)
+    y = np.asarray(reference, dtype=np.float64)
+    if x.ndim < 1 or y.ndim < 1 or x.shape[-1] != y.shape[-1]:
+        raise ValueError(f"scores and reference need the same number of policies, got shapes {x.shape} and {y.shape}")
+    if x.shape[-1] < 2:
+        raise ValueError("a ranking metric needs at least 2 policies")
+    x, y = np.broadcast_arrays(x, y)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("scores and reference must be finite")
+    return x, y
+
+
+def _correlation(x: np.ndarray, y: np.ndarray, constant: np.ndarray) -> np.ndarray:
+    xc = x - x.mean(axis=-1, keepdims=True)
+    yc = y - y.mean(axis=-1, keepdims=True)
+    num = (xc * yc).sum(axis=-1)
+    den = np.sqrt((xc * xc).sum(axis=-1) * (yc * yc).sum(axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.clip(num / den, -1.0, 1.0)
+    return np.where(constant, np.nan, r)
+
+
+def _constant(x: np.ndarray) -> np.ndarray:
+    return np.all(x == x[..., :1], axis=-1)
+
+
+def spearman_batch(scores, reference) -> np.ndarray:
+    """:func:`spearman` of every row: ``scores`` and ``reference`` broadcast to ``(..., P)``;
+    returns ``(...)`` (NaN where either row is constant)."""
+    x, y = _paired_batch(scores, reference)
+    constant = _constant(x) | _constant(y)
+    return _correlation(stats.rankdata(x, axis=-1), stats.rankdata(y, axis=-1), constant)
+
+
+def pearson_batch(scores, reference) -> np.ndarray:
+    """:func:`pearson` of every row, as :func:`spearman_batch`."""
+    x, y = _paired_batch(scores, reference)
+    return _correlation(x, y, _constant(x) | _constant(y))
+
+
+def mmrv_batch(scores, reference) -> np.ndarray:
+    """:func:`mmrv` of every row, as :func:`spearman_batch` (in the units of ``reference``)."""
+    x, y = _paired_batch(scores, reference)
+    disagree = (x[..., :, None] > x[..., None, :]) != (y[..., :, None] > y[..., None, :])
+    margins = np.where(disagree, np.abs(y[..., :, None] - y[..., None, :]), 0.0)
+    return margins.max(axis=-1).mean(axis=-1)
+
+
+RANKING_METRICS = {"spearman": spearman_batch, "pearson": pearson_batch, "mmrv": mmrv_batch}

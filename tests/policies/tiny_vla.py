@@ -334,6 +334,19 @@ def synthetic_batch(
     return batch
 
 
+def policy_features(cameras: Sequence[str], image_hw: tuple[int, int], state_dim: int, action_dim: int) -> dict:
+    """`input_features` / `output_features` of a policy config: the cameras, the state, the action."""
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    return {
+        "input_features": {
+            **{cam: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for cam in cameras},
+            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
+        },
+        "output_features": {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
+    }
+
+
 def tiny_pi_config(
     policy_type: str,
     *,
@@ -345,7 +358,6 @@ def tiny_pi_config(
 ):
     """A stock PI0Config / PI05Config for small inputs: native image resolution (no resize), short
     chunks and prompts, few denoising steps, float32 on CPU."""
-    from lerobot.configs import FeatureType, PolicyFeature
 
     if image_hw[0] != image_hw[1]:
         raise ValueError("PaliGemma needs square images")
@@ -371,11 +383,7 @@ def tiny_pi_config(
         dtype="float32",
         device="cpu",
         push_to_hub=False,
-        input_features={
-            **{cam: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for cam in cameras},
-            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
-        },
-        output_features={ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
+        **policy_features(cameras, image_hw, state_dim, action_dim),
     )
     defaults.update(overrides)
     return config_cls(**defaults)
@@ -619,7 +627,6 @@ def tiny_smolvla_config(
     image_hw: tuple[int, int] = (64, 64),
     **overrides: Any,
 ):
-    from lerobot.configs import FeatureType, PolicyFeature
     from lerobot.policies.smolvla import SmolVLAConfig
 
     kwargs: dict[str, Any] = dict(
@@ -635,11 +642,7 @@ def tiny_smolvla_config(
         max_action_dim=max(32, action_dim),
         device="cpu",
         push_to_hub=False,
-        input_features={
-            **{cam: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for cam in cameras},
-            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
-        },
-        output_features={ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
+        **policy_features(cameras, image_hw, state_dim, action_dim),
     )
     kwargs.update(overrides)
     return SmolVLAConfig(**kwargs)
@@ -728,7 +731,6 @@ def tiny_xvla_config(
     image_hw: tuple[int, int] = (64, 64),
     **overrides: Any,
 ):
-    from lerobot.configs import FeatureType, PolicyFeature
     from lerobot.policies.xvla.configuration_xvla import XVLAConfig
     from transformers import AutoTokenizer
 
@@ -752,11 +754,7 @@ def tiny_xvla_config(
         n_action_steps=5,
         device="cpu",
         push_to_hub=False,
-        input_features={
-            **{cam: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for cam in cameras},
-            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
-        },
-        output_features={ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
+        **policy_features(cameras, image_hw, state_dim, action_dim),
     )
     kwargs.update(overrides)
     return XVLAConfig(**kwargs)

@@ -52,3 +52,63 @@ def scene() -> dict[tuple[str, str, int], float]:
             levels[("BadPolicyBeta", task, init)] = {0: 0.50, 1: 0.35}.get(init, 0.20)
     levels[("GoodPolicyAlpha", "lift", 3)] = 0.92
     return levels
+
+
+SIM_TASK = "cup_on_plate"
+
+
+def render_sim_episodes(root: Path, max_steps: int = 100) -> pd.DataFrame:
+    """Two real episodes of the simulator on cup_on_plate (128x128 head_left, same initial poses):
+    the scripted operator (succeeds) and a frozen policy that holds its first state (fails).
+
+    Returns their episode table (videos under `root`, plus trajectory parquets that a video judge
+    must never open); file names spell out policy and outcome, as a careless writer might.
+    """
+    from r2s_eval.rollout import run_episode
+    from r2s_eval.sim import TabletopEnv
+    from r2s_eval.sim.teleop import make_operator
+
+    class Operator:
+        def __init__(self, env):
+            self.env, self.op = env, None
+
+        def reset(self):
+            self.op = None
+
+        def act(self, obs):
+            if self.op is None:
+                self.op = make_operator(SIM_TASK, self.env, np.random.default_rng(0))
+            return self.op.act(obs)
+
+    class Frozen:
+        def __init__(self):
+            self.action = None
+
+        def reset(self):
+            self.action = None
+
+        def act(self, obs):
+            if self.action is None:
+                self.action = np.asarray(obs["observation.state"], dtype=float).copy()
+            return self.action
+
+    env = TabletopEnv(SIM_TASK, image_size=(128, 128), cameras=("head_left",))
+    rows = []
+    try:
+        poses = env.sample_initial_poses(np.random.default_rng(4))
+        for n, (policy, pol) in enumerate((("ScriptedOperator", Operator(env)), ("FrozenPolicy", Frozen()))):
+            pol.reset()
+            result = run_episode(env, pol, poses, seed=1, max_steps=max_steps, video_camera="head_left")
+            outcome = "SUCCESS" if result.success else "FAILURE"
+            stem = f"{policy}/{SIM_TASK}_0_{outcome}"
+            (root / policy).mkdir(parents=True, exist_ok=True)
+            write_video(root / f"{stem}.mp4", result.frames, fps=10)
+            result.trajectory.to_parquet(root / f"{stem}.parquet")
+            rows.append({
+                "episode_id": f"sim{n}", "policy": policy, "arm": "sim", "task": SIM_TASK, "init_id": 0,
+                "instruction": env.task.instruction, "success": bool(result.success), "length": result.length,
+                "video_path": f"{stem}.mp4", "trajectory_path": f"{stem}.parquet",
+            })
+    finally:
+        env.close()
+    return pd.DataFrame(rows)

@@ -188,4 +188,4 @@ def test_judge_paper_experiment_lists_the_eight_vlms():
     models = sorted(j["model"] for j in judges.values())
     assert len(models) == 8 and sum("Qwen3-VL" in m for m in models) == 3
     assert sum("gemma-3" in m for m in models) == 3 and sum("LLaVA-OneVision-1.5" in m for m in models) == 2
-    assert sorted(compose_config(conf, experiment="smoke")["judges"]) == ["kinematic"]
+    assert sorted(compose_config(conf, experiment="smoke")["judges"]) == ["kinematic", "video"]

@@ -5,7 +5,10 @@ Public API:
     ``PROGRESS_LABELS``;
   * interface: ``Judge`` (subclass it and decorate with ``@register_judge("<backend>")``, then
     import the module here), ``make_judge(cfg)`` keyed by ``cfg["backend"]``;
-  * built-in backend "kinematic": ``KinematicJudge``, an offline trajectory heuristic, not a VLM;
+  * built-in backend "kinematic": ``KinematicJudge``, an offline trajectory heuristic, not a VLM
+    (privileged: it reads the simulator trajectory);
+  * built-in backend "video": ``VideoJudge``, an offline pixel heuristic, not a VLM, that reads
+    only the video and the instruction;
   * VLM backends (two-step method in ``vlm.VLMJudge``): "openai" (``OpenAIJudge``, any
     OpenAI-compatible chat-completions server) and "transformers" (``TransformersJudge``, a local
     model);
@@ -31,6 +34,7 @@ from r2s_eval.judge.kinematic import KinematicJudge
 from r2s_eval.judge.openai_backend import OpenAIJudge
 from r2s_eval.judge.stages import StageStats, describe_rollouts, judge_pairs, swap_audited
 from r2s_eval.judge.transformers_backend import TransformersJudge
+from r2s_eval.judge.video import VideoJudge
 from r2s_eval.judge.vlm import VLMJudge
 
 __all__ = [
@@ -47,6 +51,7 @@ __all__ = [
     "StageStats",
     "TransformersJudge",
     "VLMJudge",
+    "VideoJudge",
     "Verdict",
     "available_backends",
     "describe_rollouts",

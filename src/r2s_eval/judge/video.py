@@ -1,0 +1,456 @@
+"""The built-in offline video judge (backend "video").
+
+This judge is NOT a vision-language model, but unlike the kinematic judge it sees only what a VLM
+judge sees: the rollout's video and the task instruction. It never opens the trajectory or the
+episode table. It decodes the video, measures motion from frame differences and segments the
+task's objects by colour (the HSV segmenter of ``r2s_eval.calib.segment``; the instruction is
+mapped to a task of ``r2s_eval.sim.tasks`` by word overlap, as a VLM would know what a cup and a
+plate look like), and writes the same four-criterion description, with the numbers behind it.
+
+Describe (per rollout, from pixels only):
+  * motion energy per frame: share of pixels whose luminance changed by more than
+    ``diff_threshold`` (0..255) since the previous frame (after a ``blur_px`` blur, which keeps
+    sensor noise out); a frame is moving when its energy exceeds ``moving_energy``;
+  * motion smoothness: ``energy_jerk`` = RMS second difference of the energy signal over the
+    active span (first to last moving frame) / mean energy there, and ``energy_spike_share`` =
+    share of active frames whose energy exceeds ``spike_factor`` x the median active energy;
+  * action continuity: ``idle_fraction`` = share of still frames within the active span (a robot
+    that never moves counts 1.0), ``pauses_per_100_frames`` = still runs of at least
+    ``min_pause_frames`` followed by motion, per 100 active frames;
+  * task progress: object masks per frame; the goal relation of the task in the final
+    ``end_frames`` frames ("on"/"in"/"cover": the moved object's centroid within ``near_max``
+    target radii of the target's; "stack": within ``stack_near_max``; "out": at least ``out_min``
+    radii away; "upright": mask height/width >= ``upright_aspect``), the moved object at rest
+    (centroid speed <= ``rest_speed`` radii/frame). ``goal_gap`` is how far the end is from that
+    relation (0 = met), ``goal_closure`` the share of the starting gap closed, ``max_move`` the
+    largest displacement of the manipulated object from its start (its radii).
+    Label: "successful" when the relation holds at rest; else ``progress_score`` =
+    min(0.9, 0.5 x goal_closure + 0.5 x min(1, max_move / ``move_ref``)), "partially successful"
+    when it reaches ``partial_min_score``, "failed" below;
+  * force/effort control: from object centroid speeds (radii per frame, only between frames in
+    which the object is well visible): ``peak_object_speed``, ``object_speed_spikes`` (steps
+    faster than ``spike_speed``) and ``bystander_move`` (largest displacement of the task's other
+    objects, which the robot should not shove).
+
+Compare (from the two descriptions alone, deterministic, no position bias): each criterion gets
+a score in [0, 1] (smoothness, continuity, force: geometric mean over the evidence numbers x of
+1 / (1 + x / ref[x]); task progress: its ``progress_score``); a criterion with nothing to judge
+(no robot motion for smoothness, no object motion for force) scores ``no_motion_score``, and a
+robot that never visibly moves scores 0 on continuity. The
+four scores are averaged with EQUAL weight, no criterion has priority; the higher mean wins when
+the means differ by more than ``score_tie_eps``, else the smaller description hash wins (swapping
+A and B flips the letter) and identical descriptions get a letter from a hash parity.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import math
+import re
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from r2s_eval.judge.base import CriterionNote, Description, Judge, RolloutInput, Verdict, register_judge
+
+DEFAULTS: dict[str, Any] = {
+    "backend": "video",
+    "name": "video-pixel-heuristic-not-vlm",
+    "segmenter": {"type": "hsv"},  # r2s_eval.calib.segment.make_segmenter config
+    "blur_px": 3,  # Gaussian blur before frame differencing (odd; 0 = off)
+    "diff_threshold": 12,  # luminance change (0..255) that counts a pixel as changed
+    "moving_energy": 0.002,  # share of changed pixels above which a frame is moving
+    "spike_factor": 3.0,
+    "min_pause_frames": 3,
+    "min_visible_share": 0.5,  # a mask counts when its area is >= this share of the object's first-frame area
+    "end_frames": 3,
+    "near_max": 0.8,
+    "stack_near_max": 1.2,
+    "out_min": 1.5,
+    "upright_aspect": 1.15,
+    "rest_speed": 0.1,
+    "move_ref": 1.0,
+    "partial_min_score": 0.2,
+    "spike_speed": 0.5,
+    "no_motion_score": 0.5,
+    "score_tie_eps": 1e-9,
+    # Reference levels: an evidence number equal to its reference scores 0.5.
+    "ref": {
+        "energy_jerk": 1.0,
+        "energy_spike_share": 0.1,
+        "idle_fraction": 0.2,
+        "pauses_per_100_frames": 2.0,
+        "peak_object_speed": 0.5,
+        "object_speed_spikes": 1.0,
+        "bystander_move": 0.5,
+    },
+    "good_score": 0.67,
+    "fair_score": 0.4,
+}
+
+SCORED: dict[str, tuple[str, ...]] = {
+    "motion_smoothness": ("energy_jerk", "energy_spike_share"),
+    "action_continuity": ("idle_fraction", "pauses_per_100_frames"),
+    "force_control": ("peak_object_speed", "object_speed_spikes", "bystander_move"),
+}
+_WORDS = {
+    "motion_smoothness": ("smooth", "somewhat jerky", "jerky"),
+    "action_continuity": ("continuous", "hesitant at times", "stop-and-go"),
+    "force_control": ("gentle", "firm", "forceful"),
+}
+# Goal relation per task: (relation, manipulated object, reference object).
+RELATIONS: dict[str, tuple[str, str, str | None]] = {
+    "cup_on_plate": ("on", "cup", "plate"),
+    "ball_in_box": ("in", "ball", "box"),
+    "ball_in_cup": ("in", "ball", "cup"),
+    "cover_ball": ("cover", "cup", "ball"),
+    "stack_blocks": ("stack", "block_a", "block_b"),
+    "block_from_box": ("out", "block_a", "box"),
+    "upright_cup": ("upright", "cup", None),
+}
+
+
+def _merge(defaults: dict[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
+    unknown = set(cfg) - set(defaults)
+    if unknown:
+        raise ValueError(f"video judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
+    out = copy.deepcopy(defaults)
+    for k, v in cfg.items():
+        if k == "ref":
+            bad = set(v) - set(defaults[k])
+            if bad:
+                raise ValueError(f"video judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
+            out[k].update(v)
+        else:
+            out[k] = v
+    return out
+
+
+def _num(x: Any) -> Any:
+    if isinstance(x, (float, np.floating)):
+        return float(f"{float(x):.6g}")
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def _words(text: str) -> set[str]:
+    return {w for w in re.findall(r"[a-z]+", text.lower()) if w not in {"the", "and", "it", "with", "of", "a"}}
+
+
+def task_from_instruction(instruction: str) -> str:
+    """The task key whose instruction shares the most words with `instruction` (ValueError if none fits)."""
+    from r2s_eval.sim.tasks import TASKS
+
+    words = _words(instruction)
+    best, best_score = None, 0.0
+    for key, task in sorted(TASKS.items()):
+        ref = _words(task.instruction)
+        score = len(words & ref) / max(len(words | ref), 1)
+        if score > best_score:
+            best, best_score = key, score
+    if best is None or best_score < 0.5:
+        raise ValueError(f"video judge: no known task matches the instruction {instruction!r}")
+    return best
+
+
+# ---------------------------------------------------------------- pixel measurements
+def motion_energy(frames: np.ndarray, blur_px: int, diff_threshold: float) -> np.ndarray:
+    """Share of pixels whose (blurred) luminance changed by more than `diff_threshold`, per frame step."""
+    import cv2
+
+    luma = []
+    for f in frames:
+        g = cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY)
+        if blur_px:
+            g = cv2.GaussianBlur(g, (blur_px, blur_px), 0)
+        luma.append(g.astype(np.int16))
+    luma = np.stack(luma)
+    if len(luma) < 2:
+        return np.zeros(0)
+    return (np.abs(np.diff(luma, axis=0)) > diff_threshold).mean(axis=(1, 2))
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) of each run of True."""
+    out, start = [], None
+    for i, m in enumerate(mask):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            out.append((start, i))
+            start = None
+    if start is not None:
+        out.append((start, len(mask)))
+    return out
+
+
+def smoothness_continuity(e: np.ndarray, c: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    moving = e > c["moving_energy"]
+    idx = np.flatnonzero(moving)
+    if len(idx) == 0:
+        smooth = {"energy_jerk": None, "energy_spike_share": None, "mean_energy": 0.0, "moving_frames_share": 0.0}
+        cont = {"idle_fraction": 1.0, "pauses_per_100_frames": 0.0, "pauses": 0, "motion_bursts": 0,
+                "robot_moved": False}
+        return smooth, cont
+    span = e[idx[0]: idx[-1] + 1]
+    mean = float(span.mean())
+    d2 = np.diff(span, 2) if len(span) >= 3 else np.zeros(1)
+    med = float(np.median(span[span > c["moving_energy"]]))
+    smooth = {
+        "energy_jerk": float(np.sqrt(np.mean(d2 ** 2)) / mean) if mean > 0 else 0.0,
+        "energy_spike_share": float(np.mean(span > c["spike_factor"] * med)),
+        "mean_energy": mean,
+        "moving_frames_share": float(moving.mean()),
+    }
+    still = span <= c["moving_energy"]
+    pauses = sum(1 for s, t in _runs(still) if t - s >= c["min_pause_frames"])  # runs inside the span end in motion
+    cont = {
+        "idle_fraction": float(still.mean()),
+        "pauses_per_100_frames": 100.0 * pauses / len(span),
+        "pauses": int(pauses),
+        "motion_bursts": len(_runs(~still)),
+        "robot_moved": True,
+    }
+    return smooth, cont
+
+
+def object_tracks(frames: np.ndarray, segmenter: Any, names: tuple[str, ...], min_visible_share: float):
+    """Per object: centroids (T, 2) as (row, col) with NaN where not well visible, radius (px), aspect (T,)."""
+    masks = {n: [] for n in names}
+    for f in frames:
+        seg = segmenter.segment(f)
+        for n in names:
+            masks[n].append(np.asarray(seg.get(n, np.zeros(f.shape[:2], bool)), bool))
+    tracks = {}
+    for n in names:
+        areas = np.array([m.sum() for m in masks[n]], float)
+        ref_area = areas[0] if areas[0] > 0 else (areas.max() if areas.max() > 0 else 0.0)
+        cents = np.full((len(frames), 2), np.nan)
+        aspect = np.full(len(frames), np.nan)
+        for t, m in enumerate(masks[n]):
+            if ref_area > 0 and areas[t] >= min_visible_share * ref_area:
+                rc = np.argwhere(m)
+                cents[t] = rc.mean(0)
+                h, w = rc.max(0) - rc.min(0) + 1
+                aspect[t] = h / w
+        radius = math.sqrt(ref_area / math.pi) if ref_area > 0 else 1.0
+        tracks[n] = {"c": cents, "r": max(radius, 1.0), "aspect": aspect, "area0": float(areas[0])}
+    return tracks
+
+
+def _last_valid(a: np.ndarray, k: int) -> np.ndarray | None:
+    ok = np.flatnonzero(~np.isnan(a.reshape(len(a), -1)).any(1))
+    if len(ok) == 0:
+        return None
+    return np.nanmean(a[ok[-k:]], axis=0)
+
+
+def _first_valid(a: np.ndarray) -> np.ndarray | None:
+    ok = np.flatnonzero(~np.isnan(a.reshape(len(a), -1)).any(1))
+    return None if len(ok) == 0 else a[ok[0]]
+
+
+def _speeds(c: np.ndarray, r: float) -> np.ndarray:
+    v = np.linalg.norm(np.diff(c, axis=0), axis=1) / r
+    return v[~np.isnan(v)]
+
+
+def progress_force(frames: np.ndarray, task_key: str, segmenter: Any, c: Mapping[str, Any]):
+    rel, mover, target = RELATIONS[task_key]
+    names = tuple(n for n in (mover, target) if n)
+    tr = object_tracks(frames, segmenter, names, c["min_visible_share"])
+    k = int(c["end_frames"])
+    m = tr[mover]
+    start, end = _first_valid(m["c"]), _last_valid(m["c"], k)
+    seen = start is not None
+    disp = np.linalg.norm(m["c"] - start, axis=1) / m["r"] if seen else np.zeros(1)
+    max_move = float(np.nanmax(disp)) if seen and not np.isnan(disp).all() else 0.0
+    tail = _speeds(m["c"][-(k + 1):], m["r"])
+    end_speed = float(tail.max()) if len(tail) else 0.0  # hidden at the end: nothing seen moving
+
+    def gap_at(pos: np.ndarray | None, which: str) -> float | None:
+        if rel == "upright":
+            a = _last_valid(m["aspect"], k) if which == "end" else _first_valid(m["aspect"])
+            return None if a is None else max(0.0, c["upright_aspect"] - float(a))
+        t = tr[target]
+        tpos = _last_valid(t["c"], k) if which == "end" else _first_valid(t["c"])
+        if tpos is None:
+            tpos = _first_valid(t["c"])
+        if pos is None or tpos is None:
+            return None
+        d = float(np.linalg.norm(pos - tpos)) / t["r"]
+        if rel == "out":
+            return max(0.0, c["out_min"] - d)
+        return max(0.0, d - (c["stack_near_max"] if rel == "stack" else c["near_max"]))
+
+    g0, g1 = gap_at(start, "start"), gap_at(end, "end")
+    if g0 is None or g1 is None:
+        closure = 0.0
+    else:
+        closure = 1.0 if g0 <= 0 else round(float(np.clip(1.0 - g1 / g0, 0.0, 1.0)), 6)
+    at_rest = end_speed <= c["rest_speed"]
+    goal_met = bool(g1 is not None and g1 <= 0 and at_rest and max_move >= 0.5 * c["move_ref"])
+    score = 1.0 if goal_met else round(min(0.9, 0.5 * closure + 0.5 * min(1.0, max_move / c["move_ref"])), 6)
+    label = ("successful" if goal_met else
+             "partially successful" if score >= c["partial_min_score"] else "failed")
+    prog = {
+        "task": task_key, "relation": rel, "object": mover, "reference": target,
+        "object_visible": seen, "goal_gap": g1, "goal_closure": closure, "max_move": max_move,
+        "end_speed": end_speed, "goal_met": goal_met, "progress_score": score,
+    }
+
+    speeds = _speeds(m["c"], m["r"])
+    bystander = 0.0
+    if target and rel != "stack":  # in stacking both blocks may be moved
+        t = tr[target]
+        t0 = _first_valid(t["c"])
+        if t0 is not None:
+            d = np.linalg.norm(t["c"] - t0, axis=1) / t["r"]
+            bystander = float(np.nanmax(d)) if not np.isnan(d).all() else 0.0
+    force = {
+        "peak_object_speed": float(speeds.max()) if len(speeds) else 0.0,
+        "object_speed_spikes": int((speeds > c["spike_speed"]).sum()),
+        "bystander_move": bystander,
+        "object_moved": bool(max_move >= 0.5 * c["move_ref"] or bystander >= 0.5 * c["move_ref"]),
+    }
+    return prog, label, force
+
+
+@register_judge("video")
+class VideoJudge(Judge):
+    """Offline pixel-reading judge; NOT a VLM (see the module docstring for its rules)."""
+
+    prompt_version = "video-v1"
+    inputs = ("video",)
+
+    def __init__(self, cfg: Mapping[str, Any] | None = None):
+        super().__init__(cfg)
+        self.cfg = _merge(DEFAULTS, self.cfg)
+        if self.cfg["backend"] != "video":
+            raise ValueError(f"video judge built with backend {self.cfg['backend']!r}")
+        bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
+        if bad_ref:
+            raise ValueError(f"video judge: ref levels must be > 0, got {bad_ref}")
+        if int(self.cfg["blur_px"]) and int(self.cfg["blur_px"]) % 2 == 0:
+            raise ValueError(f"video judge: blur_px must be odd or 0, got {self.cfg['blur_px']}")
+        if not int(self.cfg["end_frames"]) >= 1:
+            raise ValueError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
+        self._segmenter = None
+
+    def segmenter(self):
+        if self._segmenter is None:
+            from r2s_eval.calib.segment import make_segmenter
+            from r2s_eval.sim.tasks import TASKS
+
+            colours = {o.name: o.rgba for t in TASKS.values() for o in t.objects}
+            self._segmenter = make_segmenter(self.cfg["segmenter"], colours)
+        return self._segmenter
+
+    # ---------------------------------------------------------------- describe
+    def describe(self, rollout: RolloutInput) -> Description:
+        if rollout.video_path is None:
+            raise ValueError("the video judge reads videos; the rollout input has no video_path")
+        from r2s_eval.rollout.video import read_video
+
+        c = self.cfg
+        frames = read_video(rollout.video_path)
+        task_key = task_from_instruction(rollout.instruction)
+        e = motion_energy(frames, int(c["blur_px"]), float(c["diff_threshold"]))
+        smooth, cont = smoothness_continuity(e, c)
+        prog, label, force = progress_force(frames, task_key, self.segmenter(), c)
+
+        w = {k: self._word(k, ev) for k, ev in
+             (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
+        if cont["robot_moved"]:
+            s_text = (f"Motion is {w['motion_smoothness']}: motion-energy jerk {_g(smooth['energy_jerk'])} "
+                      f"(normalised second difference), {100 * smooth['energy_spike_share']:.0f}% of active "
+                      f"frames are sudden bursts.")
+            c_text = (f"Execution is {w['action_continuity']}: still {100 * cont['idle_fraction']:.0f}% of the "
+                      f"active span, {cont['pauses']} pauses, {cont['motion_bursts']} bursts of motion.")
+        else:
+            s_text = "No robot motion is visible, so smoothness cannot be judged."
+            c_text = "Execution is stop-and-go at its worst: the robot never visibly moves."
+        gap = "unknown" if prog["goal_gap"] is None else _g(prog["goal_gap"])
+        p_text = (f"Task {label}: the {prog['object']} moved up to {_g(prog['max_move'])} of its sizes; "
+                  f"goal relation '{prog['relation']}'"
+                  + (f" to the {prog['reference']}" if prog["reference"] else "")
+                  + f" {'holds' if prog['goal_met'] else 'does not hold'} at the end (gap {gap}, "
+                  f"{100 * prog['goal_closure']:.0f}% closed).")
+        if force["object_moved"]:
+            f_text = (f"Object handling is {w['force_control']}: peak object speed {_g(force['peak_object_speed'])} "
+                      f"sizes/frame, {force['object_speed_spikes']} abrupt jumps, other object displaced "
+                      f"{_g(force['bystander_move'])} sizes.")
+        else:
+            f_text = "No object is visibly moved, so contact force cannot be judged."
+        summary = (f"Video pixel analysis (not a VLM; trajectory not read): {label}; "
+                   f"{w['motion_smoothness'] if cont['robot_moved'] else 'no visible'} motion, "
+                   f"{w['action_continuity']}, "
+                   f"{w['force_control'] + ' contact' if force['object_moved'] else 'no object moved'}.")
+
+        def note(text: str, ev: dict[str, Any], lab: str | None = None) -> CriterionNote:
+            return CriterionNote(text=text, evidence={k: _num(v) for k, v in ev.items()}, label=lab)
+
+        return Description(
+            criteria={
+                "motion_smoothness": note(s_text, smooth),
+                "action_continuity": note(c_text, cont),
+                "task_progress": note(p_text, prog, label),
+                "force_control": note(f_text, force),
+            },
+            summary=summary,
+            judge=self.name,
+        )
+
+    # ---------------------------------------------------------------- scoring
+    def criterion_score(self, criterion: str, evidence: Mapping[str, Any]) -> float | None:
+        """Score in [0, 1] from a criterion's evidence; None when a number is absent."""
+        if criterion == "task_progress":
+            x = evidence.get("progress_score")
+            return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
+        if criterion == "motion_smoothness" and evidence.get("energy_jerk", 0) is None:
+            return float(self.cfg["no_motion_score"])
+        if criterion == "action_continuity" and evidence.get("robot_moved") is False:
+            return 0.0
+        if criterion == "force_control" and evidence.get("object_moved") is False:
+            return float(self.cfg["no_motion_score"])
+        ref = self.cfg["ref"]
+        vals = []
+        for key in SCORED[criterion]:
+            x = evidence.get(key)
+            if not isinstance(x, (int, float)) or isinstance(x, bool):
+                return None
+            vals.append(1.0 / (1.0 + max(float(x), 0.0) / float(ref[key])))
+        return math.prod(vals) ** (1.0 / len(vals))
+
+    def _word(self, criterion: str, evidence: Mapping[str, Any]) -> str:
+        s = self.criterion_score(criterion, evidence) or 0.0
+        good, fair, bad = _WORDS[criterion]
+        return good if s >= self.cfg["good_score"] else fair if s >= self.cfg["fair_score"] else bad
+
+    def scores(self, d: Description) -> dict[str, float | None]:
+        return {k: (self.criterion_score(k, d.criteria[k].evidence) if k in d.criteria else None)
+                for k in ("motion_smoothness", "action_continuity", "task_progress", "force_control")}
+
+    # ---------------------------------------------------------------- compare
+    def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
+        sa, sb = self.scores(a), self.scores(b)
+        both = [k for k in sa if sa[k] is not None and sb[k] is not None]
+        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # equal weights, no priority
+        mb = sum(sb[k] for k in both) / len(both) if both else 0.0
+        if abs(ma - mb) > float(self.cfg["score_tie_eps"]):
+            parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in both)
+            return Verdict("A" if ma > mb else "B", f"equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
+        ha, hb = a.sha256(), b.sha256()
+        if ha != hb:
+            return Verdict("A" if ha < hb else "B", "exact tie; broken by the smaller description hash")
+        parity = int(hashlib.sha256((ha + "\n" + instruction).encode()).hexdigest(), 16) % 2
+        return Verdict("A" if parity == 0 else "B", "identical descriptions; letter from a hash parity")

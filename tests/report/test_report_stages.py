@@ -75,6 +75,16 @@ def test_tables_from_artefacts(run_dir, cfg):
               "--out", "results/audit/kin.json")
     audit = read_json("results/audit/kin.json")
     assert audit["human_agreement"] == 1.0 and audit["swap_consistency"] is None and audit["judge"] == "kin"
+    assert audit["outcome_agreement"]["share"] == 0.75 and audit["outcome_agreement"]["n_pairs"] == 4
+    # The configured planted order names the CPU line-up, none of which is here.
+    assert audit["planted_order_agreement"]["share"] is None
+    assert audit["planted_order_agreement"]["n_unranked_pairs"] == 2
+    assert audit["shuffled_label_control"]["n_permutations"] == cfg["report"]["judge_audit"]["shuffled_permutations"]
+
+    run_stage("judge_card_table", cfg, "report.judge_card_table", "--audits", "results/audit/kin.json",
+              "--out", "reports/judge_card_table.tex")
+    card = Path("reports/judge_card_table.tex").read_text()
+    assert card.startswith(r"\begin{tabular}") and r"kin & 75.0 {\scriptsize [" in card
 
     run_stage("realsim_table", cfg, "report.realsim_table", "--validation", "results/validate/kin.json",
               "--audits", "results/audit/kin.json", "--fits", "results/fit/kin.parquet", "--reference",

@@ -182,3 +182,43 @@ def test_fit_interval_and_reference_interval(make_fit):
     ref = {"success_rate": {"a": 0.5}, "ci_low": {"a": 0.3}, "ci_high": {"a": 0.7}}
     assert reference_interval({"j2": {"reference": ref}, "j1": {}}) == {"a": (0.3, 0.7)}
     assert reference_interval({"j1": {"average": {}}}) == {}
+
+
+# --------------------------------------------------------------- judge report card
+
+
+def test_judge_card_outcome_and_planted_order_agreement(verdicts, sim_episodes):
+    # Mixed-outcome pairs: a2>b2 (hit), c1 over a1 (miss), a2>c2 (hit), b1>c1 (hit), at inits 1, 0, 1, 0.
+    audit = judge_audit(verdicts, sim_episodes, planted_order=["a", "b", "c"], n_boot=200, shuffled_permutations=0)
+    outcome = audit["outcome_agreement"]
+    assert outcome["share"] == pytest.approx(0.75) and outcome["n_pairs"] == 4 and outcome["n_units"] == 2
+    assert outcome["ci_low"] <= 0.75 <= outcome["ci_high"]
+    # Same-outcome pairs: a1 over b1 and b2 over c2, both following a > b > c.
+    planted = audit["planted_order_agreement"]
+    assert planted["share"] == 1.0 and planted["n_pairs"] == 2 and planted["n_unranked_pairs"] == 0
+    reverse = judge_audit(verdicts, sim_episodes, planted_order=["c", "b", "a"], n_boot=200, shuffled_permutations=0)
+    assert reverse["planted_order_agreement"]["share"] == 0.0
+    partial = judge_audit(verdicts, sim_episodes, planted_order=["a", "c"], n_boot=200, shuffled_permutations=0)
+    assert partial["planted_order_agreement"]["share"] is None
+    assert partial["planted_order_agreement"]["n_unranked_pairs"] == 2
+    assert audit["shuffled_label_control"] is None
+
+
+def test_judge_card_keeps_the_audit_keys_and_adds_counts(verdicts, sim_episodes):
+    audit = judge_audit(verdicts, sim_episodes, n_boot=100, shuffled_permutations=3)
+    assert audit["a_share"] == pytest.approx(4 / 6) and audit["n_a_answers"] == 4
+    assert audit["a_share_same_outcome"] == 0.5 and audit["n_same_outcome"] == 2 and audit["n_a_same_outcome"] == 1
+    assert audit["swap_consistency"] is None and audit["n_swapped"] == 0 and audit["n_swap_consistent"] == 0
+    assert audit["planted_order_agreement"] is None  # no order configured
+    shuffled = audit["shuffled_label_control"]
+    assert shuffled["policies"] == ["a", "b", "c"] and shuffled["n_permutations"] == 3
+    assert 0.0 <= shuffled["permuted_flat_share"] <= 1.0
+    assert set(shuffled["real"]) >= {"scores", "ci_low", "ci_high", "flat"}
+
+
+def test_judge_card_counts_consistent_swaps(verdicts, sim_episodes):
+    verdicts["swapped_verdict"] = ["B", "A", "A", "", None, "A"]  # consistent, consistent, not, -, -, consistent
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"], n_boot=50,
+                        shuffled_permutations=0)
+    assert audit["n_swapped"] == 4 and audit["n_swap_consistent"] == 3
+    assert audit["swap_consistency"] == pytest.approx(0.75)

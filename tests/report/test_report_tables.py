@@ -11,6 +11,7 @@ import pytest
 
 from r2s_eval.report import (
     bt_scores_table,
+    judge_card_table,
     latex_escape,
     ranking_text,
     realsim_success_table,
@@ -150,6 +151,7 @@ def all_tables(make_fit) -> list[str]:
         realsim_success_table(success),
         realsim_table({"kinematic": validation(0.5, 0.6, 0.1, 6.0)}, {"kinematic": {"a_share_same_outcome": 0.5}}),
         bt_scores_table(fits, {"a_1": 0.8, "b": 0.2}),
+        judge_card_table({"kinematic": CARD, "vlm_judge": {}}),
     ]
 
 
@@ -220,3 +222,23 @@ def test_bt_scores_table_reference_interval_and_note(make_fit):
     assert r"BT: unit bootstrap" in table
     plain = bt_scores_table(fits, {"a": 0.9, "b": 0.3}, show_ci=False, reference_ci={"a": (0.8, 0.95)})
     assert row(plain, "a ") == r"a & 90.0 & 25.0 \\" and "Brackets" not in plain
+
+
+CARD = {
+    "a_share_same_outcome": 0.5, "n_same_outcome": 40, "swap_consistency": 0.9, "n_swapped": 30,
+    "outcome_agreement": {"share": 0.8, "ci_low": 0.7, "ci_high": 0.9, "n_pairs": 120, "n_units": 12, "ci_level": 0.95},
+    "planted_order_agreement": None,
+    "shuffled_label_control": {"n_permutations": 20, "permuted_flat_share": 0.85, "real": {"flat": False}},
+}
+
+
+def test_judge_card_table_rows():
+    table = judge_card_table({"kinematic": CARD, "vlm_judge": {}})
+    check_structure(table)
+    lines = table.splitlines()
+    header = next(line for line in lines if line.startswith("Judge"))
+    assert header.count("&") == 5
+    assert (r"kinematic & 80.0 {\scriptsize [70.0, 90.0]} (120) & -- & 50.0 (40) & 90.0 (30)"
+            r" & 85.0 (20) / real not flat \\") in lines
+    assert r"vlm\_judge & -- & -- & -- & -- & -- \\" in lines
+    assert "Outcome agr." in table and "100/$n$" in table

@@ -87,3 +87,78 @@ def test_episode_ids_are_opaque_and_stable():
     assert a == episode_id("sim", "act", "cup_on_plate", 3, 11)
     assert a != episode_id("sim", "diffusion", "cup_on_plate", 3, 11)
     assert "act" not in a and len(a) == 16
+
+
+class ScriptedPolicy:
+    """Deterministic, and reads its camera image: any change in what it sees changes its actions."""
+
+    def __init__(self, camera="head_left"):
+        self.key, self.t = f"observation.images.{camera}", 0
+
+    def reset(self):
+        self.t = 0
+
+    def act(self, obs):
+        self.t += 1
+        action = np.asarray(obs["observation.state"], dtype=float).copy()
+        image_term = float(np.asarray(obs[self.key], dtype=float).mean()) / 255.0
+        action[0] += 0.02 * np.sin(0.3 * self.t) + 1e-3 * image_term
+        action[7] -= 0.02 * np.sin(0.3 * self.t)
+        return action
+
+
+def _noisy_env(cameras):
+    from r2s_eval.sim.twin import WorldParams
+
+    return TabletopEnv("cup_on_plate", params=WorldParams(image_noise_std=4.0), cameras=cameras)
+
+
+@pytest.mark.parametrize("cameras", [("head_left",), ("head_right",)])
+def test_judge_video_size_leaves_the_policy_inputs_unchanged(cameras):
+    # Watching the video camera or not: the judge render must not touch the observations'
+    # images, their noise stream, or the trajectory.
+    env = _noisy_env(cameras)
+    try:
+        poses = env.sample_initial_poses(np.random.default_rng(4))
+        results, seen = {}, {}
+        for size in (None, (448, 448)):
+            policy = ScriptedPolicy(cameras[0])
+            images = []
+            act = policy.act
+            policy.act = lambda obs, act=act: (images.append(obs[policy.key].copy()), act(obs))[1]
+            policy.reset()
+            results[size] = run_episode(env, policy, poses, seed=3, max_steps=8, video_camera="head_left",
+                                        video_size=size)
+            seen[size] = np.stack(images)
+        a, b = results[None], results[(448, 448)]
+        assert np.array_equal(seen[None], seen[(448, 448)])
+        for column in ("action", "state", "obj_pos.cup", "ee_pos_left"):
+            assert np.array_equal(np.stack(a.trajectory[column]), np.stack(b.trajectory[column])), column
+        assert a.frames[0].shape == (128, 128, 3) and b.frames[0].shape == (448, 448, 3)
+        assert len(a.frames) == len(b.frames) == 9
+    finally:
+        env.close()
+
+
+def test_judge_video_is_configured_size_and_shows_the_robot(env, tmp_path):
+    poses = env.sample_initial_poses(np.random.default_rng(4))
+    policy = ScriptedPolicy()
+    policy.reset()
+    result = run_episode(env, policy, poses, seed=1, max_steps=10, video_camera="head_left", video_size=(448, 448))
+    path = tmp_path / "judge.mp4"
+    write_video(path, result.frames, fps=10)
+    video = read_video(path)
+    assert video.shape == (11, 448, 448, 3)
+    assert abs(float(video[-1].mean()) - float(result.frames[-1].mean())) < 3.0
+    # The robot is in view at the judge camera and size: both arms, a real share of the frame.
+    labels, names = env.render("head_left", size=(448, 448), segmentation=True)
+    ids = {n: k for k, n in names.items()}
+    robot = np.isin(labels, (ids["robot_left"], ids["robot_right"]))
+    assert robot.mean() > 0.02
+    assert (labels == ids["robot_left"]).any() and (labels == ids["robot_right"]).any()
+    assert (labels == ids["cup"]).any() and (labels == ids["plate"]).any()
+
+
+def test_video_larger_than_the_default_offscreen_buffer(env):
+    image = env.render("head_left", size=(720, 960))
+    assert image.shape == (720, 960, 3) and image.std() > 1.0

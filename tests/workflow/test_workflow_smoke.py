@@ -103,7 +103,7 @@ def test_statistics_change_reruns_only_fit_onward(smoke_run):
 def test_judge_change_reruns_describe_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", *FIT_REPORTS, *VERDICT_REPORTS}
+    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table", *FIT_REPORTS, *VERDICT_REPORTS}
     assert rules == expected, rules
 
 

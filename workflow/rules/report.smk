@@ -10,6 +10,7 @@ REPORTS = [
     "reports/realsim_success_table.tex",
     "reports/realsim_table.tex",
     "reports/bt_scores_table.tex",
+    "reports/judge_card_table.tex",
     *expand("reports/win_rate_matrix_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
     *expand("reports/bt_convergence.{ext}", ext=FIGURE_EXTS),
     *expand("reports/overall_ranking.{ext}", ext=FIGURE_EXTS),
@@ -69,6 +70,19 @@ rule judge_audit:
         "{PY} -m r2s_eval.stages.judge_audit --cfg {params.cfg:q} --judge {wildcards.judge}"
         " --verdicts {input.verdicts} --rollouts {input.rollouts} {params.annotations}"
         " --out {output} > {log} 2>&1"
+
+
+rule judge_card_table:
+    input:
+        expand("results/audit/{judge}.json", judge=JUDGES),
+    output:
+        "reports/judge_card_table.tex",
+    params:
+        cfg=params_of("report.judge_card_table"),
+    log:
+        "logs/report/judge_card_table.log",
+    shell:
+        "{PY} -m r2s_eval.stages.judge_card_table --cfg {params.cfg:q} --audits {input} --out {output} > {log} 2>&1"
 
 
 rule realsim_table:

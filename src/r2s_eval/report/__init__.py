@@ -30,6 +30,7 @@ from r2s_eval.report.summaries import (
 )
 from r2s_eval.report.tables import (
     bt_scores_table,
+    judge_card_table,
     latex_escape,
     ranking_text,
     realsim_success_table,
@@ -45,6 +46,7 @@ __all__ = [
     "fit_interval",
     "hardware_effort_figure",
     "judge_audit",
+    "judge_card_table",
     "judge_averaged_scores",
     "last_checkpoint",
     "latex_escape",

@@ -13,7 +13,13 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.compare import wins_at_checkpoints
-from r2s_eval.stats import human_agreement_rate, order_swap_consistency, position_bias
+from r2s_eval.stats import (
+    human_agreement_rate,
+    order_swap_consistency,
+    position_bias,
+    shuffled_label_control,
+    unit_share,
+)
 
 
 def _require(df: pd.DataFrame, cols: Sequence[str], what: str) -> None:
@@ -164,14 +170,79 @@ def swap_consistency(verdicts: pd.DataFrame, letter_columns: Sequence[str], winn
     return none
 
 
+def _units(verdicts: pd.DataFrame) -> list:
+    """Each comparison's unit, (task, init_id); verdicts without them: each comparison its own."""
+    if "task" in verdicts.columns and "init_id" in verdicts.columns:
+        return list(zip(verdicts["task"].astype(str), verdicts["init_id"].astype(str)))
+    return [("", str(k)) for k in range(len(verdicts))]
+
+
+def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boot: int = 1000,
+                      level: float = 0.95, seed=0) -> dict:
+    """On pairs where one rollout succeeded and the other failed (sim outcomes): the share of
+    verdicts preferring the successful one, with its unit-bootstrap interval over the
+    distinct (task, init) units (:func:`~r2s_eval.stats.unit_share`)."""
+    ea, eb = verdicts["episode_a"].astype(str).to_numpy(), verdicts["episode_b"].astype(str).to_numpy()
+    sa = np.array([success[e] for e in ea], dtype=bool)
+    sb = np.array([success[e] for e in eb], dtype=bool)
+    picked_a = verdicts["verdict"].astype(str).str.strip().str.upper().to_numpy() == "A"
+    mixed = sa != sb
+    hits = np.where(picked_a, sa, sb)[mixed]
+    units = [u for u, m in zip(_units(verdicts), mixed) if m]
+    return unit_share(hits, units, n_boot=n_boot, level=level, seed=seed)
+
+
+def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], planted_order: Sequence[str] | None,
+                            *, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict | None:
+    """On pairs with the same outcome (both succeeded or both failed) between two policies of
+    ``planted_order`` (best first): the share of verdicts preferring the policy placed
+    earlier, with its unit-bootstrap interval. None when no order is given."""
+    if not planted_order:
+        return None
+    rank = {str(p): k for k, p in enumerate(planted_order)}
+    pi, pj = verdicts["policy_i"].astype(str).to_numpy(), verdicts["policy_j"].astype(str).to_numpy()
+    same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+                                                               verdicts["episode_b"].astype(str))], dtype=bool)
+    ranked = np.array([a in rank and b in rank for a, b in zip(pi, pj)], dtype=bool)
+    keep = same & ranked
+    better = np.array([a if rank.get(a, 0) < rank.get(b, 0) else b for a, b in zip(pi, pj)])
+    hits = (verdicts["winner"].astype(str).to_numpy() == better)[keep]
+    units = [u for u, k in zip(_units(verdicts), keep) if k]
+    out = unit_share(hits, units, n_boot=n_boot, level=level, seed=seed)
+    out["planted_order"] = [str(p) for p in planted_order]
+    out["n_unranked_pairs"] = int((same & ~ranked).sum())  # same-outcome pairs with a policy outside the order
+    return out
+
+
+def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot: int = 1000, level: float = 0.95,
+                    seed=0) -> dict | None:
+    """The shuffled-label control of the BT fit (:func:`~r2s_eval.stats.shuffled_label_control`)
+    on all judged comparisons; None without (task, init_id) columns or permutations."""
+    if n_permutations <= 0 or not {"task", "init_id"} <= set(verdicts.columns):
+        return None
+    pi, pj = verdicts["policy_i"].astype(str), verdicts["policy_j"].astype(str)
+    policies = sorted(set(pi) | set(pj))
+    return shuffled_label_control(
+        pi.tolist(), pj.tolist(), (verdicts["winner"].astype(str) == pi).to_numpy(),
+        verdicts["task"].astype(str).tolist(),
+        verdicts["init_id"].astype(str).tolist(), policies=policies, n_permutations=n_permutations, n_boot=n_boot,
+        level=level, seed=seed,
+    )
+
+
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
                 annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
-                swapped_winner_columns: Sequence[str] = ()) -> dict:
-    """How far one judge can be trusted beyond the ranking metrics.
+                swapped_winner_columns: Sequence[str] = (), planted_order: Sequence[str] | None = None,
+                n_boot: int = 1000, ci_level: float = 0.95, seed=0, shuffled_permutations: int = 20) -> dict:
+    """How far one judge can be trusted beyond the ranking metrics: its report card.
 
     Position bias (share of A answers, overall and on pairs whose two rollouts had the same
-    outcome), order-swap consistency where the verdicts carry swapped answers, and agreement
-    with human annotators where annotations are given. Missing quantities are None.
+    outcome), order-swap consistency where the verdicts carry swapped answers, agreement
+    with human annotators where annotations are given, agreement with the sim outcomes on
+    mixed-outcome pairs (``outcome_agreement``), agreement with a planted policy order on
+    same-outcome pairs (``planted_order_agreement``, None without ``planted_order``) and the
+    shuffled-label control of the BT fit (``shuffled_label_control``). Missing quantities
+    are None; each share comes with the counts it rests on.
     """
     _require(verdicts, ["episode_a", "episode_b", "verdict", "winner"], "verdicts")
     _require(sim_episodes, ["episode_id", "success"], "sim rollout episodes")
@@ -184,11 +255,20 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
     bias = position_bias(verdicts["verdict"].tolist(), same)
     out = {"n_verdicts": bias.n, "a_share": bias.overall, "a_share_same_outcome": _nan_to_none(bias.same_outcome),
            "n_same_outcome": bias.n_same_outcome}
-    out.update(swap_consistency(verdicts, swapped_letter_columns, swapped_winner_columns))
+    out["n_a_answers"] = int(round(bias.overall * bias.n))
+    out["n_a_same_outcome"] = int(round(bias.same_outcome * bias.n_same_outcome)) if bias.n_same_outcome else 0
+    swap = swap_consistency(verdicts, swapped_letter_columns, swapped_winner_columns)
+    swap["n_swap_consistent"] = (int(round(swap["swap_consistency"] * swap["n_swapped"]))
+                                 if swap["swap_consistency"] is not None else 0)
+    out.update(swap)
     if annotations is not None:
         out.update(agreement_with_annotations(verdicts, annotations, annotations_source))
     else:
         out.update({"human_agreement": None, "n_annotated_pairs": 0, "n_annotations": 0})
+    shares = {"n_boot": n_boot, "level": ci_level, "seed": seed}
+    out["outcome_agreement"] = outcome_agreement(verdicts, success, **shares)
+    out["planted_order_agreement"] = planted_order_agreement(verdicts, success, planted_order, **shares)
+    out["shuffled_label_control"] = shuffled_labels(verdicts, n_permutations=shuffled_permutations, **shares)
     return out
 
 

@@ -255,3 +255,57 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
              "real success %: mean of the per-task success rates"
              + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
     return "\n".join([title, header, *rows.values(), *notes]) + "\n"
+
+
+# ------------------------------------------------------------------- judge card
+
+
+def _share_cell(card: Mapping | None, decimals: int, count_key: str = "n_pairs") -> str:
+    """ "share [low, high] (n)" in percent from a unit_share dict; a dash without a share."""
+    if not card or _missing(card.get("share")):
+        return DASH
+    cell = _pct(card["share"], decimals)
+    if not _missing(card.get("ci_low")) and not _missing(card.get("ci_high")):
+        cell += rf" {{\scriptsize [{_pct(card['ci_low'], decimals)}, {_pct(card['ci_high'], decimals)}]}}"
+    return cell + f" ({int(card.get(count_key, 0))})"
+
+
+def _rate_cell(value, n, decimals: int) -> str:
+    return DASH if _missing(value) else f"{_pct(value, decimals)} ({int(n)})"
+
+
+def judge_card_table(audits: Mapping[str, dict], decimals: int = 1) -> str:
+    """Per judge, its report card (the judge-audit JSON): agreement with the sim outcome on
+    mixed-outcome pairs [CI] (pairs), agreement with the planted policy order on same-outcome
+    pairs [CI] (pairs), the share of A answers on same-outcome pairs (pairs), order-swap
+    consistency (swapped pairs), and the share of shuffled-label fits that come out flat.
+    All in percent; a missing quantity shows a dash."""
+    body = []
+    levels, perms = set(), set()
+    for judge in sorted(audits):
+        a = audits[judge]
+        outcome, planted = a.get("outcome_agreement"), a.get("planted_order_agreement")
+        shuffled = a.get("shuffled_label_control")
+        for card in (outcome, planted):
+            if card and not _missing(card.get("share")):
+                levels.add(float(card.get("ci_level", 0.95)))
+        flat = DASH
+        if shuffled and not _missing(shuffled.get("permuted_flat_share")):
+            perms.add(int(shuffled["n_permutations"]))
+            flat = f"{_pct(shuffled['permuted_flat_share'], decimals)} ({int(shuffled['n_permutations'])})"
+            flat += r" / real " + ("flat" if shuffled["real"]["flat"] else "not flat")
+        body.append(_row([
+            latex_escape(judge), _share_cell(outcome, decimals), _share_cell(planted, decimals),
+            _rate_cell(a.get("a_share_same_outcome"), a.get("n_same_outcome", 0), decimals),
+            _rate_cell(a.get("swap_consistency"), a.get("n_swapped", 0), decimals), flat,
+        ]))
+    header = [_row(["Judge", r"Outcome agr.$\uparrow$", r"Planted order$\uparrow$", "A share (same outc.)",
+                    r"Swap cons.$\uparrow$", "Shuffled flat"])]
+    level = f"{100 * next(iter(levels)):g}\\%" if len(levels) == 1 else "95\\%"
+    notes = [
+        rf"In \%; brackets: {level} CIs, distinct (task, init) units resampled; parentheses: pairs.",
+        r"Outcome agr.: verdicts preferring the successful rollout where one succeeded and one failed.",
+        r"Planted order: verdicts following the line-up's built-in order where both had the same outcome.",
+        r"Shuffled flat: share of label-permuted BT fits whose CIs all contain 100/$n$ (permutations).",
+    ]
+    return _tabular("l" + "c" * 5, header, body, notes=notes)

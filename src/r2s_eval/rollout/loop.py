@@ -64,14 +64,25 @@ def run_episode(
     The caller resets the policy (with the episode's seed) before calling.
 
     Holding success for a few steps keeps a cup that is let go mid-air from counting.
+
+    Video: one frame per control step from `video_camera`. With `video_size` (H, W) the frame is
+    rendered at that size for the judges, whatever the policy consumes; with None it is the
+    policy's own image of that camera when the policy watches it (else a render at the env's
+    image size). A rendered frame carries the world's image noise from its own generator
+    (seeded by the episode), so recording it never changes what the policy observes.
     """
     video_key = f"observation.images.{video_camera}"
+    size = None if video_size is None else (int(video_size[0]), int(video_size[1]))
+    video_rng = np.random.default_rng([seed, 0x71DE0])  # the judge video's own noise stream
 
     def frame(obs: dict) -> np.ndarray:
-        # The camera image the policy saw, when it watches the video camera; else a render.
-        if video_key in obs and video_size is None:
+        if video_key in obs and size is None:
             return obs[video_key]
-        return env.render(video_camera, size=video_size, add_noise=True)
+        rgb = env.render(video_camera, size=size)  # clean: the observations' noise stream stays theirs
+        std = float(env.params.image_noise_std)
+        if std > 0:
+            rgb = np.clip(rgb + video_rng.normal(0.0, std, rgb.shape), 0, 255).astype(np.uint8)
+        return rgb
 
     obs = env.reset(object_poses, seed=seed)
     frames = [frame(obs)]

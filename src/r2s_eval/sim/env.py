@@ -221,6 +221,10 @@ class TabletopEnv:
 
     def _renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
         if size_hw not in self._renderers:
+            # A size beyond the model's offscreen buffer (a large judge video) grows the buffer;
+            # renderers already made keep theirs, and no image of another size changes.
+            vis = self.model.vis.global_
+            vis.offheight, vis.offwidth = max(vis.offheight, size_hw[0]), max(vis.offwidth, size_hw[1])
             try:
                 self._renderers[size_hw] = mujoco.Renderer(self.model, height=size_hw[0], width=size_hw[1])
             except Exception as err:  # GL backend is fixed when mujoco is first imported

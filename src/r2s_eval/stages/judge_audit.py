@@ -2,7 +2,9 @@
 
 Position bias (share of A answers, overall and on same-outcome pairs), order-swap
 consistency where the verdicts carry swapped answers, and agreement with human annotators
-where an annotations CSV is configured. Quantities without data are null.
+where an annotations CSV is configured; the report card: agreement with the sim outcomes on
+mixed-outcome pairs, with a planted policy order on same-outcome pairs, and the
+shuffled-label control of the BT fit. Quantities without data are null.
 """
 
 from __future__ import annotations
@@ -26,12 +28,15 @@ def main(args) -> None:
     audit = judge_audit(
         verdicts, load_episodes(args.rollouts), annotations=annotations, annotations_source=str(args.annotations),
         swapped_letter_columns=opts["swapped_letter_columns"], swapped_winner_columns=opts["swapped_winner_columns"],
+        planted_order=opts.get("planted_order"), n_boot=int(opts.get("n_boot", 1000)),
+        ci_level=float(opts.get("ci_level", 0.95)), seed=int(opts.get("seed", 0)),
+        shuffled_permutations=int(opts.get("shuffled_permutations", 20)),
     )
     if audit["swap_consistency"] is None:
         log.info("%s: no swapped answers (looked for %s)", args.verdicts,
                  opts["swapped_letter_columns"] + opts["swapped_winner_columns"])
     write_json(args.out, {"judge": args.judge, "verdicts": str(args.verdicts), **audit})
-    log.info("%s", audit)
+    log.info("%s", {k: v for k, v in audit.items() if k != "shuffled_label_control"})
 
 
 if __name__ == "__main__":

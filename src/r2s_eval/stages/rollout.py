@@ -89,7 +89,8 @@ def main(args) -> None:
             runner.reset(seed=seed)
             try:
                 result = run_episode(envs[task], runner, poses_of(inits, task, init_id), seed,
-                                     rollout["max_steps"], rollout["video_camera"])
+                                     rollout["max_steps"], rollout["video_camera"],
+                                     video_size=rollout.get("video_size"))
             except PolicyError as exc:
                 raise PolicyError(f"{exc} [{cfg['arm']} rollout, task {task}, init {init_id}]") from exc
             with atomic_dir(store / ep) as tmp:

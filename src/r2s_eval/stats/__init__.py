@@ -8,6 +8,7 @@ is ``s = 100 b``.  Two bootstraps give intervals: the binomial one
 within each task).
 """
 
+from r2s_eval.stats.audit import flat_within_ci, shuffled_label_control, unit_share
 from r2s_eval.stats.bradley_terry import (
     DisconnectedComparisonsError,
     bootstrap_bradley_terry,
@@ -69,6 +70,7 @@ __all__ = [
     "comparison_units",
     "fit_bradley_terry",
     "fit_bradley_terry_batch",
+    "flat_within_ci",
     "human_agreement_rate",
     "majority_vote",
     "metric_intervals",
@@ -80,9 +82,11 @@ __all__ = [
     "pearson_batch",
     "percentile_interval",
     "position_bias",
+    "shuffled_label_control",
     "spearman",
     "spearman_batch",
     "task_mean_success",
     "unit_bootstrap_bradley_terry",
     "unit_bootstrap_wins",
+    "unit_share",
 ]

@@ -22,6 +22,9 @@ def test_experiments_compose():
     assert set(compose_config(CONF, "paper")["policies"]) == {"pi0", "pi05", "smolvla", "xvla"}
     assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
     assert "experiment" not in smoke
+    # Both offline judges in smoke and demo; the demo audits order swaps on a share of pairs.
+    assert set(smoke["judges"]) == set(demo["judges"]) == {"kinematic", "video"}
+    assert all(0 < j["swap_share"] < 1 for j in demo["judges"].values())
 
 
 def test_overrides_and_slices():

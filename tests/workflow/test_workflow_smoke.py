@@ -6,7 +6,8 @@ import json
 import shutil
 import subprocess
 import sys
-from collections import Counter
+from collections import Counter, defaultdict
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -133,3 +134,49 @@ def test_dvc_round_trip_plans_nothing(smoke_run, tmp_path):
     assert (wd / "reports" / "realsim_table.tex").exists()
     proc = snakemake(wd, "-n")
     assert planned_jobs(proc.stdout) == [], proc.stdout[-2000:]
+
+
+def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_path):
+    # Everything a VLM judge would receive for the smoke's sim rollouts, besides the pixels: the
+    # texts (instruction masked), the number and size of images, a video part's frames, rate and
+    # duration. It is the same for every episode, so it cannot predict success beyond chance.
+    from r2s_eval.judge import describe_rollouts, make_judge
+    from r2s_eval.stages._rollouts import load_episodes
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "judge"))
+    from chat_server import ChatServer
+
+    rollouts = sorted((smoke_run.workdir / "results" / "rollout" / "sim").glob("act*"))
+    episodes = load_episodes([str(d) for d in rollouts if d.is_dir()])
+    assert len(episodes) == 18 and episodes["length"].nunique() > 1  # lengths differ, requests must not
+    for video_input in ("frames", "video"):
+        with ChatServer() as server:
+            judge = make_judge({"backend": "openai", "base_url": server.url, "model": "test-vlm",
+                                "max_frames": 8, "video_input": video_input})
+            describe_rollouts(episodes, ".", judge, tmp_path / video_input)
+        signatures = defaultdict(set)
+        for e in server.log:
+            assert e["status"] == 200
+            texts = tuple((role, t.replace(episodes["instruction"].iloc[0], "<instruction>")) for role, t in e["texts"])
+            videos = tuple(tuple(sorted(v.items())) for v in e["videos"])
+            signatures[e["kind"]].add((texts, e["n_images"], videos))
+        assert sum(1 for e in server.log if e["kind"] == "describe") == len(episodes)
+        assert {k: len(v) for k, v in signatures.items()} == {"describe": 1}, video_input
+
+
+def test_shuffled_label_control_is_flat_where_the_real_ranking_is_not(smoke_run):
+    audit = json.loads((smoke_run.workdir / "results" / "audit" / "kinematic.json").read_text())
+    control = audit["shuffled_label_control"]
+    assert control["n_permutations"] >= 10 and set(control["policies"]) == {"act", "act_subset", "act_weak"}
+
+    def spread(fit):
+        return max(fit["scores"].values()) - min(fit["scores"].values())
+
+    # The kinematic judge separates the smoke's policies beyond their CIs; permuting the policy
+    # labels within each task and init takes that away: the permuted rankings are flatter than the
+    # real one. (With six inits a permutation can, by chance, hand one label most of the good
+    # rollouts, so not every permuted ranking is flat; the share is reported.)
+    assert not control["real"]["flat"]
+    permuted = sorted(spread(p) for p in control["permuted"])
+    assert permuted[len(permuted) // 2] < spread(control["real"]), (permuted, control["real"])
+    assert 0.0 < control["permuted_flat_share"] <= 1.0

@@ -32,13 +32,12 @@ Compare (from the two descriptions alone, deterministic, no position bias):
 
 from __future__ import annotations
 
-import copy
 import hashlib
-import math
 from collections.abc import Mapping
 from typing import Any
 
-from r2s_eval.judge.base import Description, CriterionNote, Judge, RolloutInput, Verdict, register_judge
+from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
+from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
 from r2s_eval.judge import trajectory as T
 
 DEFAULTS: dict[str, Any] = {
@@ -86,33 +85,6 @@ _WORDS = {
 _OUTCOME_RANK = {"successful": 2, "partially successful": 1, "failed": 0}
 
 
-def _merge(defaults: dict[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
-    unknown = set(cfg) - set(defaults)
-    if unknown:
-        raise ValueError(f"kinematic judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
-    out = copy.deepcopy(defaults)
-    for k, v in cfg.items():
-        if isinstance(defaults[k], dict):
-            bad = set(v) - set(defaults[k])
-            if bad:
-                raise ValueError(f"kinematic judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
-            out[k].update(v)
-        else:
-            out[k] = v
-    return out
-
-
-def _num(x: Any) -> Any:
-    """Round evidence to 6 significant digits: readable and stable across platforms."""
-    if isinstance(x, float):
-        return float(f"{x:.6g}")
-    return x
-
-
-def _g(x: float) -> str:
-    return f"{x:.3g}"
-
-
 @register_judge("kinematic")
 class KinematicJudge(Judge):
     """Offline trajectory-reading judge; NOT a VLM (see the module docstring for its rules)."""
@@ -123,7 +95,7 @@ class KinematicJudge(Judge):
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         super().__init__(cfg)
         # Identity/caching hash the effective config, so changed defaults invalidate old answers.
-        self.cfg = _merge(DEFAULTS, self.cfg)
+        self.cfg = merge_config('kinematic', DEFAULTS, self.cfg, nested=[k for k, v in DEFAULTS.items() if isinstance(v, dict)])
         if self.cfg["backend"] != "kinematic":
             raise ValueError(f"kinematic judge built with backend {self.cfg['backend']!r}")
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
@@ -155,22 +127,22 @@ class KinematicJudge(Judge):
         words = {k: self._word(k, ev) for k, ev in
                  (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
         s_text = (
-            f"Motion is {words['motion_smoothness']}: end-effector jerk RMS {_g(smooth['ee_jerk_rms_m_s3'])} m/s^3 "
-            f"(95th percentile {_g(smooth['ee_jerk_p95_m_s3'])}), joint jerk RMS "
-            f"{_g(smooth['joint_jerk_rms_rad_s3'])} rad/s^3, action jitter RMS {_g(smooth['action_jitter_rms_rad'])} rad."
+            f"Motion is {words['motion_smoothness']}: end-effector jerk RMS {fmt(smooth['ee_jerk_rms_m_s3'])} m/s^3 "
+            f"(95th percentile {fmt(smooth['ee_jerk_p95_m_s3'])}), joint jerk RMS "
+            f"{fmt(smooth['joint_jerk_rms_rad_s3'])} rad/s^3, action jitter RMS {fmt(smooth['action_jitter_rms_rad'])} rad."
         )
         c_text = (
             f"Execution is {words['action_continuity']}: idle {100 * cont['idle_fraction']:.0f}% of mid-task steps "
-            f"(longest idle {_g(cont['longest_idle_s'])} s), {cont['pauses']} stop-and-go pauses, "
-            f"{cont['reversals']} end-effector direction reversals ({_g(cont['reversals_per_s'])}/s)."
+            f"(longest idle {fmt(cont['longest_idle_s'])} s), {cont['pauses']} stop-and-go pauses, "
+            f"{cont['reversals']} end-effector direction reversals ({fmt(cont['reversals_per_s'])}/s)."
         )
         p_text = (
             f"Task {label}: progress peaked at {prog['max_progress']:.2f} and ended at {prog['final_progress']:.2f}."
         )
         f_text = (
-            f"Contact is {words['force_control']}: peak force {_g(force['peak_force_n'])} N, mean "
-            f"{_g(force['mean_contact_force_n'])} N while in contact ({100 * force['contact_fraction']:.0f}% of steps), "
-            f"{force['impacts']} impacts (largest rise {_g(force['max_force_rise_n_per_step'])} N in one step)."
+            f"Contact is {words['force_control']}: peak force {fmt(force['peak_force_n'])} N, mean "
+            f"{fmt(force['mean_contact_force_n'])} N while in contact ({100 * force['contact_fraction']:.0f}% of steps), "
+            f"{force['impacts']} impacts (largest rise {fmt(force['max_force_rise_n_per_step'])} N in one step)."
         )
         summary = (
             f"Kinematic trajectory analysis (not a VLM; video not viewed): {label} "
@@ -178,32 +150,16 @@ class KinematicJudge(Judge):
             f"{words['action_continuity']}, {words['force_control']} contact."
         )
 
-        def note(text: str, ev: dict[str, Any], lab: str | None = None) -> CriterionNote:
-            return CriterionNote(text=text, evidence={k: _num(v) for k, v in ev.items()}, label=lab)
-
-        return Description(
-            criteria={
-                "motion_smoothness": note(s_text, smooth),
-                "action_continuity": note(c_text, cont),
-                "task_progress": note(p_text, prog, label),
-                "force_control": note(f_text, force),
-            },
-            summary=summary,
-            judge=self.name,
+        return description(
+            {"motion_smoothness": s_text, "action_continuity": c_text, "task_progress": p_text, "force_control": f_text},
+            {"motion_smoothness": smooth, "action_continuity": cont, "task_progress": prog, "force_control": force},
+            label, summary, self.name,
         )
 
     # ---------------------------------------------------------------- scoring
     def criterion_score(self, criterion: str, evidence: Mapping[str, Any]) -> float | None:
         """Score in (0, 1] from a criterion's evidence numbers; None when a number is absent."""
-        ref = self.cfg["ref"]
-        vals = []
-        for key in SCORED[criterion]:
-            x = evidence.get(key)
-            if not isinstance(x, (int, float)) or isinstance(x, bool):
-                return None
-            vals.append(1.0 / (1.0 + max(float(x), 0.0) / float(ref[key])))
-        # Geometric mean: one bad number (e.g. a long stall) is not averaged away by two good ones.
-        return math.prod(vals) ** (1.0 / len(vals))
+        return ratio_score(evidence, SCORED[criterion], self.cfg["ref"])
 
     def _word(self, criterion: str, evidence: Mapping[str, Any]) -> str:
         s = self.criterion_score(criterion, evidence) or 0.0

@@ -44,7 +44,6 @@ A and B flips the letter) and identical descriptions get a letter from a hash pa
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import math
 import re
@@ -53,7 +52,8 @@ from typing import Any
 
 import numpy as np
 
-from r2s_eval.judge.base import CriterionNote, Description, Judge, RolloutInput, Verdict, register_judge
+from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
+from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
 
 DEFAULTS: dict[str, Any] = {
     "backend": "video",
@@ -110,36 +110,6 @@ RELATIONS: dict[str, tuple[str, str, str | None]] = {
     "block_from_box": ("out", "block_a", "box"),
     "upright_cup": ("upright", "cup", None),
 }
-
-
-def _merge(defaults: dict[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
-    unknown = set(cfg) - set(defaults)
-    if unknown:
-        raise ValueError(f"video judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
-    out = copy.deepcopy(defaults)
-    for k, v in cfg.items():
-        if k == "ref":
-            bad = set(v) - set(defaults[k])
-            if bad:
-                raise ValueError(f"video judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
-            out[k].update(v)
-        else:
-            out[k] = v
-    return out
-
-
-def _num(x: Any) -> Any:
-    if isinstance(x, (float, np.floating)):
-        return float(f"{float(x):.6g}")
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
-
-
-def _g(x: float) -> str:
-    return f"{x:.3g}"
 
 
 def _words(text: str) -> set[str]:
@@ -334,7 +304,7 @@ class VideoJudge(Judge):
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         super().__init__(cfg)
-        self.cfg = _merge(DEFAULTS, self.cfg)
+        self.cfg = merge_config('video', DEFAULTS, self.cfg, nested=["ref"])
         if self.cfg["backend"] != "video":
             raise ValueError(f"video judge built with backend {self.cfg['backend']!r}")
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
@@ -371,7 +341,7 @@ class VideoJudge(Judge):
         w = {k: self._word(k, ev) for k, ev in
              (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
         if cont["robot_moved"]:
-            s_text = (f"Motion is {w['motion_smoothness']}: motion-energy jerk {_g(smooth['energy_jerk'])} "
+            s_text = (f"Motion is {w['motion_smoothness']}: motion-energy jerk {fmt(smooth['energy_jerk'])} "
                       f"(normalised second difference), {100 * smooth['energy_spike_share']:.0f}% of active "
                       f"frames are sudden bursts.")
             c_text = (f"Execution is {w['action_continuity']}: still {100 * cont['idle_fraction']:.0f}% of the "
@@ -379,16 +349,16 @@ class VideoJudge(Judge):
         else:
             s_text = "No robot motion is visible, so smoothness cannot be judged."
             c_text = "Execution is stop-and-go at its worst: the robot never visibly moves."
-        gap = "unknown" if prog["goal_gap"] is None else _g(prog["goal_gap"])
-        p_text = (f"Task {label}: the {prog['object']} moved up to {_g(prog['max_move'])} of its sizes; "
+        gap = "unknown" if prog["goal_gap"] is None else fmt(prog["goal_gap"])
+        p_text = (f"Task {label}: the {prog['object']} moved up to {fmt(prog['max_move'])} of its sizes; "
                   f"goal relation '{prog['relation']}'"
                   + (f" to the {prog['reference']}" if prog["reference"] else "")
                   + f" {'holds' if prog['goal_met'] else 'does not hold'} at the end (gap {gap}, "
                   f"{100 * prog['goal_closure']:.0f}% closed).")
         if force["object_moved"]:
-            f_text = (f"Object handling is {w['force_control']}: peak object speed {_g(force['peak_object_speed'])} "
+            f_text = (f"Object handling is {w['force_control']}: peak object speed {fmt(force['peak_object_speed'])} "
                       f"sizes/frame, {force['object_speed_spikes']} abrupt jumps, other object displaced "
-                      f"{_g(force['bystander_move'])} sizes.")
+                      f"{fmt(force['bystander_move'])} sizes.")
         else:
             f_text = "No object is visibly moved, so contact force cannot be judged."
         summary = (f"Video pixel analysis (not a VLM; trajectory not read): {label}; "
@@ -396,18 +366,10 @@ class VideoJudge(Judge):
                    f"{w['action_continuity']}, "
                    f"{w['force_control'] + ' contact' if force['object_moved'] else 'no object moved'}.")
 
-        def note(text: str, ev: dict[str, Any], lab: str | None = None) -> CriterionNote:
-            return CriterionNote(text=text, evidence={k: _num(v) for k, v in ev.items()}, label=lab)
-
-        return Description(
-            criteria={
-                "motion_smoothness": note(s_text, smooth),
-                "action_continuity": note(c_text, cont),
-                "task_progress": note(p_text, prog, label),
-                "force_control": note(f_text, force),
-            },
-            summary=summary,
-            judge=self.name,
+        return description(
+            {"motion_smoothness": s_text, "action_continuity": c_text, "task_progress": p_text, "force_control": f_text},
+            {"motion_smoothness": smooth, "action_continuity": cont, "task_progress": prog, "force_control": force},
+            label, summary, self.name,
         )
 
     # ---------------------------------------------------------------- scoring
@@ -422,14 +384,7 @@ class VideoJudge(Judge):
             return 0.0
         if criterion == "force_control" and evidence.get("object_moved") is False:
             return float(self.cfg["no_motion_score"])
-        ref = self.cfg["ref"]
-        vals = []
-        for key in SCORED[criterion]:
-            x = evidence.get(key)
-            if not isinstance(x, (int, float)) or isinstance(x, bool):
-                return None
-            vals.append(1.0 / (1.0 + max(float(x), 0.0) / float(ref[key])))
-        return math.prod(vals) ** (1.0 / len(vals))
+        return ratio_score(evidence, SCORED[criterion], self.cfg["ref"])
 
     def _word(self, criterion: str, evidence: Mapping[str, Any]) -> str:
         s = self.criterion_score(criterion, evidence) or 0.0

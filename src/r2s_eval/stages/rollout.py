@@ -77,11 +77,12 @@ def main(args) -> None:
     # Render only what the policy looks at: the other cameras cost time and change nothing.
     cameras = [k.removeprefix("observation.images.") for k in runner.image_keys]
     envs = {}
-    keys = list(inits[["task", "init_id"]].drop_duplicates().itertuples(index=False))
+    episodes_to_run = []  # (task, init, seed, episode id), in the inits' order
+    for task, init_id in inits[["task", "init_id"]].drop_duplicates().itertuples(index=False):
+        seed = int(np.random.default_rng([cfg["seed"], int(init_id)]).integers(2**31))
+        episodes_to_run.append((task, init_id, seed, episode_id(cfg["arm"], name, task, init_id, seed)))
     try:
-        for task, init_id in tqdm(keys, desc=f"rollout {cfg['arm']}/{name}", mininterval=5):
-            seed = int(np.random.default_rng([cfg["seed"], int(init_id)]).integers(2**31))
-            ep = episode_id(cfg["arm"], name, task, init_id, seed)
+        for task, init_id, seed, ep in tqdm(episodes_to_run, desc=f"rollout {cfg['arm']}/{name}", mininterval=5):
             if (store / ep / "row.json").is_file():
                 continue  # finished before the stage was interrupted
             if task not in envs:
@@ -110,9 +111,7 @@ def main(args) -> None:
     with atomic_dir(out) as tmp:
         (tmp / "videos").mkdir()
         (tmp / "trajectories").mkdir()
-        for task, init_id in keys:
-            seed = int(np.random.default_rng([cfg["seed"], int(init_id)]).integers(2**31))
-            ep = episode_id(cfg["arm"], name, task, init_id, seed)
+        for _, _, _, ep in episodes_to_run:
             row = json.loads((store / ep / "row.json").read_text())
             stats = row.pop("policy_stats")
             shutil.copyfile(store / ep / f"{ep}.mp4", tmp / row["video_path"])

@@ -13,11 +13,21 @@ exercised end to end. Its answers depend only on what it is shown, the way a mod
 
 Images (``image_url``) and videos (``video_url``, an mp4 data URL) are both understood.
 
-Scripted faults: ``fail_plan`` answers the first requests with those HTTP statuses; ``hold_after``
-answers that many requests and then holds every later one until ``release()`` (to kill a client
-mid-stage deterministically); ``latency_s`` delays every answer. ``log`` records each request:
-its status, the sha256 of its body, the full prompt text, its text parts in order (``texts``:
-(role, text)), its image count and, per video part, the decoded frame count, rate and duration.
+Scripted faults: ``fail_plan`` answers the first requests with those HTTP statuses; ``faults``
+(a list the test may refill at any time) answers the next requests, one item each, with:
+
+* an HTTP status, or ``(status, headers)``, a header value may be a function called when the
+  answer is sent (an HTTP-date ``Retry-After`` relative to that moment);
+* ``"not_json"``: status 200 with a body that is not JSON; ``"no_choices"``: 200 without
+  ``choices``; ``"empty_choices"``: an empty ``choices`` list; ``"empty_content"`` /
+  ``"null_content"``: a message whose content is "" / null;
+* ``"hang"``: no answer for ``hang_s`` seconds (or until ``release()``), longer than the client waits.
+
+``hold_after`` answers that many requests and then holds every later one until ``release()`` (to
+kill a client mid-stage deterministically); ``latency_s`` delays every answer. ``log`` records
+each request: its status (or the fault's name), when it arrived (``t``, monotonic seconds), the
+sha256 of its body, the full prompt text, its text parts in order (``texts``: (role, text)), its
+image count and, per video part, the decoded frame count, rate and duration.
 """
 
 from __future__ import annotations
@@ -62,10 +72,28 @@ def _in(x: float, band: tuple[float, float]) -> bool:
     return band[0] <= x < band[1]
 
 
+MALFORMED = ("not_json", "no_choices", "empty_choices", "empty_content", "null_content")
+
+
+def _malformed(fault: str, completion: dict) -> bytes | dict:
+    if fault == "not_json":
+        return b'{"id": "cmpl-x", "choices": [{"message": '  # cut short
+    if fault == "no_choices":
+        return {k: v for k, v in completion.items() if k != "choices"}
+    if fault == "empty_choices":
+        return {**completion, "choices": []}
+    content = "" if fault == "empty_content" else None
+    return {**completion, "choices": [{"index": 0, "finish_reason": "stop",
+                                       "message": {"role": "assistant", "content": content}}]}
+
+
 class ChatServer:
-    def __init__(self, latency_s: float = 0.0, fail_plan: list[int] | None = None, hold_after: int | None = None):
+    def __init__(self, latency_s: float = 0.0, fail_plan: list[int] | None = None, hold_after: int | None = None,
+                 faults: list | None = None, hang_s: float = 10.0):
         self.latency_s = latency_s
         self.fail_plan = list(fail_plan or [])
+        self.faults = list(faults or [])
+        self.hang_s = hang_s
         self.hold_after = hold_after
         self.log: list[dict] = []
         self.answered = 0
@@ -82,11 +110,11 @@ class ChatServer:
             def do_POST(self):
                 body = self.rfile.read(int(self.headers.get("Content-Length", 0)))
                 status, payload, headers = server.handle(self.path, body)
-                blob = json.dumps(payload).encode()
+                blob = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
                 try:
                     self.send_response(status)
                     for k, v in headers.items():
-                        self.send_header(k, v)
+                        self.send_header(k, v() if callable(v) else v)
                     self.send_header("Content-Type", "application/json")
                     self.send_header("Content-Length", str(len(blob)))
                     self.end_headers()
@@ -121,6 +149,7 @@ class ChatServer:
         kind = ("describe" if "Describe what the robot does" in text else
                 "compare_videos" if media else "compare")
         entry = {"kind": kind, "sha": hashlib.sha256(body).hexdigest(), "text": text, "status": None,
+                 "t": time.monotonic(),
                  "texts": texts, "n_images": sum(1 for _, _, v in media if v is None), "videos": videos,
                  "model": req.get("model"), "temperature": req.get("temperature"), "max_tokens": req.get("max_tokens")}
         with self._lock:
@@ -129,9 +158,18 @@ class ChatServer:
                 entry["status"] = self.fail_plan.pop(0)
                 return entry["status"], {"error": {"message": "scripted failure", "type": "server_error"}}, (
                     {"Retry-After": "0"} if entry["status"] == 429 else {})
-            held = self.hold_after is not None and self.answered >= self.hold_after
-            if not held:
+            fault = self.faults.pop(0) if self.faults else None
+            if isinstance(fault, (int, tuple)):
+                status, headers = fault if isinstance(fault, tuple) else (fault, {})
+                entry["status"] = status
+                return status, {"error": {"message": "scripted failure", "type": "server_error"}}, dict(headers)
+            held = fault is None and self.hold_after is not None and self.answered >= self.hold_after
+            if not held and fault is None:
                 self.answered += 1
+        if fault == "hang":
+            entry["status"] = "hang"
+            self._released.wait(self.hang_s)  # the client has given up by now; what follows is lost
+            return 503, {"error": {"message": "hung"}}, {}
         if held:
             self._released.wait()
             entry["status"] = "held"
@@ -141,14 +179,20 @@ class ChatServer:
             return 404, {"error": {"message": f"no route {path}"}}, {}
         time.sleep(self.latency_s)
         reply = self._answer(kind, text, media, req["messages"])
-        entry["status"] = 200
-        return 200, {
+        completion = {
             "id": "cmpl-" + entry["sha"][:12], "object": "chat.completion", "created": 0, "model": req.get("model"),
             "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": reply}}],
             "usage": {"prompt_tokens": len(text.split()) + 10 * len(media) + sum(v["frames"] for v in videos),
                       "completion_tokens": len(reply.split()),
                       "total_tokens": 0},
-        }, {}
+        }
+        if fault in MALFORMED:
+            entry["status"] = fault
+            return 200, _malformed(fault, completion), {}
+        if fault is not None:
+            raise ValueError(f"unknown scripted fault {fault!r}")
+        entry["status"] = 200
+        return 200, completion, {}
 
     @staticmethod
     def _flatten(messages: list[dict]) -> tuple[str, list[tuple[int, float, dict | None]], list, list]:

@@ -186,7 +186,7 @@ def test_openai_stage_killed_mid_run_resumes_without_repeating_a_request(rollout
     assert len(pd.read_parquet(out)) == len(episodes)
 
 
-def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, monkeypatch):
+def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, monkeypatch, capsys):
     """compare_pairs -> describe -> judge_pairs through their command lines, as the workflow runs them."""
     from r2s_eval.stages import _cli
     from r2s_eval.stages import compare_pairs as cp_stage
@@ -216,10 +216,12 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
 
     # Pairs that do not come from these rollouts and seed are refused, not silently replaced.
     judge["seed"] = 4
-    with pytest.raises(ValueError, match="was not sampled from these rollouts with seed 4"):
+    with pytest.raises(SystemExit) as stop:
         _cli.run(jp_stage.main, _add(jp_stage, ["--pairs", "--rollouts", "--descriptions", "--cache", "--out"]),
                  ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
                   "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])
+    assert stop.value.code == _cli.EXIT_EXPECTED
+    assert "was not sampled from these rollouts with seed 4" in capsys.readouterr().err
 
 
 def _add(stage, flags: list[str]):

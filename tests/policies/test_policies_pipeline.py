@@ -21,6 +21,7 @@ from r2s_eval.policies import (
     train_policy,
     validate_policy_cfg,
 )
+from r2s_eval.errors import DataError
 from r2s_eval.utils.io import file_sha256
 
 pytestmark = pytest.mark.timeout(300)
@@ -142,7 +143,7 @@ def test_policies_missing_image_key_is_named(dataset_root, tmp_path):
     with pytest.raises(DatasetContractError, match="observation.images.head_right"):
         train_policy(dataset_root, REPO_ID, cfg, tmp_path / "run", seed=0)
     assert not (tmp_path / "run").exists()
-    with pytest.raises(FileNotFoundError, match="info.json"):
+    with pytest.raises(DataError, match="meta/info.json is missing"):
         train_policy(tmp_path / "nowhere", REPO_ID, _tiny("act"), tmp_path / "run2", seed=0)
     with pytest.raises(PolicyError, match="config.json"):
         load_policy(tmp_path / "no_checkpoint")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from .conftest import snakemake
+from .conftest import planned_jobs, snakemake
 
 
 def test_sim_chain_is_scheduled_before_any_training(tmp_path):
@@ -30,3 +30,29 @@ def test_bad_checkpoint_candidate_stops_the_plan(tmp_path):
     proc = snakemake(tmp_path / "run", "-n", overrides=[f"+policies.lab={{type:checkpoint,path:'{bad}'}}"], check=False)
     assert proc.returncode != 0
     assert "policy 'lab'" in proc.stdout + proc.stderr and "no LeRobot policy at" in proc.stdout + proc.stderr
+
+
+def test_failed_ingest_lets_no_training_run(tmp_path):
+    # A lab's own dataset that ingest rejects: training (which reads ingest's index) waits on
+    # ingest in the plan, never starts, and the failure is one paragraph naming the file.
+    data = tmp_path / "lab_dataset"
+    (data / "meta").mkdir(parents=True)
+    (data / "meta" / "info.json").write_text('{"codebase_version": "v3.0", "fps": ')
+    reference = tmp_path / "reference.csv"
+    reference.write_text("policy,task,trials,successes\n")
+    overrides = ["real=dataset", f"real.dataset_root='{data}'", "real.dataset_repo_id=lab/teleop",
+                 f"real.reference_csv='{reference}'"]
+    run = tmp_path / "run"
+    targets = ("results/train/real/act", "results/train/sim/act")
+
+    plan = planned_jobs(snakemake(run, "-n", *targets, overrides=overrides).stdout)
+    rules = [rule for rule, _ in plan]
+    assert "ingest" in rules and rules.count("train") == 2
+
+    proc = snakemake(run, "-j", "2", "--keep-going", *targets, overrides=overrides, check=False)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert "ingest failed: dataset" in out and "meta/info.json: not readable JSON" in out
+    assert not re.search(r"^\s*(local)?rule train:", out, re.M), out[-3000:]
+    assert not (run / "results" / "train").exists() and not (run / "logs" / "train").exists()
+    assert "Traceback" in (run / "logs" / "ingest.log").read_text()

@@ -1,8 +1,12 @@
 # Compose the Hydra configuration once and expose per-rule slices as plain JSON params.
 import json
+import logging
 import sys
 from pathlib import Path
 
+# lerobot logs while it is imported, which installs a root handler that would print each of
+# Snakemake's messages twice; the root keeps the handlers it had.
+_ROOT_HANDLERS = list(logging.getLogger().handlers)
 from r2s_eval.config import compose_config, select, to_json
 from r2s_eval.policies.sources import (
     check_checkpoint,
@@ -13,6 +17,8 @@ from r2s_eval.policies.sources import (
     validate_source_cfg,
 )
 from r2s_eval.sim.env import ACTION_DIM
+
+logging.getLogger().handlers[:] = _ROOT_HANDLERS
 
 CONF_DIR = Path(workflow.basedir) / "conf"
 EXPERIMENT = config.get("experiment", "demo")

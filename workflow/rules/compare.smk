@@ -10,4 +10,4 @@ rule compare_pairs:
         "logs/compare_pairs.log",
     shell:
         "{PY} -m r2s_eval.stages.compare_pairs --cfg {params.cfg:q} --rollouts {input}"
-        " --out {output} > {log} 2>&1"
+        " --out {output} --log {log}"

@@ -14,7 +14,7 @@ rule fit:
         "logs/fit/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.fit --cfg {params.cfg:q} --verdicts {input.verdicts} --pairs {input.pairs}"
-        " --out {output.fit} --replicates {output.replicates} > {log} 2>&1"
+        " --out {output.fit} --replicates {output.replicates} --log {log}"
 
 
 rule validate:
@@ -30,4 +30,4 @@ rule validate:
         "logs/validate/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.validate --cfg {params.cfg:q} --fit {input.fit} --replicates {input.replicates}"
-        " --reference {input.reference} --out {output} > {log} 2>&1"
+        " --reference {input.reference} --out {output} --log {log}"

@@ -14,4 +14,4 @@ rule ingest:
         "logs/ingest.log",
     shell:
         "{PY} -m r2s_eval.stages.ingest --cfg {params.cfg:q} --dataset {input.dataset}"
-        " --index {output.index} --report {output.report} --frames {output.frames} > {log} 2>&1"
+        " --index {output.index} --report {output.report} --frames {output.frames} --log {log}"

@@ -24,7 +24,7 @@ rule init_offsets:
         "logs/init_offsets.log",
     shell:
         "{PY} -m r2s_eval.stages.init_offsets --cfg {params.cfg:q} --index {input.index}"
-        " --frames {input.frames} {params.measured} --out {output} > {log} 2>&1"
+        " --frames {input.frames} {params.measured} --out {output} --log {log}"
 
 
 rule init_estimate:
@@ -42,7 +42,7 @@ rule init_estimate:
         "logs/init_estimate.log",
     shell:
         "{PY} -m r2s_eval.stages.init_estimate --cfg {params.cfg:q} --index {input.index}"
-        " --frames {input.frames} --offsets {input.offsets} --out {output} > {log} 2>&1"
+        " --frames {input.frames} --offsets {input.offsets} --out {output} --log {log}"
 
 
 if TWIN:
@@ -60,4 +60,4 @@ if TWIN:
             "logs/init_error.log",
         shell:
             "{PY} -m r2s_eval.stages.init_error --estimates {input.estimates} --truth {input.truth}"
-            " --table {output.table} --summary {output.summary} > {log} 2>&1"
+            " --table {output.table} --summary {output.summary} --log {log}"

@@ -34,7 +34,7 @@ rule describe:
         "logs/describe/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.describe --cfg {params.cfg:q} --rollouts {input}"
-        " --cache {JUDGE_CACHE} --out {output} > {log} 2>&1"
+        " --cache {JUDGE_CACHE} --out {output} --log {log}"
 
 
 rule judge_pairs:
@@ -50,4 +50,4 @@ rule judge_pairs:
     shell:
         "{PY} -m r2s_eval.stages.judge_pairs --cfg {params.cfg:q} --pairs {input.pairs}"
         " --rollouts {input.rollouts} {params.descriptions} --cache {JUDGE_CACHE}"
-        " --out {output} > {log} 2>&1"
+        " --out {output} --log {log}"

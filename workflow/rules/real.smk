@@ -10,7 +10,7 @@ if TWIN:
         log:
             "logs/twin.log",
         shell:
-            "{PY} -m r2s_eval.stages.twin --cfg {params.cfg:q} --out {output} > {log} 2>&1"
+            "{PY} -m r2s_eval.stages.twin --cfg {params.cfg:q} --out {output} --log {log}"
 
     rule teleop:
         input:
@@ -24,4 +24,4 @@ if TWIN:
             "logs/teleop.log",
         shell:
             "{PY} -m r2s_eval.stages.teleop --cfg {params.cfg:q} --twin {input.twin}"
-            " --dataset {output.dataset} --truth {output.truth} > {log} 2>&1"
+            " --dataset {output.dataset} --truth {output.truth} --log {log}"

@@ -16,7 +16,7 @@ rule replay:
     shell:
         "{PY} -m r2s_eval.stages.replay --cfg {params.cfg:q} --dataset {input.dataset}"
         " --index {input.index} --estimates {input.estimates} --out-dataset {output.dataset}"
-        " --out-log {output.log_table} > {log} 2>&1"
+        " --out-log {output.log_table} --log {log}"
 
 
 if TWIN:
@@ -35,4 +35,4 @@ if TWIN:
             "logs/world_report.log",
         shell:
             "{PY} -m r2s_eval.stages.world_report --truth {input.truth} --errors {input.errors}"
-            " --replay {input.replay} --estimates {input.estimates} --out {output} > {log} 2>&1"
+            " --replay {input.replay} --estimates {input.estimates} --out {output} --log {log}"

@@ -36,7 +36,7 @@ rule tasks_table:
         "logs/report/tasks_table.log",
     shell:
         "{PY} -m r2s_eval.stages.tasks_table --cfg {params.cfg:q} --index {input.index}"
-        " --replay-log {input.replay_log} --out {output} > {log} 2>&1"
+        " --replay-log {input.replay_log} --out {output} --log {log}"
 
 
 rule realsim_success_table:
@@ -51,7 +51,7 @@ rule realsim_success_table:
         "logs/report/realsim_success_table.log",
     shell:
         "{PY} -m r2s_eval.stages.realsim_success_table --cfg {params.cfg:q} --reference {input.reference}"
-        " --rollouts {input.rollouts} --out {output} > {log} 2>&1"
+        " --rollouts {input.rollouts} --out {output} --log {log}"
 
 
 rule judge_audit:
@@ -69,7 +69,7 @@ rule judge_audit:
     shell:
         "{PY} -m r2s_eval.stages.judge_audit --cfg {params.cfg:q} --judge {wildcards.judge}"
         " --verdicts {input.verdicts} --rollouts {input.rollouts} {params.annotations}"
-        " --out {output} > {log} 2>&1"
+        " --out {output} --log {log}"
 
 
 rule judge_card_table:
@@ -82,7 +82,7 @@ rule judge_card_table:
     log:
         "logs/report/judge_card_table.log",
     shell:
-        "{PY} -m r2s_eval.stages.judge_card_table --cfg {params.cfg:q} --audits {input} --out {output} > {log} 2>&1"
+        "{PY} -m r2s_eval.stages.judge_card_table --cfg {params.cfg:q} --audits {input} --out {output} --log {log}"
 
 
 rule realsim_table:
@@ -101,7 +101,7 @@ rule realsim_table:
     shell:
         "{PY} -m r2s_eval.stages.realsim_table --cfg {params.cfg:q} --validation {input.validation}"
         " --audits {input.audits} --fits {input.fits} --reference {input.reference} --table {output.table}"
-        " --ranking {output.ranking} > {log} 2>&1"
+        " --ranking {output.ranking} --log {log}"
 
 
 rule bt_scores_table:
@@ -117,7 +117,7 @@ rule bt_scores_table:
         "logs/report/bt_scores_table.log",
     shell:
         "{PY} -m r2s_eval.stages.bt_scores_table --cfg {params.cfg:q} --fits {input.fits}"
-        " --reference {input.reference} --validation {input.validation} --out {output} > {log} 2>&1"
+        " --reference {input.reference} --validation {input.validation} --out {output} --log {log}"
 
 
 rule win_rate_matrix:
@@ -132,7 +132,7 @@ rule win_rate_matrix:
         "logs/report/win_rate_matrix/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.win_rate_figure --cfg {params.cfg:q} --judge {wildcards.judge}"
-        " --verdicts {input} --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+        " --verdicts {input} --pdf {output.pdf} --png {output.png} --log {log}"
 
 
 rule bt_convergence:
@@ -147,7 +147,7 @@ rule bt_convergence:
         "logs/report/bt_convergence.log",
     shell:
         "{PY} -m r2s_eval.stages.bt_convergence_figure --cfg {params.cfg:q} --fits {input}"
-        " --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+        " --pdf {output.pdf} --png {output.png} --log {log}"
 
 
 rule overall_ranking:
@@ -165,7 +165,7 @@ rule overall_ranking:
     shell:
         "{PY} -m r2s_eval.stages.overall_ranking_figure --cfg {params.cfg:q} --fits {input.fits}"
         " --reference {input.reference} --validation {input.validation} --pdf {output.pdf} --png {output.png}"
-        " > {log} 2>&1"
+        " --log {log}"
 
 
 rule hardware_effort:
@@ -180,7 +180,7 @@ rule hardware_effort:
         "logs/report/hardware_effort.log",
     shell:
         "{PY} -m r2s_eval.stages.hardware_effort_figure --cfg {params.cfg:q} --reference {input.reference}"
-        " --pdf {output.pdf} --png {output.png} > {log} 2>&1"
+        " --pdf {output.pdf} --png {output.png} --log {log}"
 
 
 rule case_study:
@@ -197,4 +197,4 @@ rule case_study:
     shell:
         "{PY} -m r2s_eval.stages.case_study_figure --cfg {params.cfg:q} --judge {wildcards.judge}"
         " --verdicts {input.verdicts} --rollouts {input.rollouts} --pdf {output.pdf} --png {output.png}"
-        " > {log} 2>&1"
+        " --log {log}"

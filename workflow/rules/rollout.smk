@@ -8,7 +8,7 @@ rule rollout_inits:
     log:
         "logs/rollout_inits.log",
     shell:
-        "{PY} -m r2s_eval.stages.rollout_inits --cfg {params.cfg:q} --out {output} > {log} 2>&1"
+        "{PY} -m r2s_eval.stages.rollout_inits --cfg {params.cfg:q} --out {output} --log {log}"
 
 
 def rollout_inputs(wildcards):
@@ -40,7 +40,7 @@ rule rollout:
     shell:
         "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
         " {params.trained} --inits {input.inits} {params.twin} --transport {params.transport:q}"
-        " --out {output} > {log} 2>&1"
+        " --out {output} --log {log}"
 
 
 if TWIN:
@@ -53,7 +53,7 @@ if TWIN:
         log:
             "logs/reference.log",
         shell:
-            "{PY} -m r2s_eval.stages.reference --rollouts {input} --out {output} > {log} 2>&1"
+            "{PY} -m r2s_eval.stages.reference --rollouts {input} --out {output} --log {log}"
 
 else:
 
@@ -65,4 +65,4 @@ else:
         log:
             "logs/reference.log",
         shell:
-            "{PY} -m r2s_eval.stages.reference --csv {input} --out {output} > {log} 2>&1"
+            "{PY} -m r2s_eval.stages.reference --csv {input} --out {output} --log {log}"

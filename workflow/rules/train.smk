@@ -1,6 +1,14 @@
 # Fine-tune every candidate policy twice: on real data (pi^R) and on replayed sim data (pi^S).
-def train_dataset(wildcards):
-    return REAL_DATASET if wildcards.arm == "real" else "results/replay/dataset"
+def train_inputs(wildcards):
+    # The real arm reads ingest's index (only the episodes it kept), so it cannot start before
+    # ingest passed; the replayed sim dataset is made from those episodes only.
+    if wildcards.arm == "real":
+        return {"dataset": REAL_DATASET, "index": "results/ingest/episodes.parquet"}
+    return {"dataset": "results/replay/dataset"}
+
+
+def train_index_arg(wildcards, input):
+    return f"--episodes-index {input.index}" if wildcards.arm == "real" else ""
 
 
 def train_priority(wildcards):
@@ -13,15 +21,16 @@ rule train:
     wildcard_constraints:
         policy="|".join(TRAINED) or "(?!)",  # checkpoint and server candidates are not trained
     input:
-        dataset=train_dataset,
+        unpack(train_inputs),
     output:
         directory("results/train/{arm}/{policy}"),
     params:
         cfg=policy_params,
+        index=train_index_arg,
     priority: train_priority
     threads: 1
     log:
         "logs/train/{arm}/{policy}.log",
     shell:
         "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.train --cfg {params.cfg:q}"
-        " --dataset {input.dataset} --out {output} --threads {threads} > {log} 2>&1"
+        " --dataset {input.dataset} {params.index} --out {output} --threads {threads} --log {log}"

@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from r2s_eval.calib.segment import Segmenter
+from r2s_eval.errors import EstimationError
 
 # rendered masks for a set of planar poses {name: (x_m, y_m, yaw_rad)}
 RenderMasks = Callable[[dict[str, tuple[float, float, float]]], dict[str, np.ndarray]]
@@ -37,7 +38,7 @@ APPEARANCE_PAD_PX = 3  # window margin around the object, and the largest shift 
 APPEARANCE_UPSAMPLE = 4  # sub-pixel shifts: both windows are upsampled before matching
 
 
-class InitEstimationError(RuntimeError):
+class InitEstimationError(EstimationError):
     """An object could not be located; the message names it (and the episode, via the caller)."""
 
 

@@ -119,13 +119,17 @@ class DatasetRecorder:
 
 
 def open_metadata(root: str | Path, repo_id: str = "local/dataset"):
-    """Load a local dataset's metadata; never reaches for the hub."""
+    """Load a local dataset's metadata with lerobot; never reaches for the hub.
+
+    lerobot falls back to downloading from the hub when a metadata file is missing; the strict
+    local read first turns that case (and unreadable files) into an error naming the file.
+    """
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
-    root = Path(root)
-    if not (root / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"{root} is not a LeRobotDataset v3 (no meta/info.json)")
-    return LeRobotDatasetMetadata(repo_id, root=root)
+    from r2s_eval.data.contract import read_metadata
+
+    read_metadata(root)
+    return LeRobotDatasetMetadata(repo_id, root=Path(root))
 
 
 def episode_table(meta) -> pd.DataFrame:

@@ -1,7 +1,11 @@
 """Ingest: check a teleop dataset before anything is computed from it, and index its episodes.
 
-Every problem is reported with the episode it concerns; one bad episode either fails the
-stage (default) or, with `drop_bad_episodes`, is left out of the index and listed.
+The whole LeRobotDataset v3 contract is checked (``contract.py``), then what this robot and
+suite need: the state and action widths, the cameras, the frame rate, known task instructions,
+episode lengths and finite values. Every problem is one line naming the file, the episode and
+the camera. A problem of the dataset as a whole fails the stage; a bad episode either fails it
+(default) or, with `drop_bad_episodes`, is left out of the index and listed in the report.
+Everything downstream reads the index, so a dropped episode is never used.
 """
 
 from __future__ import annotations
@@ -10,18 +14,26 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import av
 import cv2
 import numpy as np
 import pandas as pd
 
-from r2s_eval.data.dataset import ACTION_KEY, STATE_KEY, camera_key, decode_frame, episode_table, open_metadata
+from r2s_eval.data.contract import (
+    DatasetValidationError,
+    Problem,
+    Problems,
+    data_problems,
+    fail,
+    feature_problems,
+    metadata_problems,
+    read_metadata,
+    video_problems,
+)
+from r2s_eval.data.dataset import ACTION_KEY, STATE_KEY, camera_key
 
 log = logging.getLogger(__name__)
 
-
-class DatasetValidationError(ValueError):
-    """The dataset cannot be used; the message lists every problem found."""
+__all__ = ["DatasetValidationError", "IngestSpec", "ingest_dataset"]
 
 
 @dataclass
@@ -40,106 +52,28 @@ class IngestSpec:
     extra: dict = field(default_factory=dict)
 
 
-def _dataset_problems(meta, spec: IngestSpec) -> list[str]:
-    problems = []
-    if int(meta.fps) != int(spec.fps):
-        problems.append(f"fps is {meta.fps}, expected {spec.fps}")
-    feats = meta.features
-    for key, dim in ((STATE_KEY, spec.state_dim), (ACTION_KEY, spec.action_dim)):
-        if key not in feats:
-            problems.append(f"feature {key!r} is missing")
-        elif tuple(feats[key]["shape"]) != (dim,):
-            problems.append(f"feature {key!r} has shape {tuple(feats[key]['shape'])}, expected ({dim},)")
-    for cam in spec.cameras:
-        key = camera_key(cam)
-        if key not in feats:
-            problems.append(f"camera feature {key!r} is missing")
-        elif feats[key]["dtype"] != "video":
-            problems.append(f"camera feature {key!r} is stored as {feats[key]['dtype']!r}, expected video")
-    return problems
-
-
-def _episode_problems(ep: pd.Series, frames: pd.DataFrame, spec: IngestSpec) -> list[str]:
-    problems = []
-    length = int(ep["length"])
-    if len(frames) != length:
-        problems.append(f"metadata says {length} frames but the data file holds {len(frames)}")
+def _episode_problems(meta, ep: dict, frames: pd.DataFrame, spec: IngestSpec) -> list[Problem]:
+    """What this suite needs of one episode whose files are sound."""
+    out = []
+    e, length = int(ep["episode_index"]), int(ep["length"])
     if not spec.min_length <= length <= spec.max_length:
-        problems.append(f"length {length} outside [{spec.min_length}, {spec.max_length}]")
-    if ep["task"] not in spec.tasks:
-        problems.append(f"task {ep['task']!r} is not one of the configured tasks {sorted(spec.tasks)}")
+        out.append(Problem(ep["meta_file"], f"length {length} outside [{spec.min_length}, {spec.max_length}]", e))
+    task = _task_text(ep)
+    if task not in spec.tasks:
+        out.append(Problem(ep["meta_file"], f"task {task!r} is not one of the configured tasks {sorted(spec.tasks)}", e))
+    data_file = meta.data_file(ep["data/chunk_index"], ep["data/file_index"])
     for key in (STATE_KEY, ACTION_KEY):
-        if key not in frames.columns:
-            continue
-        values = np.stack(frames[key].to_numpy()) if len(frames) else np.zeros((0, 0))
+        values = np.stack(frames[key].to_numpy())
         bad = ~np.isfinite(values)
         if bad.any():
             rows = np.unique(np.nonzero(bad)[0])
-            problems.append(f"{key} has NaN/inf in {len(rows)} frame(s), first at frame {int(rows[0])}")
-    if len(frames) > 1:
-        steps = np.diff(frames["timestamp"].to_numpy(dtype=float))
-        if np.any(np.abs(steps - 1.0 / spec.fps) > 0.25 / spec.fps):
-            problems.append(f"timestamps are not spaced 1/fps={1.0 / spec.fps:.4f} s apart")
-    return problems
+            out.append(Problem(data_file, f"{key} has NaN/inf in {len(rows)} frame(s), first at frame {int(rows[0])}", e))
+    return out
 
 
-@dataclass
-class _VideoScan:
-    """Every frame time that decodes in one video file, and the images asked for."""
-
-    times_s: np.ndarray
-    error: str | None
-    images: dict[float, np.ndarray]
-
-
-def _scan_video(path: Path, keep_times_s: list[float], tolerance_s: float) -> _VideoScan:
-    """Decode a whole file once (files hold many episodes): cheaper than a seek per episode."""
-    times, images, error = [], {}, None
-    wanted = np.array(sorted(keep_times_s))
-    try:
-        with av.open(str(path)) as container:
-            for frame in container.decode(video=0):
-                t = float(frame.time)
-                times.append(t)
-                if len(wanted) and np.min(np.abs(wanted - t)) < tolerance_s:
-                    images[float(wanted[np.argmin(np.abs(wanted - t))])] = frame.to_ndarray(format="rgb24")
-    except (av.error.FFmpegError, OSError) as exc:
-        error = f"{type(exc).__name__}: {exc}"
-    return _VideoScan(np.array(times), error, images)
-
-
-def _video_problems(root: Path, meta, episodes: pd.DataFrame, spec: IngestSpec, first_frame_key: str):
-    """Per-episode video problems and first frames, from one sequential decode per file."""
-    problems: dict[int, list[str]] = {}
-    first_frames: dict[int, np.ndarray] = {}
-    tol = 0.5 / meta.fps
-    for cam in spec.cameras:
-        key = camera_key(cam)
-        if key not in meta.features:
-            continue
-        loc = [f"videos/{key}/chunk_index", f"videos/{key}/file_index"]
-        for (chunk, file), group in episodes.groupby(loc):
-            path = root / meta.video_path.format(video_key=key, chunk_index=chunk, file_index=file)
-            starts = group[f"videos/{key}/from_timestamp"].astype(float).tolist()
-            scan = _scan_video(path, starts if key == first_frame_key else [], tol)
-            for _, ep in group.iterrows():
-                idx, t0 = int(ep["episode_index"]), float(ep[f"videos/{key}/from_timestamp"])
-                n = int(ep["length"])
-                decoded = int(np.sum((scan.times_s > t0 - tol) & (scan.times_s < t0 + (n - 0.5) / meta.fps)))
-                if decoded < n:
-                    reason = f" ({scan.error})" if scan.error else ""
-                    problems.setdefault(idx, []).append(
-                        f"camera {cam}: only {decoded} of {n} frames decode from {path.name}{reason}"
-                    )
-                elif key == first_frame_key:
-                    image = scan.images.get(t0)
-                    expected = tuple(meta.features[key]["shape"])
-                    if image is None or image.shape != expected:
-                        got = None if image is None else image.shape
-                        problems.setdefault(idx, []).append(f"camera {cam}: first frame is {got}, expected {expected}")
-                    else:
-                        first_frames[idx] = image
-    return problems, first_frames
+def _task_text(ep: dict) -> str:
+    tasks = list(ep["tasks"])
+    return str(tasks[0]) if tasks else ""
 
 
 def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frames_dir: str | Path) -> tuple[pd.DataFrame, dict]:
@@ -147,66 +81,65 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
 
     The index has one row per usable episode: episode_index, task (key), instruction,
     length, first_frame (PNG of the first frame of `spec.first_frame_camera`).
+    Raises ``DatasetValidationError`` listing every problem, one per line.
     """
     root = Path(root)
     first_frames_dir = Path(first_frames_dir)
-    try:
-        meta = open_metadata(root, repo_id)
-    except FileNotFoundError as exc:
-        raise DatasetValidationError(str(exc)) from exc
-    problems = _dataset_problems(meta, spec)
-    if problems:
-        raise DatasetValidationError(f"dataset {root}: " + "; ".join(problems))
-
-    episodes = episode_table(meta)
+    meta = read_metadata(root)
+    cameras = {camera_key(c): c for c in spec.cameras}
     first_key = camera_key(spec.first_frame_camera)
-    if spec.check_videos:
-        bad, first_frames = _video_problems(root, meta, episodes, spec, first_key)
-    else:
-        bad, first_frames = {}, {}
-    data_cache: dict[Path, pd.DataFrame] = {}
+    if first_key not in cameras:
+        cameras[first_key] = spec.first_frame_camera
+    problems = Problems()
+    problems.extend(feature_problems(meta, STATE_KEY, ACTION_KEY, spec.state_dim, spec.action_dim, list(cameras),
+                                     spec.fps))
+    if problems.dataset:  # the files cannot be checked against features this robot cannot use
+        raise fail(root, problems.lines())
+    for p in metadata_problems(meta):
+        problems.add(p, whole_dataset=True)
+
+    found, frames = data_problems(meta)
+    checked = cameras if spec.check_videos else {first_key: cameras[first_key]}
+    found_videos, first_frames = video_problems(meta, checked, first_key)
+    for group in (found, found_videos):
+        problems.dataset += group.dataset
+        for e, ps in group.episodes.items():
+            problems.episodes[e] += ps
+    if problems.dataset:
+        raise fail(root, problems.lines())
+
     rows = []
     first_frames_dir.mkdir(parents=True, exist_ok=True)
-    for _, ep in episodes.iterrows():
-        idx = int(ep["episode_index"])
-        path = root / meta.data_path.format(chunk_index=ep["data/chunk_index"], file_index=ep["data/file_index"])
-        if path not in data_cache:
-            data_cache[path] = pd.read_parquet(path)
-        data = data_cache[path]
-        frames = data[data["episode_index"] == idx].sort_values("frame_index")
-        ep_problems = _episode_problems(ep, frames, spec) + bad.get(idx, [])
-        if ep_problems:
-            bad[idx] = ep_problems
+    episodes = meta.episodes.sort_values("episode_index").to_dict("records")
+    for ep in episodes:
+        e = int(ep["episode_index"])
+        if e in problems.episodes:
             continue
-        image = first_frames[idx] if idx in first_frames else decode_frame(root, meta, idx, spec.first_frame_camera, 0)
-        frame_path = first_frames_dir / f"episode_{idx:06d}.png"
-        cv2.imwrite(str(frame_path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-        rows.append(
-            {
-                "episode_index": idx,
-                "task": spec.tasks[ep["task"]],
-                "instruction": ep["task"],
-                "length": int(ep["length"]),
-                "first_frame": frame_path.name,
-            }
-        )
-    messages = [f"episode {idx}: {p}" for idx, ps in sorted(bad.items()) for p in ps]
-    if bad and not spec.drop_bad_episodes:
-        raise DatasetValidationError(
-            f"dataset {root} has {len(bad)} bad episode(s):\n  " + "\n  ".join(messages)
-        )
+        ep_problems = _episode_problems(meta, ep, frames[e], spec)
+        if ep_problems:
+            problems.episodes[e] += ep_problems
+            continue
+        frame_path = first_frames_dir / f"episode_{e:06d}.png"
+        cv2.imwrite(str(frame_path), cv2.cvtColor(first_frames[e], cv2.COLOR_RGB2BGR))
+        instruction = _task_text(ep)
+        rows.append({"episode_index": e, "task": spec.tasks[instruction], "instruction": instruction,
+                     "length": int(ep["length"]), "first_frame": frame_path.name})
+    lines = problems.lines()
+    if lines and not spec.drop_bad_episodes:
+        raise fail(root, lines)
     if not rows:
-        raise DatasetValidationError(f"dataset {root} has no usable episode:\n  " + "\n  ".join(messages))
-    for message in messages:
-        log.warning("dropped %s", message)
+        raise fail(root, ["no usable episode is left", *lines])
+    for line in lines:
+        log.warning("dropped: %s", line)
     index = pd.DataFrame(rows)
     report = {
         "dataset": str(root),
+        "repo_id": repo_id,
         "fps": int(meta.fps),
-        "episodes_total": int(len(episodes)),
+        "episodes_total": len(episodes),
         "episodes_usable": int(len(index)),
         "frames_usable": int(index["length"].sum()),
-        "dropped": {str(k): v for k, v in bad.items()},
+        "dropped": {str(e): [p.line() for p in ps] for e, ps in sorted(problems.episodes.items())},
         "episodes_per_task": index.groupby("task").size().to_dict(),
     }
     return index, report

@@ -6,11 +6,16 @@ requests, retries, re-asks, tokens in/out and wall time (``df.attrs["stats"]``, 
 ``stats_path`` as JSON when given).
 
 ``judge_pairs`` also handles what a real VLM does wrong: a pair whose answer stays invalid after
-one re-ask is excluded and replaced in place by the next unused comparison of the same policy
-pair and task from a seeded reserve (``r2s_eval.compare.sample_reserve``), so every checkpoint
-still holds its planned number of comparisons and smaller checkpoints remain prefixes of larger
-ones. A configurable share of pairs is asked a second time with the sides swapped (order-swap
-audit).
+one re-ask (or whose server kept sending malformed replies) is excluded and replaced in place by
+the next unused comparison of the same policy pair and task from a seeded reserve
+(``r2s_eval.compare.sample_reserve``), never by one already excluded, so every checkpoint still
+holds its planned number of comparisons and smaller checkpoints remain prefixes of larger ones.
+A configurable share of pairs is asked a second time with the sides swapped (order-swap audit).
+
+A killed run leaves nothing a rerun trips over: scratch folders (``inputs/in-<pid>-<host>-*``)
+of processes of this host that are gone, and temporary files of atomic cache writes older than
+an hour, are removed when a stage driver starts; those of live processes are left alone, since
+several processes may share one cache folder.
 """
 
 from __future__ import annotations
@@ -19,7 +24,9 @@ import contextlib
 import hashlib
 import logging
 import os
+import re
 import shutil
+import socket
 import tempfile
 import threading
 import time
@@ -31,6 +38,7 @@ from typing import Any
 
 import pandas as pd
 
+from r2s_eval.errors import JudgeError, R2SError
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
 from r2s_eval.judge.usage import Usage, metered
@@ -59,7 +67,8 @@ class StageStats:
     calls: int = 0  # judge calls made in this run
     cache_hits: int = 0  # keys answered from the cache
     requests: int = 0  # model requests sent in this run (re-asks included, retries not)
-    retries: int = 0  # requests repeated after a connection error, 429 or 5xx
+    retries: int = 0  # requests repeated after a connection error, timeout, 408, 429, 5xx or malformed reply
+    malformed: int = 0  # replies that were no chat answer (retried; an invalid answer when the last one is)
     reasks: int = 0  # invalid answers asked once more (in this run)
     tokens_in: int = 0
     tokens_out: int = 0
@@ -69,6 +78,7 @@ class StageStats:
     def add_usage(self, u: Usage) -> None:
         self.requests += u.requests
         self.retries += u.retries
+        self.malformed += u.malformed
         self.reasks += u.reasks
         self.tokens_in += u.tokens_in
         self.tokens_out += u.tokens_out
@@ -85,15 +95,50 @@ def _require(df: pd.DataFrame, cols: tuple[str, ...], what: str) -> None:
         raise ValueError(f"{what} lacks columns {lacking}")
 
 
+# Scratch folder names carry their owner, so a later run can tell a dead process's from a live one.
+_SCRATCH_RE = re.compile(r"in-(\d+)-(.*)-[^-]+")
+_STALE_TMP_S = 3600.0  # an atomic cache write takes milliseconds; a temporary file this old is a kill's
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, someone else's
+        return True
+    return True
+
+
+def _clear_leftovers(cache_dir: Path, kinds: tuple[str, ...]) -> None:
+    """Remove what killed runs left in `cache_dir`: scratch folders of dead processes of this host
+    (pids of other hosts mean nothing here) and stale temporary files of the `kinds` caches."""
+    host = socket.gethostname()
+    inputs = cache_dir / "inputs"
+    if inputs.is_dir():
+        for folder in inputs.iterdir():
+            m = _SCRATCH_RE.fullmatch(folder.name)
+            if m and m.group(2) == host and not _pid_alive(int(m.group(1))):
+                log.info("removing %s, left by a process that is gone", folder)
+                shutil.rmtree(folder, ignore_errors=True)
+    cutoff = time.time() - _STALE_TMP_S
+    for kind in kinds:
+        for tmp in (cache_dir / kind).glob("*/.*.tmp"):
+            with contextlib.suppress(FileNotFoundError):  # another process may remove it too
+                if tmp.stat().st_mtime < cutoff:
+                    tmp.unlink()
+
+
 @contextlib.contextmanager
 def _blind_copies(files: dict[str, tuple[Path, str]], stage_root: Path) -> Iterator[dict[str, Path]]:
     """Present each file to the judge under its content hash only (hard link, else copy).
 
     Folder and file names of recordings may spell out the policy or the outcome; the judge
-    gets `<sha256><suffix>` in a scratch folder instead, removed after the call.
+    gets `<sha256><suffix>` in a scratch folder instead, removed after the call (or, after a
+    kill, by the next stage driver that starts: ``_clear_leftovers``).
     """
     stage_root.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix="in-", dir=stage_root))
+    tmp = Path(tempfile.mkdtemp(prefix=f"in-{os.getpid()}-{socket.gethostname()}-", dir=stage_root))
     try:
         out = {}
         for kind, (src, sha) in files.items():
@@ -137,7 +182,9 @@ def _run_cached(jobs: dict[str, Job], cache: AnswerCache, stats: StageStats, wor
         try:
             with metered() as usage:
                 answer = call()
-        except Exception as e:
+        except R2SError as e:  # the judge could not answer (server, deadline, config): say where
+            raise JudgeError(f"{stats.stage}: judge {stats.judge!r} failed on {label}: {e}") from e
+        except Exception as e:  # a bug: labelled too, its traceback kept as the cause
             raise RuntimeError(f"{stats.stage}: judge {stats.judge!r} failed on {label}: {e}") from e
         answer = {**answer, "usage": usage.to_dict()}
         cache.put(key, answer, inputs)
@@ -205,7 +252,7 @@ def describe_rollouts(
     Returns columns ``DESCRIPTION_COLUMNS``: episode_id, judge (name), instruction, description
     (canonical JSON of a ``Description``), description_sha, missing (comma-separated missing
     sections, "" when complete), progress_label, cache_key. The stats add ``incomplete`` (rows
-    with missing sections).
+    with missing sections; a description whose server sent only malformed replies misses all).
     """
     t0 = time.perf_counter()
     _require(episodes_df, EPISODE_COLUMNS, "episode table")
@@ -214,6 +261,7 @@ def describe_rollouts(
     if dup:
         raise ValueError(f"episode table has duplicate episode_id values: {dup[:5]}")
     episodes_dir = Path(episodes_dir)
+    _clear_leftovers(Path(cache_dir), ("describe", "requests"))
     judge.attach_cache(cache_dir)
     cache = AnswerCache(cache_dir, "describe")
     stage_root = Path(cache_dir) / "inputs"
@@ -321,15 +369,19 @@ def judge_pairs(
     (0/1), source_index (position in the pair's seeded sequence the comparison came from; equals
     pair_index unless replaced), replaced (how many excluded comparisons this slot went through),
     swap_audited (bool), verdict_swapped ('A'/'B' as answered with the sides swapped; "" when not
-    audited or invalid), swap_cache_key. Stats add ``excluded``, ``replacements``,
+    audited or invalid), swap_cache_key. Stats add ``excluded`` (comparisons excluded from a table
+    row; a row's replacement is never a comparison already excluded in its policy pair and task,
+    so none is counted twice), ``replacements`` (the sum of ``replaced``: equal to ``excluded``),
     ``swap_audited``, ``swap_invalid``, ``swap_consistency`` and ``exclusions`` (one record per
-    excluded comparison, with the replies).
+    excluded comparison, with the replies). ``unique_keys`` counts each distinct question once
+    over all rounds (planned, replacements, swapped), and ``calls + cache_hits == unique_keys``.
     """
     t0 = time.perf_counter()
     _require(pairs_df, PAIR_COLUMNS, "pairs table")
     mode = judge.stage_cfg["mode"]
     share = float(judge.stage_cfg["swap_share"] if swap_share is None else swap_share)
     workers = workers or judge.stage_cfg["concurrency"]
+    _clear_leftovers(Path(cache_dir), ("compare", "compare_videos", "requests"))
     judge.attach_cache(cache_dir)
     identity = judge.identity()
     stats = StageStats(stage="compare", judge=judge.name, items=len(pairs_df))
@@ -351,23 +403,32 @@ def judge_pairs(
         r["source_index"] = int(r.get("pair_index", -1))
         r["replaced"] = 0
 
-    def ask(items: list[tuple[str, str, str]]) -> tuple[list[str], dict[str, dict[str, Any]]]:
-        """items: (label, episode A, episode B) -> their cache keys, and the answers by key."""
+    answers: dict[str, dict[str, Any]] = {}  # by cache key, everything known in this run
+
+    def ask(items: list[tuple[str, str, str]]) -> list[str]:
+        """items: (label, episode A, episode B) -> their cache keys; their answers go to `answers`.
+
+        A key already known in this run (a comparison that recurs, in a later round or swapped)
+        is neither asked nor looked up again, so calls, cache hits and unique keys count each
+        question once."""
         jobs: dict[str, Job] = {}
         keys = []
         for label, ea, eb in items:
             key, inputs, call = question(label, str(ea), str(eb))
             keys.append(key)
-            jobs.setdefault(key, (label, inputs, call))
+            if key not in answers:
+                jobs.setdefault(key, (label, inputs, call))
         stats.unique_keys += len(jobs)
-        return keys, _run_cached(jobs, cache, stats, workers)
+        answers.update(_run_cached(jobs, cache, stats, workers))
+        return keys
 
-    keys, answers = ask([(labels[n], r["episode_a"], r["episode_b"]) for n, r in enumerate(rows)])
+    keys = ask([(labels[n], r["episode_a"], r["episode_b"]) for n, r in enumerate(rows)])
     exclusions: list[dict[str, Any]] = []
     reserve = _Reserve(reserve_df)
     pending = [n for n, k in enumerate(keys) if answers[k].get("letter") is None]
     while pending:
-        retry = []
+        # Every comparison excluded in this round is marked first, so that no replacement drawn
+        # in it is one of them.
         for n in pending:
             r = rows[n]
             exclusions.append({
@@ -375,25 +436,25 @@ def judge_pairs(
                 "source_index": r["source_index"], "task": r.get("task"), "episode_a": r["episode_a"],
                 "episode_b": r["episode_b"], "replies": answers[keys[n]].get("replies", []),
             })
+            reserve.exclude(r)
             log.warning("%s: invalid answer after a re-ask; excluded and replaced", labels[n])
-            rep = reserve.take(r, labels[n])
-            r.update(rep)
+        for n in pending:
+            r = rows[n]
+            r.update(reserve.take(r, labels[n]))
             r["replaced"] += 1
             labels[n] = (f"pair row {n} ({r['policy_a']} vs {r['policy_b']}, episodes {r['episode_a']} / "
                          f"{r['episode_b']}, replacement {r['replaced']})")
-            retry.append(n)
-        new_keys, new_answers = ask([(labels[n], rows[n]["episode_a"], rows[n]["episode_b"]) for n in retry])
-        answers.update(new_answers)
-        for n, k in zip(retry, new_keys):
+        new_keys = ask([(labels[n], rows[n]["episode_a"], rows[n]["episode_b"]) for n in pending])
+        for n, k in zip(pending, new_keys):
             keys[n] = k
-        pending = [n for n in retry if answers[keys[n]].get("letter") is None]
+        pending = [n for n in pending if answers[keys[n]].get("letter") is None]
 
     audited = [
         share > 0 and swap_audited(str(r.get("policy_i")), str(r.get("policy_j")), int(r.get("pair_index", n)), share)
         for n, r in enumerate(rows)
     ]
     swapped = [n for n, a in enumerate(audited) if a]
-    swap_keys, swap_answers = ask([(labels[n] + " swapped", rows[n]["episode_b"], rows[n]["episode_a"]) for n in swapped])
+    swap_keys = ask([(labels[n] + " swapped", rows[n]["episode_b"], rows[n]["episode_a"]) for n in swapped])
     swap_key_of = dict(zip(swapped, swap_keys))
 
     out = pd.DataFrame(rows)
@@ -405,7 +466,7 @@ def judge_pairs(
     out["cache_key"] = keys
     out["reasks"] = [int(answers[k].get("usage", {}).get("reasks", 0)) for k in keys]
     out["swap_audited"] = audited
-    out["verdict_swapped"] = [str(swap_answers[swap_key_of[n]].get("letter") or "") if n in swap_key_of else ""
+    out["verdict_swapped"] = [str(answers[swap_key_of[n]].get("letter") or "") if n in swap_key_of else ""
                               for n in range(len(rows))]
     out["swap_cache_key"] = [swap_key_of.get(n, "") for n in range(len(rows))]
     out = out[[*pairs_df.columns, *VERDICT_COLUMNS]]
@@ -427,24 +488,46 @@ def judge_pairs(
     return _finish(stats, t0, out, stats_path)
 
 
+def _group(row: dict[str, Any]) -> tuple[str, str, str]:
+    return str(row.get("policy_i")), str(row.get("policy_j")), str(row.get("task"))
+
+
+def _episodes(row: dict[str, Any]) -> frozenset[str]:
+    """The comparison's two episodes, whichever side each is on."""
+    return frozenset((str(row["episode_a"]), str(row["episode_b"])))
+
+
 class _Reserve:
-    """Unused reserve comparisons per (policy_i, policy_j, task), in sequence order."""
+    """Unused reserve comparisons per (policy_i, policy_j, task), in sequence order.
+
+    Each reserve row is handed out once, and never when its episode pair (either order) is one
+    already excluded in its group: that comparison's answer is known to be invalid, and a row
+    replaced by the very comparison it held would be excluded, and counted, twice.
+    """
 
     def __init__(self, reserve_df: pd.DataFrame | None):
         self.queues: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+        self.excluded: dict[tuple[str, str, str], set[frozenset[str]]] = {}
         if reserve_df is None:
             return
         _require(reserve_df, ("pair_index", "policy_i", "policy_j", "task", "init_id", *PAIR_COLUMNS), "reserve table")
         for r in reserve_df.sort_values("pair_index", kind="stable").to_dict("records"):
-            self.queues.setdefault((str(r["policy_i"]), str(r["policy_j"]), str(r["task"])), []).append(r)
+            self.queues.setdefault(_group(r), []).append(r)
+
+    def exclude(self, row: dict[str, Any]) -> None:
+        self.excluded.setdefault(_group(row), set()).add(_episodes(row))
 
     def take(self, row: dict[str, Any], label: str) -> dict[str, Any]:
-        group = (str(row.get("policy_i")), str(row.get("policy_j")), str(row.get("task")))
-        queue = self.queues.get(group)
+        group = _group(row)
+        queue = self.queues.get(group, [])
+        excluded = self.excluded.get(group, set())
+        while queue and _episodes(queue[0]) in excluded:
+            queue.pop(0)  # exclusions only grow: this row can never serve
         if not queue:
-            raise RuntimeError(
+            raise JudgeError(
                 f"{label}: the judge's answer stayed invalid and no reserve comparison is left for policies "
-                f"{group[0]} vs {group[1]} on task {group[2]!r}; raise the judge's 'reserve' option"
+                f"{group[0]} vs {group[1]} on task {group[2]!r} (none unused that was not excluded); raise the "
+                "judge's 'reserve' option"
             )
         r = queue.pop(0)
         ea, eb = r["episode_a"], r["episode_b"]

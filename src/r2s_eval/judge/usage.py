@@ -1,4 +1,5 @@
-"""What one judge answer cost: model requests, transient-error retries, re-asks and tokens.
+"""What one judge answer cost: model requests, transient-error retries, malformed replies, re-asks
+and tokens.
 
 Backends report through ``record_usage`` from inside a call; the stage driver wraps each call in
 ``metered()`` and so learns the cost of exactly that answer, even with calls running in parallel
@@ -18,7 +19,8 @@ _local = threading.local()
 @dataclass
 class Usage:
     requests: int = 0  # model requests that got an answer (re-asks included)
-    retries: int = 0  # attempts repeated after a connection error, 429 or 5xx
+    retries: int = 0  # attempts repeated after a connection error, timeout, 408, 429, 5xx or malformed reply
+    malformed: int = 0  # replies that were not a chat answer (not JSON, no choices, empty content)
     reasks: int = 0  # invalid answers asked once more
     request_cache_hits: int = 0  # requests answered from the request cache (resumed answers)
     tokens_in: int = 0

@@ -9,6 +9,12 @@
   reply is asked once more (``reask`` prompt), then ``InvalidAnswer`` is raised;
 * compare_videos (one-step mode): show both videos directly (``compare_videos`` prompt).
 
+A backend raises ``MalformedReply`` when the server kept answering with something that is not a
+chat reply (after its retries): a comparison then counts as an invalid answer (``InvalidAnswer``,
+its replies say why), a description as one whose sections are all missing (``raw_text`` says
+why), so one bad reply never stops a stage. A backend that bounds the time of one judge call
+(``call_deadline_s``) reads what is left of it with ``_time_left()``.
+
 What a model receives besides the pixels is the same for every episode of a task: the prompt text
 of the chosen ``prompt_set`` with the task instruction filled in (no duration, frame count, frame
 rate, file name or id), and exactly ``max_frames`` frames per clip whatever its length. Episodes
@@ -21,10 +27,14 @@ between an invalid answer and its re-ask repeats neither.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
+import logging
+import threading
+import time
 from abc import abstractmethod
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -45,6 +55,8 @@ from r2s_eval.judge.prompting import (
 )
 from r2s_eval.judge.usage import record_usage
 from r2s_eval.utils.io import config_hash
+
+log = logging.getLogger(__name__)
 
 # Placeholders the rendered prompt is split on; the clip goes where they stood.
 _VIDEO, _VIDEO_A, _VIDEO_B = "\x00video\x00", "\x00video_a\x00", "\x00video_b\x00"
@@ -68,6 +80,14 @@ class Reply:
     text: str
     tokens_in: int = 0
     tokens_out: int = 0
+
+
+class MalformedReply(Exception):
+    """The server answered, but never with a chat reply (not JSON, no choices, empty content)."""
+
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason  # short and fixed, e.g. "no 'choices'": it is stored with the answer
 
 
 def merge_config(kind: str, defaults: Mapping[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -109,6 +129,7 @@ class VLMJudge(Judge):
             raise ValueError(f"{self.backend} judge: max_frames and max_new_tokens must be positive")
         self.prompt_set = str(self.cfg["prompt_set"])
         self._requests: AnswerCache | None = None
+        self._local = threading.local()  # the deadline of the judge call running in this thread
         # Every key that changes an answer is in the cache identity: the answer config (prompt_set
         # included) and the hash of the set's prompt texts, so another set or an edited prompt
         # file gets new keys at both cache levels (per stage answer and per request).
@@ -131,6 +152,22 @@ class VLMJudge(Judge):
 
     def attach_cache(self, cache_dir: str | Path) -> None:
         self._requests = AnswerCache(cache_dir, "requests")
+
+    # ------------------------------------------------------------------ deadline
+    @contextlib.contextmanager
+    def _call_scope(self) -> Iterator[None]:
+        """One judge call (a description, or a comparison with its re-ask): its deadline starts."""
+        limit = self.cfg.get("call_deadline_s")  # only backends that can bound a request have it
+        self._local.deadline = time.monotonic() + float(limit) if limit else None
+        try:
+            yield
+        finally:
+            self._local.deadline = None
+
+    def _time_left(self) -> float | None:
+        """Seconds left of the current judge call's ``call_deadline_s``; None: no deadline."""
+        deadline = getattr(self._local, "deadline", None)
+        return None if deadline is None else deadline - time.monotonic()
 
     # ------------------------------------------------------------------ backend
     @abstractmethod
@@ -172,7 +209,11 @@ class VLMJudge(Judge):
 
     def _ask_letter(self, content: list[Any]) -> Verdict:
         messages = self._messages(content)
-        first = self._chat(messages)
+        try:
+            first = self._chat(messages)
+        except MalformedReply as e:
+            log.warning("%s", e)
+            raise InvalidAnswer(str(e), [f"malformed reply: {e.reason}"]) from None
         letter = parse_letter(first.text)
         if letter is not None:
             return Verdict(letter, strip_thinking(first.text))
@@ -181,7 +222,11 @@ class VLMJudge(Judge):
             {"role": "assistant", "content": [first.text]},
             {"role": "user", "content": [render("reask", prompt_set=self.prompt_set)]},
         ]
-        second = self._chat(again)
+        try:
+            second = self._chat(again)
+        except MalformedReply as e:
+            log.warning("%s", e)
+            raise InvalidAnswer(str(e), [first.text, f"malformed reply: {e.reason}"]) from None
         letter = parse_letter(second.text)
         if letter is not None:
             return Verdict(letter, strip_thinking(second.text))
@@ -189,21 +234,32 @@ class VLMJudge(Judge):
 
     # ------------------------------------------------------------------ the method
     def describe(self, rollout: RolloutInput) -> Description:
-        clip = self._clip(rollout.video_path)
-        text = render("describe", prompt_set=self.prompt_set, instruction=rollout.instruction, video=_VIDEO)
-        content = [clip if p == _VIDEO else p for p in split_on(text, _VIDEO)]
-        return parse_description(self._chat(self._messages(content)).text, judge=str(self.cfg["model"]))
+        with self._call_scope():
+            clip = self._clip(rollout.video_path)
+            text = render("describe", prompt_set=self.prompt_set, instruction=rollout.instruction, video=_VIDEO)
+            content = [clip if p == _VIDEO else p for p in split_on(text, _VIDEO)]
+            try:
+                reply = self._chat(self._messages(content))
+            except MalformedReply as e:
+                # No reply to parse: every section is missing, and raw_text (never shown in a
+                # compare prompt) says why.
+                log.warning("%s", e)
+                return Description(criteria={}, summary="", judge=str(self.cfg["model"]),
+                                   raw_text=f"malformed reply: {e.reason}")
+            return parse_description(reply.text, judge=str(self.cfg["model"]))
 
     def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
-        text = render(
-            "compare", prompt_set=self.prompt_set, instruction=instruction,
-            description_a=description_text(a), description_b=description_text(b),
-        )
-        return self._ask_letter([text])
+        with self._call_scope():
+            text = render(
+                "compare", prompt_set=self.prompt_set, instruction=instruction,
+                description_a=description_text(a), description_b=description_text(b),
+            )
+            return self._ask_letter([text])
 
     def compare_videos(self, a: RolloutInput, b: RolloutInput, instruction: str) -> Verdict:
-        ca, cb = self._clip(a.video_path), self._clip(b.video_path)
-        text = render("compare_videos", prompt_set=self.prompt_set, instruction=instruction,
-                      video_a=_VIDEO_A, video_b=_VIDEO_B)
-        clips = {_VIDEO_A: ca, _VIDEO_B: cb}
-        return self._ask_letter([clips.get(p, p) for p in split_on(text, _VIDEO_A, _VIDEO_B)])
+        with self._call_scope():
+            ca, cb = self._clip(a.video_path), self._clip(b.video_path)
+            text = render("compare_videos", prompt_set=self.prompt_set, instruction=instruction,
+                          video_a=_VIDEO_A, video_b=_VIDEO_B)
+            clips = {_VIDEO_A: ca, _VIDEO_B: cb}
+            return self._ask_letter([clips.get(p, p) for p in split_on(text, _VIDEO_A, _VIDEO_B)])

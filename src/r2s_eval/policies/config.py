@@ -48,6 +48,8 @@ from pathlib import Path
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from r2s_eval.errors import ConfigError
+
 VLA_TYPES = ("pi0", "pi05", "smolvla", "xvla")
 SUPPORTED_TYPES = ("act", "diffusion", *VLA_TYPES)
 # lerobot policy types that do not build offline (yet); named so the error says why.
@@ -136,7 +138,7 @@ PALIGEMMA_TOKENIZER = "google/paligemma-3b-pt-224"
 _ALWAYS = {"pretrained_backbone_weights": None, "push_to_hub": False}
 
 
-class PolicyConfigError(ValueError):
+class PolicyConfigError(ConfigError):
     """A policy config dict that cannot be turned into a lerobot policy config."""
 
 

@@ -18,8 +18,10 @@ from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from r2s_eval.errors import DataError
 
-class DatasetContractError(ValueError):
+
+class DatasetContractError(DataError):
     """The dataset on disk does not provide what the policy config asks for."""
 
 
@@ -179,18 +181,27 @@ def _decode_all_frames(path: Path) -> tuple[np.ndarray, torch.Tensor]:
     return np.asarray(times, dtype=np.float64), stacked
 
 
-def select_episodes(meta: LeRobotDatasetMetadata, fraction: float) -> list[int] | None:
-    """The first `fraction` of each task's episodes (at least one per task); None keeps them all.
+def select_episodes(meta: LeRobotDatasetMetadata, fraction: float, allowed: list[int] | None = None) -> list[int] | None:
+    """The first `fraction` of each task's episodes (at least one per task) among `allowed` (all
+    when None); None keeps every episode of the dataset.
 
     Per task, so a smaller share still covers every task of a multi-task dataset.
     """
-    if fraction >= 1.0:
+    if fraction >= 1.0 and allowed is None:
         return None
+    known = set(range(meta.total_episodes))
+    if allowed is not None and not set(allowed) <= known:
+        raise DatasetContractError(
+            f"dataset {meta.repo_id!r} at {meta.root} has no episodes {sorted(set(allowed) - known)[:10]} "
+            "that the episode index lists; was the index made from another dataset?"
+        )
     by_task: dict[str, list[int]] = {}
-    for ep_idx in range(meta.total_episodes):
+    for ep_idx in sorted(known if allowed is None else set(allowed)):
         tasks = meta.episodes[ep_idx]["tasks"]
         by_task.setdefault(str(tasks[0] if len(tasks) else ""), []).append(ep_idx)
-    keep = [ep for eps in by_task.values() for ep in eps[: max(1, math.ceil(fraction * len(eps)))]]
+    if not by_task:
+        raise DatasetContractError(f"dataset {meta.repo_id!r} at {meta.root}: no episode to train on")
+    keep = [ep for eps in by_task.values() for ep in eps[: max(1, math.ceil(min(fraction, 1.0) * len(eps)))]]
     return sorted(keep)
 
 

@@ -21,12 +21,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from r2s_eval.errors import PolicyLoadError
+
 STATE_KEY = "observation.state"
 TASK_KEY = "task"
 IMAGE_PREFIX = "observation.images."
 
 
-class PolicyError(RuntimeError):
+class PolicyError(PolicyLoadError):
     """A policy that cannot be loaded, reached, or mapped onto the robot; the message names it."""
 
 

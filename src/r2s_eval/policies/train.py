@@ -164,8 +164,12 @@ def train_policy(
     out_dir: str | Path,
     seed: int,
     device: str = "cpu",
+    episodes: list[int] | None = None,
 ) -> dict[str, Any]:
     """Train one policy on one dataset; write `out_dir/pretrained_model/` and `out_dir/train_log.json`.
+
+    `episodes` restricts training to those episode indices (ingest's index: the episodes that
+    passed its checks); None uses every episode of the dataset.
 
     The whole `out_dir` is written in a temporary sibling and renamed at the end, so an interrupted
     run never leaves a checkpoint that looks complete. Returns the summary stored in the log.
@@ -180,7 +184,7 @@ def train_policy(
     meta = open_metadata(dataset_root, repo_id)
     _, lr_cfg = policy_config(cfg, meta, device)
     t_data = time.perf_counter()
-    episodes = select_episodes(meta, float(cfg["episodes_fraction"]))
+    episodes = select_episodes(meta, float(cfg["episodes_fraction"]), episodes)
     dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"], episodes)
     data_prep_s = time.perf_counter() - t_data
     # The metadata's per-channel image std can be near zero (lerobot 0.4.4 aggregates it that

@@ -17,6 +17,8 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from r2s_eval.errors import DataError
+
 DEFAULT_MAX_MESSAGE_BYTES = 64 * 2**20
 MAX_DEPTH = 32  # observations nest a few levels; anything deeper is malformed or hostile
 MAX_NDIM = 32
@@ -26,7 +28,7 @@ _ND = "__ndarray__"
 _NG = "__npgeneric__"
 
 
-class ProtocolError(ValueError):
+class ProtocolError(DataError):
     """A message that does not follow the protocol; the text says what was wrong."""
 
 

@@ -3,3 +3,9 @@
 Each parses its inputs, outputs and JSON config slice, then calls library code. The library
 never imports Snakemake; these modules are what the Snakemake rules run.
 """
+
+import os
+
+# Stages never download: a missing local file must be an error naming it, not a hub request.
+for _var in ("HF_HUB_OFFLINE", "HF_DATASETS_OFFLINE", "TRANSFORMERS_OFFLINE"):
+    os.environ[_var] = "1"

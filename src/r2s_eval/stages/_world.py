@@ -11,6 +11,7 @@ import dataclasses
 from r2s_eval.calib import CameraModel, ObjectGeometry
 from r2s_eval.sim import TabletopEnv, Task, WorldParams, get_task
 from r2s_eval.sim.objects import height_m, support_top_m
+from r2s_eval.errors import ConfigError
 
 # Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric,
 # n: looks the same after 2*pi/n). A cup lying on its side has none (1): its opening
@@ -32,7 +33,7 @@ def configured_task(key: str, suite_cfg: dict | None) -> Task:
     new = dict(task.init_regions)
     for name, r in regions.items():
         if name not in new:
-            raise KeyError(f"suite.{key}.init_regions: task {key!r} has no object {name!r} (objects: {sorted(new)})")
+            raise ConfigError(f"suite.{key}.init_regions: task {key!r} has no object {name!r} (objects: {sorted(new)})")
         new[name] = dataclasses.replace(
             new[name], x_range_m=tuple(r["x_range_m"]), y_range_m=tuple(r["y_range_m"]),
             yaw_range_rad=tuple(r.get("yaw_range_rad", new[name].yaw_range_rad)),

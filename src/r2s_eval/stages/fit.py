@@ -28,6 +28,7 @@ from r2s_eval.stats import (
     unit_bootstrap_bradley_terry,
 )
 from r2s_eval.utils.io import write_parquet
+from r2s_eval.errors import DataError
 
 UNIT_COLUMNS = ("task", "init_id")
 _KEYS = ["policy_i", "policy_j", "pair_index"]
@@ -44,16 +45,16 @@ def with_units(verdicts: pd.DataFrame, pairs: pd.DataFrame | None = None) -> pd.
     lacking = [c for c in UNIT_COLUMNS if c not in verdicts.columns]
     if lacking:
         if pairs is None:
-            raise ValueError(f"verdicts lack {lacking} and no pairs table was given to take them from")
+            raise DataError(f"verdicts lack {lacking} and no pairs table was given to take them from")
         out = verdicts.merge(pairs[_KEYS + lacking], on=_KEYS, how="left", validate="many_to_one")
         if out[lacking].isna().any().any():
-            raise ValueError(f"verdicts have comparisons that the pairs table lacks ({lacking} unknown)")
+            raise DataError(f"verdicts have comparisons that the pairs table lacks ({lacking} unknown)")
     elif pairs is not None and "task" in pairs.columns:
         both = verdicts[_KEYS + ["task"]].merge(pairs[_KEYS + ["task"]], on=_KEYS, how="inner", suffixes=("", "_pairs"))
         differ = both[both["task"].astype(str) != both["task_pairs"].astype(str)]
         if len(differ):
             r = differ.iloc[0]
-            raise ValueError(
+            raise DataError(
                 f"verdicts and pairs disagree on the task of {r.policy_i} vs {r.policy_j}, pair_index "
                 f"{r.pair_index} ({r.task!r} vs {r.task_pairs!r}); were they sampled together?"
             )

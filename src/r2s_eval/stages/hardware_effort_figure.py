@@ -10,12 +10,13 @@ import pandas as pd
 
 from r2s_eval.report import hardware_effort_figure, save_figure
 from r2s_eval.stages import _cli
+from r2s_eval.errors import DataError
 
 
 def experiment_scale(reference: pd.DataFrame) -> tuple[int, int, int]:
     """(policies, tasks, trials per task and policy, rounded mean) of a reference table."""
     if reference.empty:
-        raise ValueError("reference success table is empty")
+        raise DataError("reference success table is empty")
     trials = round(reference.groupby(["policy", "task"])["trials"].sum().mean())
     return int(reference["policy"].nunique()), int(reference["task"].nunique()), trials
 

@@ -13,13 +13,14 @@ import pandas as pd
 from r2s_eval.calib import yaw_error_rad
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_json, write_parquet
+from r2s_eval.errors import DataError
 
 
 def score(estimates: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
     merged = estimates.merge(truth, on=["episode_index", "object"], suffixes=("_est", "_true"), validate="one_to_one")
     if len(merged) != len(estimates):
         missing = set(zip(estimates["episode_index"], estimates["object"])) - set(zip(merged["episode_index"], merged["object"]))
-        raise ValueError(f"no true pose for (episode, object) {sorted(missing)[:5]}")
+        raise DataError(f"no true pose for (episode, object) {sorted(missing)[:5]}")
     merged["error_xy_mm"] = 1000.0 * np.hypot(merged["x_m_est"] - merged["x_m_true"], merged["y_m_est"] - merged["y_m_true"])
     merged["error_yaw_deg"] = [
         np.rad2deg(yaw_error_rad(e, t, int(s)))

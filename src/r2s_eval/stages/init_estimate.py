@@ -21,6 +21,7 @@ from r2s_eval.calib import InitEstimationError, estimate_initial_poses, make_seg
 from r2s_eval.stages import _cli
 from r2s_eval.stages._world import camera_model, make_env, object_geometries
 from r2s_eval.utils.io import write_parquet
+from r2s_eval.errors import DataError
 
 log = logging.getLogger("r2s_eval.init")
 
@@ -70,10 +71,10 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
         frame_path = Path(frames_dir) / ep.first_frame
         raw = cv2.imread(str(frame_path))
         if raw is None:
-            raise FileNotFoundError(f"episode {ep.episode_index}: cannot read first frame {frame_path}")
+            raise DataError(f"episode {ep.episode_index}: cannot read first frame {frame_path}")
         image = cv2.cvtColor(raw, cv2.COLOR_BGR2RGB)
         if image.shape[:2] != env.image_size:
-            raise ValueError(f"episode {ep.episode_index}: first frame {frame_path} is {image.shape[:2]}, calibration expects {env.image_size}")
+            raise DataError(f"episode {ep.episode_index}: first frame {frame_path} is {image.shape[:2]}, calibration expects {env.image_size}")
         geometries = object_geometries(env)
         try:
             estimates = estimate_initial_poses(

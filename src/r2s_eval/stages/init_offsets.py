@@ -25,6 +25,7 @@ from r2s_eval.calib import calibration_subset, fit_offsets
 from r2s_eval.stages import _cli
 from r2s_eval.stages.init_estimate import estimate_episodes
 from r2s_eval.utils.io import write_json
+from r2s_eval.errors import DataError
 
 log = logging.getLogger("r2s_eval.init_offsets")
 
@@ -33,7 +34,7 @@ def _read_measured(path: str, episodes: list[int]) -> pd.DataFrame:
     table = pd.read_parquet(path) if path.endswith(".parquet") else pd.read_csv(path)
     missing = {"episode_index", "object", "x_m", "y_m", "yaw_rad"} - set(table.columns)
     if missing:
-        raise ValueError(f"{path}: measured poses lack columns {sorted(missing)}")
+        raise DataError(f"{path}: measured poses lack columns {sorted(missing)}")
     # Only the calibration episodes' measurements are read: the rest is test data.
     columns = ["episode_index", "object", "x_m", "y_m", "yaw_rad"]
     return table.loc[table["episode_index"].isin(episodes), columns].reset_index(drop=True)

@@ -18,6 +18,7 @@ from r2s_eval.judge import judge_pairs, make_judge
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
+from r2s_eval.errors import DataError
 
 
 def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, seed: int, n_reserve: int) -> pd.DataFrame:
@@ -28,7 +29,7 @@ def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, se
     again = sample_pairs(episodes, policies, checkpoints, seed)
     cols = ["policy_i", "policy_j", "pair_index", "episode_a", "episode_b"]
     if again[cols].astype(str).values.tolist() != pairs[cols].astype(str).values.tolist():
-        raise ValueError(f"{pairs_path} was not sampled from these rollouts with seed {seed}; rerun compare_pairs")
+        raise DataError(f"{pairs_path} was not sampled from these rollouts with seed {seed}; rerun compare_pairs")
     return sample_reserve(episodes, policies, checkpoints, seed, n_reserve)
 
 

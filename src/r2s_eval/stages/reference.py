@@ -19,6 +19,7 @@ import pandas as pd
 
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_parquet
+from r2s_eval.errors import DataError
 
 
 def from_rollouts(rollout_dirs: list[str]) -> pd.DataFrame:
@@ -34,10 +35,10 @@ def from_csv(path: str) -> pd.DataFrame:
     table = pd.read_csv(path)
     missing = {"policy", "task", "trials", "successes"} - set(table.columns)
     if missing:
-        raise ValueError(f"{path}: missing column(s) {sorted(missing)}")
+        raise DataError(f"{path}: missing column(s) {sorted(missing)}")
     bad = table[(table["trials"] <= 0) | (table["successes"] < 0) | (table["successes"] > table["trials"])]
     if len(bad):
-        raise ValueError(f"{path}: impossible counts for {bad[['policy', 'task']].values.tolist()}")
+        raise DataError(f"{path}: impossible counts for {bad[['policy', 'task']].values.tolist()}")
     return table[["policy", "task", "trials", "successes"]]
 
 

@@ -16,6 +16,7 @@ from r2s_eval.sim.world import CONTROL_DT_S
 from r2s_eval.stages import _cli
 from r2s_eval.stages._world import make_env
 from r2s_eval.utils.io import write_parquet
+from r2s_eval.errors import DataError
 
 log = logging.getLogger("r2s_eval.replay")
 
@@ -38,12 +39,12 @@ def main(args) -> None:
             env = envs[ep.task]
             est = estimates[estimates["episode_index"] == ep.episode_index]
             if est.empty:
-                raise ValueError(f"episode {ep.episode_index}: no initial-pose estimate")
+                raise DataError(f"episode {ep.episode_index}: no initial-pose estimate")
             poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in est.itertuples()}
             symmetry = {r.object: int(r.yaw_symmetry) for r in est.itertuples()}
             actions = np.stack(episode_frames(args.dataset, meta, ep.episode_index)[ACTION_KEY].to_numpy())
             if actions.shape[1] != ACTION_DIM:
-                raise ValueError(f"episode {ep.episode_index}: actions have {actions.shape[1]} dims, expected {ACTION_DIM}")
+                raise DataError(f"episode {ep.episode_index}: actions have {actions.shape[1]} dims, expected {ACTION_DIM}")
             started = time.perf_counter()
             rng = np.random.default_rng([cfg["seed"], int(ep.episode_index)])
             result = replay_episode(

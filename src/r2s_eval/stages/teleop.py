@@ -15,6 +15,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from r2s_eval.data import DatasetRecorder, lerobot_features
+from r2s_eval.errors import R2SError
 from r2s_eval.sim import get_task
 from r2s_eval.sim.teleop import OperatorConfig, make_operator, run_episode
 from r2s_eval.sim.world import ARM_JOINTS, ARMS, CONTROL_DT_S
@@ -42,7 +43,7 @@ def main(args) -> None:
             progress = tqdm(total=teleop["episodes_per_task"], desc=f"teleop {task}", mininterval=5)
             while kept < teleop["episodes_per_task"]:
                 if tries >= teleop["max_attempts_factor"] * teleop["episodes_per_task"]:
-                    raise RuntimeError(f"task {task}: only {kept} successful demonstrations in {tries} attempts")
+                    raise R2SError(f"task {task}: only {kept} successful demonstrations in {tries} attempts")
                 started = time.perf_counter()
                 poses = env.sample_initial_poses(rng)
                 obs = env.reset(poses, seed=int(rng.integers(2**31)))

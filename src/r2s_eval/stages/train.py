@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pandas as pd
+
 from r2s_eval.policies import train_policy
 from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
@@ -11,12 +13,18 @@ def main(args) -> None:
     deterministic_torch(args.threads)
     policy_cfg = dict(args.cfg["policy"], name=args.cfg["name"], threads=args.threads)
     device = policy_cfg.get("device", "cpu")
-    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), device=device)
+    # The real arm trains only on the episodes ingest kept; the replayed sim dataset holds only those.
+    episodes = None
+    if args.episodes_index:
+        episodes = [int(e) for e in pd.read_parquet(args.episodes_index, columns=["episode_index"])["episode_index"]]
+    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), device=device,
+                 episodes=episodes)
 
 
 if __name__ == "__main__":
     p = _cli.parser(__doc__)
     p.add_argument("--dataset", required=True)
+    p.add_argument("--episodes-index", default=None, help="ingest's index: train on its episodes only")
     p.add_argument("--out", required=True)
     p.add_argument("--threads", type=int, default=1)
     _cli.run(main, p)

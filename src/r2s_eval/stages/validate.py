@@ -31,6 +31,7 @@ from r2s_eval.stats import (
 )
 from r2s_eval.stats.checkpoints import COUPLED
 from r2s_eval.utils.io import write_json
+from r2s_eval.errors import DataError
 
 RANKING = ("spearman", "pearson", "mmrv")
 REFERENCE_DEFINITION = ("mean over tasks of the per-task success rate "
@@ -42,7 +43,7 @@ METRIC_CI = ("percentile bootstrap over the fit's replicates of the chosen inter
 def _counts(reference: pd.DataFrame) -> tuple[list[str], np.ndarray, np.ndarray]:
     lacking = [c for c in ("policy", "task", "trials", "successes") if c not in reference.columns]
     if lacking:
-        raise ValueError(f"reference success table lacks columns {lacking}")
+        raise DataError(f"reference success table lacks columns {lacking}")
     grouped = reference.groupby(["policy", "task"])[["successes", "trials"]].sum()
     successes = grouped["successes"].unstack("task", fill_value=0)
     trials = grouped["trials"].unstack("task", fill_value=0)
@@ -77,7 +78,7 @@ def validate(fit: pd.DataFrame, reference: pd.DataFrame, replicates: pd.DataFram
     ref = reference_rates(reference)
     missing = sorted(set(fit["policy"]) - set(ref.index))
     if missing:
-        raise ValueError(f"no reference success rate for policies {missing}")
+        raise DataError(f"no reference success rate for policies {missing}")
     policies = sorted(fit["policy"].unique())
     interval = str(fit["interval"].iloc[0]) if "interval" in fit.columns else "binomial"
     real = ref.loc[policies].to_numpy()
@@ -86,7 +87,7 @@ def validate(fit: pd.DataFrame, reference: pd.DataFrame, replicates: pd.DataFram
     if replicates is not None:
         mine = replicates[replicates["interval"] == interval]
         if mine.empty:
-            raise ValueError(f"the replicates table has no {interval!r} replicates")
+            raise DataError(f"the replicates table has no {interval!r} replicates")
         wide = mine.pivot(index=["checkpoint", "replicate"], columns="policy", values="strength")
         wide = wide.sort_index()[policies]
         checkpoints = sorted(wide.index.get_level_values("checkpoint").unique())
@@ -117,7 +118,7 @@ def validate(fit: pd.DataFrame, reference: pd.DataFrame, replicates: pd.DataFram
 
     if boot_scores is not None:
         if [int(c) for c in checkpoints] != table["checkpoint"].tolist():
-            raise ValueError("the replicates table and the fit table cover different checkpoints")
+            raise DataError("the replicates table and the fit table cover different checkpoints")
         for suffix, against in (("", real), ("_with_reference", ref_boot)):
             values = metric_replicates(boot_scores, against)  # {metric: (C, n_boot)}
             for m in RANKING:

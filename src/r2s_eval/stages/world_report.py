@@ -29,6 +29,7 @@ import pandas as pd
 
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import read_parquet_metadata, write_json
+from r2s_eval.errors import DataError
 
 log = logging.getLogger("r2s_eval.world_report")
 
@@ -138,7 +139,7 @@ def format_table(report: dict) -> str:
 def main(args: argparse.Namespace) -> None:
     attempts = read_parquet_metadata(args.truth).get("attempts")
     if not attempts:
-        raise ValueError(f"{args.truth}: no teleop attempt log in its metadata (written by the teleop stage)")
+        raise DataError(f"{args.truth}: no teleop attempt log in its metadata (written by the teleop stage)")
     errors = pd.read_parquet(args.errors)
     replay_log = pd.read_parquet(args.replay)
     init_s = None

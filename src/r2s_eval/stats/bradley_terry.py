@@ -35,12 +35,14 @@ from r2s_eval.stats._pairs import (
     transitive_closure,
 )
 
+from r2s_eval.errors import StatsError
+
 MM_MAX_ITER = 1000
 MM_TOL = 1e-8  # max abs change of the normalised strengths between MM iterations
 EPS = 1e-12  # keeps MM denominators positive when two strengths reach zero
 
 
-class DisconnectedComparisonsError(ValueError):
+class DisconnectedComparisonsError(StatsError):
     """The comparison graph splits into groups with no comparisons between them.
 
     Strengths of policies in different groups are not comparable, so no fit is

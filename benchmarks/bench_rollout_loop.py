@@ -32,8 +32,8 @@ import numpy as np  # noqa: E402
 
 from r2s_eval.rollout import run_episode  # noqa: E402
 from r2s_eval.sim import CAMERA_NAMES, TabletopEnv  # noqa: E402
-from r2s_eval.sim.teleop import make_operator  # noqa: E402
-from r2s_eval.sim.teleop import run_episode as run_teleop  # noqa: E402
+from r2s_eval.twin.operator import make_operator  # noqa: E402
+from r2s_eval.twin.operator import run_episode as run_teleop  # noqa: E402
 from r2s_eval.sim.world import GRIPPER_OPEN_M, N_SUBSTEPS  # noqa: E402
 
 

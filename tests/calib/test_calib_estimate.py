@@ -8,9 +8,9 @@ import pytest
 import r2s_eval  # noqa: F401  (sets the headless GL backend before mujoco loads)
 from r2s_eval.calib import CameraModel, InitEstimationError, ObjectGeometry, estimate_initial_poses, make_segmenter
 from r2s_eval.calib.estimate import wrap_yaw, yaw_error_rad
-from r2s_eval.sim import TabletopEnv, sample_twin_params
-from r2s_eval.stages._world import camera_model, object_geometries
-from r2s_eval.stages.init_estimate import mask_renderer
+from r2s_eval.calib.scene import camera_model, mask_renderer, object_geometries
+from r2s_eval.sim import TabletopEnv
+from r2s_eval.twin import sample_twin_params
 
 CAMERA = "head_left"
 
@@ -121,7 +121,7 @@ def test_yaw_of_observable_objects_from_a_twin_frame(task):
     opening points) from a twin frame passed through 4:2:0 chroma subsampling, as in video."""
     import cv2
 
-    from r2s_eval.stages.init_estimate import image_renderer
+    from r2s_eval.calib.scene import image_renderer
 
     params = sample_twin_params(np.random.default_rng(1))
     twin = TabletopEnv(task, params=params, cameras=(CAMERA,))

@@ -66,7 +66,7 @@ def render_sim_episodes(root: Path, max_steps: int = 100) -> pd.DataFrame:
     """
     from r2s_eval.rollout import run_episode
     from r2s_eval.sim import TabletopEnv
-    from r2s_eval.sim.teleop import make_operator
+    from r2s_eval.twin.operator import make_operator
 
     class Operator:
         def __init__(self, env):

@@ -202,9 +202,9 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     with ChatServer() as server:
         judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
         desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
-        _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--out"]),
+        _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out"]),
                  ["--cfg", json.dumps(judge), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
-        _cli.run(jp_stage.main, _add(jp_stage, ["--pairs", "--rollouts", "--descriptions", "--cache", "--out"]),
+        _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),
                  ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
                   "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])
     out = pd.read_parquet(verdicts)
@@ -217,11 +217,15 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     # Pairs that do not come from these rollouts and seed are refused, not silently replaced.
     judge["seed"] = 4
     with pytest.raises(SystemExit) as stop:
-        _cli.run(jp_stage.main, _add(jp_stage, ["--pairs", "--rollouts", "--descriptions", "--cache", "--out"]),
+        _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),
                  ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
                   "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])
     assert stop.value.code == _cli.EXIT_EXPECTED
     assert "was not sampled from these rollouts with seed 4" in capsys.readouterr().err
+
+
+# The flags of the judge_pairs stage, as its __main__ block adds them.
+JP_FLAGS = ["--pairs", "--rollouts", "--descriptions", "--cache", "--transport", "--out"]
 
 
 def _add(stage, flags: list[str]):
@@ -230,5 +234,8 @@ def _add(stage, flags: list[str]):
 
     p = _cli.parser(stage.__doc__)
     for f in flags:
-        p.add_argument(f, nargs="+" if f == "--rollouts" else None, required=f != "--descriptions")
+        if f == "--transport":
+            p.add_argument(f, default="{}", help="JSON: the judge's transport keys")
+        else:
+            p.add_argument(f, nargs="+" if f == "--rollouts" else None, required=f != "--descriptions")
     return p

@@ -246,7 +246,7 @@ def test_partial_loading_copies_the_pretrained_slices(offline, pretrained, datas
 @pytest.mark.parametrize("policy_type", FAMILIES)
 def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
     from r2s_eval.rollout import run_episode
-    from r2s_eval.stages._world import make_env
+    from r2s_eval.sim.build import make_env
 
     runner = load_policy(trained[policy_type])
     spec = runner.policy.spec

@@ -8,7 +8,7 @@ import pytest
 import r2s_eval  # noqa: F401
 from r2s_eval.replay import perturb, replay_episode
 from r2s_eval.sim import TabletopEnv
-from r2s_eval.sim.teleop import make_operator, run_episode
+from r2s_eval.twin.operator import make_operator, run_episode
 
 
 @pytest.fixture(scope="module")

@@ -207,7 +207,7 @@ def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypa
 
 
 def test_fit_takes_units_from_the_pairs_and_checks_them():
-    from r2s_eval.stages.fit import with_units
+    from r2s_eval.stats import with_units
 
     verdicts, pairs = judged(np.random.default_rng(1), n=10)
     filled = with_units(verdicts.drop(columns=["task", "init_id"]), pairs)

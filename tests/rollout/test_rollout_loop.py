@@ -8,7 +8,7 @@ import pytest
 import r2s_eval  # noqa: F401
 from r2s_eval.rollout import episode_id, read_video, run_episode, write_video
 from r2s_eval.sim import TabletopEnv
-from r2s_eval.sim.teleop import make_operator
+from r2s_eval.twin.operator import make_operator
 
 
 class OperatorPolicy:
@@ -108,7 +108,7 @@ class ScriptedPolicy:
 
 
 def _noisy_env(cameras):
-    from r2s_eval.sim.twin import WorldParams
+    from r2s_eval.sim import WorldParams
 
     return TabletopEnv("cup_on_plate", params=WorldParams(image_noise_std=4.0), cameras=cameras)
 

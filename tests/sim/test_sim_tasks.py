@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from r2s_eval.sim import TASKS
-from r2s_eval.sim.teleop import make_operator
+from r2s_eval.twin.operator import make_operator
 from r2s_eval.sim.world import TABLE_TOP_Z_M
 
 POSES = {"cup": (0.03, 0.12, 0.0), "plate": (-0.04, -0.06, 0.0)}

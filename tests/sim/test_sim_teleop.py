@@ -6,8 +6,9 @@ import pytest
 
 import numpy as np
 
-from r2s_eval.sim import TASKS, TabletopEnv, sample_twin_params
-from r2s_eval.sim.teleop import make_operator, run_episode
+from r2s_eval.sim import TASKS, TabletopEnv
+from r2s_eval.twin import sample_twin_params
+from r2s_eval.twin.operator import make_operator, run_episode
 
 
 def _episode(env, seed):

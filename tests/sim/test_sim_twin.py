@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TabletopEnv, TwinMagnitudes, WorldParams, sample_twin_params
+from r2s_eval.sim import TabletopEnv, WorldParams
+from r2s_eval.twin import TwinMagnitudes, sample_twin_params
 
 POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 

@@ -40,7 +40,7 @@ def test_failed_ingest_lets_no_training_run(tmp_path):
     (data / "meta" / "info.json").write_text('{"codebase_version": "v3.0", "fps": ')
     reference = tmp_path / "reference.csv"
     reference.write_text("policy,task,trials,successes\n")
-    overrides = ["real=dataset", f"real.dataset_root='{data}'", "real.dataset_repo_id=lab/teleop",
+    overrides = ["real=dataset", f"real.dataset_root='{data}'",
                  f"real.reference_csv='{reference}'"]
     run = tmp_path / "run"
     targets = ("results/train/real/act", "results/train/sim/act")

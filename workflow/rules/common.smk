@@ -16,7 +16,9 @@ from r2s_eval.policies.sources import (
     result_identity,
     validate_source_cfg,
 )
+from r2s_eval.judge.base import transport_keys
 from r2s_eval.sim.env import ACTION_DIM
+from r2s_eval.stages._reads import declaration as stage_declaration
 
 logging.getLogger().handlers[:] = _ROOT_HANDLERS
 
@@ -70,13 +72,17 @@ wildcard_constraints:
     arm="real|sim",
 
 
-def params_of(*paths):
-    """The config slice a rule reads, as one sorted JSON string (compared on rerun)."""
-    return to_json(select(CFG, *paths))
+def stage_params(stage, **provided):
+    """The --cfg of a stage: the config paths it declares in READS, plus the values the rule
+    provides (its PROVIDED keys), as one sorted JSON string that Snakemake compares on rerun."""
+    undeclared = set(provided) - set(stage_declaration(stage)["PROVIDED"])
+    if undeclared:
+        raise ValueError(f"stage {stage}: {sorted(undeclared)} are not in its PROVIDED declaration")
+    return to_json({**select(CFG, *stage_declaration(stage)["READS"]), **provided})
 
 
 def policy_params(wildcards):
-    return to_json({"policy": CFG["policies"][wildcards.policy], "seed": CFG["seed"], "name": wildcards.policy})
+    return stage_params("train", policy=CFG["policies"][wildcards.policy], name=wildcards.policy)
 
 
 class Untracked:
@@ -110,10 +116,6 @@ def rollout_transport(wildcards):
         return Untracked({})
     source = for_arm(EXTERNAL[wildcards.policy], wildcards.arm)
     return Untracked({k: v for k, v in source.items() if k not in result_identity(source)})
-
-
-def judge_params(wildcards):
-    return to_json({"judge": CFG["judges"][wildcards.judge], "name": wildcards.judge})
 
 
 REAL_DATASET = "results/real/dataset" if TWIN else CFG["real"]["dataset_root"]

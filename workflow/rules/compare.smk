@@ -5,7 +5,7 @@ rule compare_pairs:
     output:
         "results/compare/pairs.parquet",
     params:
-        cfg=params_of("compare", "seed"),
+        cfg=stage_params("compare_pairs"),
     log:
         "logs/compare_pairs.log",
     shell:

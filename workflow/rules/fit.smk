@@ -9,7 +9,7 @@ rule fit:
         fit="results/fit/{judge}.parquet",
         replicates="results/fit/{judge}.replicates.parquet",
     params:
-        cfg=params_of("stats", "compare", "seed"),
+        cfg=stage_params("fit"),
     log:
         "logs/fit/{judge}.log",
     shell:
@@ -25,7 +25,7 @@ rule validate:
     output:
         "results/validate/{judge}.json",
     params:
-        cfg=params_of("stats", "seed"),
+        cfg=stage_params("validate"),
     log:
         "logs/validate/{judge}.log",
     shell:

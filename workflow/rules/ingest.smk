@@ -9,7 +9,7 @@ rule ingest:
         report="results/ingest/report.json",
         frames=directory("results/ingest/first_frames"),
     params:
-        cfg=params_of("tasks", "world", "calib.camera", "ingest"),
+        cfg=stage_params("ingest"),
     log:
         "logs/ingest.log",
     shell:

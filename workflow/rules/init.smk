@@ -18,7 +18,7 @@ rule init_offsets:
     output:
         "results/init/offsets.json",
     params:
-        cfg=params_of("calib", "world"),
+        cfg=stage_params("init_offsets"),
         measured=lambda w, input: f"--measured {input.measured}" if "measured" in input.keys() else "",
     log:
         "logs/init_offsets.log",
@@ -37,7 +37,7 @@ rule init_estimate:
     output:
         "results/init/estimates.parquet",
     params:
-        cfg=params_of("calib", "world"),
+        cfg=stage_params("init_estimate"),
     log:
         "logs/init_estimate.log",
     shell:

@@ -9,8 +9,21 @@ def judge_mode(wildcards):
     return CFG["judges"][wildcards.judge].get("mode", "two_step")
 
 
-def judge_pair_params(wildcards):
-    return to_json({"judge": CFG["judges"][wildcards.judge], "name": wildcards.judge, "seed": CFG["seed"]})
+def judge_answer_cfg(wildcards):
+    cfg = CFG["judges"][wildcards.judge]
+    return {k: v for k, v in cfg.items() if k not in transport_keys(cfg)}
+
+
+def judge_transport(wildcards):
+    cfg = CFG["judges"][wildcards.judge]
+    return Untracked({k: v for k, v in cfg.items() if k in transport_keys(cfg)})
+
+
+def judge_params(stage):
+    def params(wildcards):
+        return stage_params(stage, judge=judge_answer_cfg(wildcards), name=wildcards.judge)
+
+    return params
 
 
 def judge_pair_inputs(wildcards):
@@ -28,13 +41,15 @@ rule describe:
         expand("results/rollout/sim/{policy}", policy=POLICIES),
     output:
         "results/judge/{judge}/descriptions.parquet",
+        "results/judge/{judge}/describe_stats.json",
     params:
-        cfg=judge_params,
+        cfg=judge_params("describe"),
+        transport=judge_transport,
     log:
         "logs/describe/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.describe --cfg {params.cfg:q} --rollouts {input}"
-        " --cache {JUDGE_CACHE} --out {output} --log {log}"
+        " --cache {JUDGE_CACHE} --transport {params.transport:q} --out {output[0]} --log {log}"
 
 
 rule judge_pairs:
@@ -42,12 +57,14 @@ rule judge_pairs:
         unpack(judge_pair_inputs),
     output:
         "results/judge/{judge}/verdicts.parquet",
+        "results/judge/{judge}/compare_stats.json",
     params:
-        cfg=judge_pair_params,
+        cfg=judge_params("judge_pairs"),
+        transport=judge_transport,
         descriptions=lambda wc, input: f"--descriptions {input.descriptions}" if "descriptions" in input.keys() else "",
     log:
         "logs/judge_pairs/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.judge_pairs --cfg {params.cfg:q} --pairs {input.pairs}"
         " --rollouts {input.rollouts} {params.descriptions} --cache {JUDGE_CACHE}"
-        " --out {output} --log {log}"
+        " --transport {params.transport:q} --out {output[0]} --log {log}"

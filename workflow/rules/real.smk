@@ -6,7 +6,7 @@ if TWIN:
         output:
             "results/real/twin_params.json",
         params:
-            cfg=params_of("real.twin", "tasks"),
+            cfg=stage_params("twin"),
         log:
             "logs/twin.log",
         shell:
@@ -19,7 +19,7 @@ if TWIN:
             dataset=directory("results/real/dataset"),
             truth="results/real/init_truth.parquet",
         params:
-            cfg=params_of("teleop", "tasks", "suite", "world", "seed"),
+            cfg=stage_params("teleop"),
         log:
             "logs/teleop.log",
         shell:

@@ -10,7 +10,7 @@ rule replay:
         dataset=directory("results/replay/dataset"),
         log_table="results/replay/log.parquet",
     params:
-        cfg=params_of("replay", "world", "seed"),
+        cfg=stage_params("replay"),
     log:
         "logs/replay.log",
     shell:

@@ -31,7 +31,7 @@ rule tasks_table:
     output:
         "reports/tasks_table.tex",
     params:
-        cfg=params_of("report.tasks_table"),
+        cfg=stage_params("tasks_table"),
     log:
         "logs/report/tasks_table.log",
     shell:
@@ -46,7 +46,7 @@ rule realsim_success_table:
     output:
         "reports/realsim_success_table.tex",
     params:
-        cfg=params_of("report.realsim_success_table"),
+        cfg=stage_params("realsim_success_table"),
     log:
         "logs/report/realsim_success_table.log",
     shell:
@@ -62,7 +62,7 @@ rule judge_audit:
     output:
         "results/audit/{judge}.json",
     params:
-        cfg=params_of("report.judge_audit"),
+        cfg=stage_params("judge_audit"),
         annotations=f"--annotations {HUMAN_ANNOTATIONS}" if HUMAN_ANNOTATIONS else "",
     log:
         "logs/report/judge_audit/{judge}.log",
@@ -78,7 +78,7 @@ rule judge_card_table:
     output:
         "reports/judge_card_table.tex",
     params:
-        cfg=params_of("report.judge_card_table"),
+        cfg=stage_params("judge_card_table"),
     log:
         "logs/report/judge_card_table.log",
     shell:
@@ -95,7 +95,7 @@ rule realsim_table:
         table="reports/realsim_table.tex",
         ranking="reports/ranking.txt",
     params:
-        cfg=params_of("report.realsim_table"),
+        cfg=stage_params("realsim_table"),
     log:
         "logs/realsim_table.log",
     shell:
@@ -112,7 +112,7 @@ rule bt_scores_table:
     output:
         "reports/bt_scores_table.tex",
     params:
-        cfg=params_of("report.bt_scores_table"),
+        cfg=stage_params("bt_scores_table"),
     log:
         "logs/report/bt_scores_table.log",
     shell:
@@ -127,7 +127,7 @@ rule win_rate_matrix:
         pdf="reports/win_rate_matrix_{judge}.pdf",
         png="reports/win_rate_matrix_{judge}.png",
     params:
-        cfg=params_of("report.win_rate_matrix"),
+        cfg=stage_params("win_rate_figure"),
     log:
         "logs/report/win_rate_matrix/{judge}.log",
     shell:
@@ -142,7 +142,7 @@ rule bt_convergence:
         pdf="reports/bt_convergence.pdf",
         png="reports/bt_convergence.png",
     params:
-        cfg=params_of("report.bt_convergence"),
+        cfg=stage_params("bt_convergence_figure"),
     log:
         "logs/report/bt_convergence.log",
     shell:
@@ -159,7 +159,7 @@ rule overall_ranking:
         pdf="reports/overall_ranking.pdf",
         png="reports/overall_ranking.png",
     params:
-        cfg=params_of("report.overall_ranking"),
+        cfg=stage_params("overall_ranking_figure"),
     log:
         "logs/report/overall_ranking.log",
     shell:
@@ -175,7 +175,7 @@ rule hardware_effort:
         pdf="reports/hardware_effort.pdf",
         png="reports/hardware_effort.png",
     params:
-        cfg=params_of("report.hardware_effort"),
+        cfg=stage_params("hardware_effort_figure"),
     log:
         "logs/report/hardware_effort.log",
     shell:
@@ -191,7 +191,7 @@ rule case_study:
         pdf="reports/case_study_{judge}.pdf",
         png="reports/case_study_{judge}.png",
     params:
-        cfg=params_of("report.case_study"),
+        cfg=stage_params("case_study_figure"),
     log:
         "logs/report/case_study/{judge}.log",
     shell:

@@ -4,7 +4,7 @@ rule rollout_inits:
     output:
         "results/rollout/inits.parquet",
     params:
-        cfg=params_of("tasks", "suite", "rollout.inits_per_task", "seed"),
+        cfg=stage_params("rollout_inits"),
     log:
         "logs/rollout_inits.log",
     shell:
@@ -20,6 +20,14 @@ def rollout_inputs(wildcards):
     return inputs
 
 
+def rollout_params(wildcards):
+    cfg = json.loads(stage_params("rollout", arm=wildcards.arm, policy=wildcards.policy,
+                                  policy_cfg=rollout_policy_cfg(wildcards)))
+    if wildcards.arm == "sim":  # read by the real arm only: a change must not rerun sim rollouts
+        cfg["rollout"].pop("real_inits_per_task", None)
+    return to_json(cfg)
+
+
 rule rollout:
     input:
         unpack(rollout_inputs),
@@ -27,10 +35,7 @@ rule rollout:
     output:
         directory("results/rollout/{arm}/{policy}"),
     params:
-        cfg=lambda w: to_json({
-            **select(CFG, "rollout", "world", "seed"), "arm": w.arm, "policy": w.policy,
-            "policy_cfg": rollout_policy_cfg(w),
-        }),
+        cfg=rollout_params,
         trained=lambda w, input: f"--policy {input.policy}" if "policy" in input.keys() else "",
         twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
         transport=rollout_transport,

@@ -1,4 +1,9 @@
-"""Real-to-sim calibration: initial object poses from a first camera frame, per-task offsets."""
+"""Real-to-sim calibration: initial object poses from a first camera frame, per-task offsets.
+
+``scene`` (the calibrated sim as the estimator sees it: object geometry, camera model, mask and
+image renderers) and ``episodes`` (estimates for a dataset's episodes) build on ``r2s_eval.sim``
+and are imported from their modules, so this package itself loads no simulator.
+"""
 
 from r2s_eval.calib.estimate import (
     CameraModel,
@@ -8,7 +13,7 @@ from r2s_eval.calib.estimate import (
     estimate_initial_poses,
     yaw_error_rad,
 )
-from r2s_eval.calib.offsets import calibration_subset, fit_offsets
+from r2s_eval.calib.offsets import calibration_subset, fit_offsets, median_error_mm, read_measured_poses
 from r2s_eval.calib.segment import HSVSegmenter, Segmenter, make_segmenter
 
 __all__ = [
@@ -21,6 +26,8 @@ __all__ = [
     "calibration_subset",
     "estimate_initial_poses",
     "fit_offsets",
+    "median_error_mm",
+    "read_measured_poses",
     "make_segmenter",
     "yaw_error_rad",
 ]

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.calib.estimate import wrap_yaw
+from r2s_eval.errors import DataError
 
 
 def calibration_subset(index: pd.DataFrame, per_task: int) -> pd.DataFrame:
@@ -64,3 +65,25 @@ def fit_offsets(estimates: pd.DataFrame, measured: pd.DataFrame) -> dict[str, di
             _circular_mean(np.array(dyaw), symmetry),
         ]
     return offsets
+
+
+def read_measured_poses(path: str, episodes: list[int]) -> pd.DataFrame:
+    """Measured poses (parquet or CSV: episode_index, object, x_m, y_m, yaw_rad) of `episodes` only."""
+    table = pd.read_parquet(path) if path.endswith(".parquet") else pd.read_csv(path)
+    missing = {"episode_index", "object", "x_m", "y_m", "yaw_rad"} - set(table.columns)
+    if missing:
+        raise DataError(f"{path}: measured poses lack columns {sorted(missing)}")
+    # Only the calibration episodes' measurements are read: the rest is test data.
+    columns = ["episode_index", "object", "x_m", "y_m", "yaw_rad"]
+    return table.loc[table["episode_index"].isin(episodes), columns].reset_index(drop=True)
+
+
+def median_error_mm(estimates: pd.DataFrame, measured: pd.DataFrame, offsets: dict | None) -> dict:
+    """Median planar error (mm) per task and object, after adding `offsets` to the estimates."""
+    merged = estimates.merge(measured, on=["episode_index", "object"], suffixes=("_est", "_true"))
+    out = {}
+    for (task, obj), g in merged.groupby(["task", "object"]):
+        dx, dy, _ = (offsets or {}).get(task, {}).get(obj, [0.0, 0.0, 0.0])
+        err = 1000 * np.hypot(g["x_m_est"] + dx - g["x_m_true"], g["y_m_est"] + dy - g["y_m_true"])
+        out.setdefault(task, {})[obj] = float(np.median(err))
+    return out

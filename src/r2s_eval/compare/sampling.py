@@ -38,6 +38,11 @@ def _pair_rng(seed: int, a: str, b: str) -> np.random.Generator:
     return np.random.default_rng([int(seed), int.from_bytes(digest[:8], "little")])
 
 
+def checkpoint_sizes(spec: dict) -> list[int]:
+    """Comparisons per policy pair at each checkpoint, from ``{start, stop, step}`` (stop included)."""
+    return list(range(int(spec["start"]), int(spec["stop"]) + 1, int(spec["step"])))
+
+
 def _check_checkpoints(checkpoints: Sequence[int]) -> list[int]:
     ck = [int(c) for c in checkpoints]
     if not ck or any(c <= 0 for c in ck) or any(c != x for c, x in zip(ck, checkpoints)):

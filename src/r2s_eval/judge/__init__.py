@@ -12,8 +12,11 @@ Public API:
   * VLM backends (two-step method in ``vlm.VLMJudge``): "openai" (``OpenAIJudge``, any
     OpenAI-compatible chat-completions server) and "transformers" (``TransformersJudge``, a local
     model);
-  * stage drivers: ``describe_rollouts``, ``judge_pairs`` (cached, resumable, with invalid-answer
-    replacement and the order-swap audit).
+  * stage drivers (``drivers``): ``describe_rollouts``, ``judge_pairs`` (cached, resumable, with
+    invalid-answer replacement and the order-swap audit ``swap_audited``), built on the cached
+    parallel runner (``runner``: ``StageStats``), the judge's questions (``questions``), its
+    scratch folder (``scratch``), the replacement reserve (``replacement``) and the order-swap
+    audit (``swap_audit``).
 """
 
 from r2s_eval.judge.base import (
@@ -30,9 +33,11 @@ from r2s_eval.judge.base import (
     make_judge,
     register_judge,
 )
+from r2s_eval.judge.drivers import describe_rollouts, judge_pairs
 from r2s_eval.judge.kinematic import KinematicJudge
 from r2s_eval.judge.openai_backend import OpenAIJudge
-from r2s_eval.judge.stages import StageStats, describe_rollouts, judge_pairs, swap_audited
+from r2s_eval.judge.runner import StageStats
+from r2s_eval.judge.swap_audit import swap_audited
 from r2s_eval.judge.transformers_backend import TransformersJudge
 from r2s_eval.judge.video import VideoJudge
 from r2s_eval.judge.vlm import VLMJudge

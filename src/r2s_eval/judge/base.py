@@ -275,3 +275,11 @@ def make_judge(cfg: Mapping[str, Any]) -> Judge:
     if backend not in _BACKENDS:
         raise ValueError(f"unknown judge backend {backend!r}; available: {available_backends()}")
     return _BACKENDS[backend](cfg)
+
+
+def transport_keys(cfg: Mapping[str, Any]) -> frozenset[str]:
+    """Keys of a judge config that say where or how fast to ask, never what is answered (server
+    address, timeouts, retries, parallel calls): a change to them must not rerun judging."""
+    cls = _BACKENDS.get(str(cfg.get("backend")))
+    own = getattr(cls, "TRANSPORT_KEYS", frozenset())
+    return frozenset((set(own) - {"name"}) | {"concurrency"})

@@ -1,9 +1,9 @@
 """What one judge answer cost: model requests, transient-error retries, malformed replies, re-asks
 and tokens.
 
-Backends report through ``record_usage`` from inside a call; the stage driver wraps each call in
-``metered()`` and so learns the cost of exactly that answer, even with calls running in parallel
-threads (the meter is thread-local).
+Backends report through ``record_usage`` from inside a call; the runner (``runner.run_cached``)
+wraps each call in ``metered()`` and so learns the cost of exactly that answer, even with calls
+running in parallel threads (the meter is thread-local).
 """
 
 from __future__ import annotations

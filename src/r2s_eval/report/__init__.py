@@ -1,7 +1,8 @@
 """Paper tables (LaTeX, booktabs) and figures (PDF + PNG) generated from the pipeline's artefacts.
 
 ``summaries`` computes the numbers from artefact tables, ``tables`` and ``figures`` lay them
-out; the stages in ``r2s_eval.stages`` read the files and call these.
+out; ``world`` reports the calibrated world's fidelity per task. The stages in
+``r2s_eval.stages`` read the files and call these.
 """
 
 from r2s_eval.report.figures import (

@@ -1,4 +1,8 @@
-"""Closed-loop policy rollouts: seeded initial configurations, episode loop, video."""
+"""Closed-loop policy rollouts: seeded initial configurations, episode loop, video.
+
+``candidate`` (one candidate's resumable rollouts on one arm, written as one folder) loads the
+policy sources, so it is imported from its module.
+"""
 
 from r2s_eval.rollout.inits import sample_inits
 from r2s_eval.rollout.loop import EpisodeResult, episode_id, run_episode

@@ -1,9 +1,11 @@
-"""Simulated dual-arm tabletop world, its reality twin and a scripted teleoperator.
+"""Simulated dual-arm tabletop world.
 
 Modules: ``world`` (scene assembly from ``assets/``), ``objects`` (parametric
 objects), ``cameras`` (intrinsics/extrinsics/projection), ``tasks`` (registry,
-success and progress), ``env`` (``TabletopEnv``), ``twin`` (``WorldParams``,
-perturbation sampling), ``teleop`` (scripted operator using mink IK).
+success and progress), ``env`` (``TabletopEnv``), ``params`` (``WorldParams``, the
+physics and rendering knobs of one world), ``build`` (environments from the config
+slices). The reality twin and the scripted operator live in ``r2s_eval.twin``, which
+builds on this package (never the reverse).
 Rendering is headless: ``MUJOCO_GL`` defaults to ``egl`` unless already set.
 """
 
@@ -12,8 +14,8 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from r2s_eval.sim.env import ACTION_DIM, TabletopEnv  # noqa: E402
+from r2s_eval.sim.params import CAMERA_NAMES, WorldParams, load_world_params  # noqa: E402
 from r2s_eval.sim.tasks import TASKS, Task, get_task  # noqa: E402
-from r2s_eval.sim.twin import CAMERA_NAMES, TwinMagnitudes, WorldParams, sample_twin_params  # noqa: E402
 
 __all__ = [
     "ACTION_DIM",
@@ -21,8 +23,7 @@ __all__ = [
     "TASKS",
     "Task",
     "TabletopEnv",
-    "TwinMagnitudes",
     "WorldParams",
     "get_task",
-    "sample_twin_params",
+    "load_world_params",
 ]

@@ -46,7 +46,7 @@ from r2s_eval.sim import cameras as cam_geom  # noqa: E402
 from r2s_eval.sim import objects as obj_geom  # noqa: E402
 from r2s_eval.sim import world  # noqa: E402
 from r2s_eval.sim.tasks import Task, centre_m, get_task, sample_initial_poses  # noqa: E402
-from r2s_eval.sim.twin import CAMERA_NAMES, WorldParams  # noqa: E402
+from r2s_eval.sim.params import CAMERA_NAMES, WorldParams  # noqa: E402
 
 ACTION_DIM = 14
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset

@@ -64,6 +64,17 @@ class ObjectSpec:
 
 PLACEMENTS = ("upright", "upside_down", "on_side")
 
+# Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric,
+# n: looks the same after 2*pi/n). A cup lying on its side has none (1): its opening
+# points one way.
+YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2}
+PLACEMENT_YAW_SYMMETRY = {("cup", "on_side"): 1}
+
+
+def yaw_symmetry(kind: str, placement: str = "upright") -> int:
+    """The object's yaw symmetry in that placement (see ``YAW_SYMMETRY``)."""
+    return PLACEMENT_YAW_SYMMETRY.get((kind, placement), YAW_SYMMETRY[kind])
+
 
 def footprint_radius_m(kind: str, dims: dict, placement: str = "upright") -> float:
     """Radius of a circle around the object's footprint (for collision-free sampling)."""

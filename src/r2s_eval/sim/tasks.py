@@ -63,7 +63,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, height_m
+from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, height_m, yaw_symmetry
 
 if TYPE_CHECKING:  # pragma: no cover
     from r2s_eval.sim.env import TabletopEnv
@@ -103,6 +103,10 @@ class Task:
 
     def object(self, name: str) -> ObjectSpec:
         return next(o for o in self.objects if o.name == name)
+
+    def yaw_symmetry(self, name: str) -> int:
+        """Yaw symmetry of the object in its start placement (``objects.yaw_symmetry``)."""
+        return yaw_symmetry(self.object(name).kind, self.placement(name))
 
 
 # ---------------------------------------------------------------- objects

@@ -13,7 +13,7 @@ import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.objects import ObjectSpec, add_object
-from r2s_eval.sim.twin import WorldParams
+from r2s_eval.sim.params import WorldParams
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TypeVar
 
 from r2s_eval.errors import R2SError
+from r2s_eval.utils.io import set_provenance
 
 T = TypeVar("T")
 EXIT_EXPECTED = 1
@@ -73,6 +74,7 @@ def run(main: Callable[[argparse.Namespace], None], p: argparse.ArgumentParser, 
     )
     log = logging.getLogger("r2s_eval")
     stage = _stage_name(main)
+    set_provenance(getattr(args, "cfg", None) or {})
     start = time.perf_counter()
     try:
         main(args)

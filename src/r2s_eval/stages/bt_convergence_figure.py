@@ -7,6 +7,8 @@ import pandas as pd
 from r2s_eval.report import convergence_figure, save_figure
 from r2s_eval.stages import _cli
 
+READS = ("report.bt_convergence",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     opts = args.cfg["report.bt_convergence"]

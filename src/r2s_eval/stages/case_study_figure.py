@@ -10,6 +10,8 @@ from r2s_eval.report import case_study_figure, pick_case_study, sample_frames, s
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 
+READS = ("report.case_study",)  # config paths the --cfg slice holds (see _reads.py)
+
 log = logging.getLogger("r2s_eval.case_study")
 
 

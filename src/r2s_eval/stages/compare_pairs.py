@@ -2,22 +2,20 @@
 
 from __future__ import annotations
 
-from r2s_eval.compare import sample_pairs
+from r2s_eval.compare import checkpoint_sizes, sample_pairs
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
 
-
-def checkpoints(cfg: dict) -> list[int]:
-    c = cfg["compare"]["checkpoints"]
-    return list(range(int(c["start"]), int(c["stop"]) + 1, int(c["step"])))
+READS = ("compare", "seed")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
     episodes = load_episodes(args.rollouts)
     policies = sorted(episodes["policy"].unique())
-    pairs = sample_pairs(episodes, policies, checkpoints(args.cfg), seed=int(args.cfg["seed"]))
-    write_parquet(args.out, pairs, metadata={"stage": "compare_pairs", "checkpoints": checkpoints(args.cfg), "policies": policies})
+    checkpoints = checkpoint_sizes(args.cfg["compare"]["checkpoints"])
+    pairs = sample_pairs(episodes, policies, checkpoints, seed=int(args.cfg["seed"]))
+    write_parquet(args.out, pairs, metadata={"stage": "compare_pairs", "checkpoints": checkpoints, "policies": policies})
 
 
 if __name__ == "__main__":

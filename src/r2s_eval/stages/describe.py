@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from r2s_eval.judge import describe_rollouts, make_judge
@@ -9,9 +10,13 @@ from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
 
+READS = ()  # config paths the --cfg slice holds (see _reads.py)
+PROVIDED = ("judge", "name")  # keys the rule adds for this job
+
 
 def main(args) -> None:
-    judge = make_judge(args.cfg["judge"])
+    # Transport keys (server address, timeouts, concurrency) come apart: they never rerun judging.
+    judge = make_judge({**args.cfg["judge"], **json.loads(args.transport)})
     episodes = load_episodes(args.rollouts)
     out = Path(args.out)
     descriptions = describe_rollouts(episodes, Path("."), judge, args.cache, stats_path=out.with_name("describe_stats.json"))
@@ -23,5 +28,6 @@ if __name__ == "__main__":
     p = _cli.parser(__doc__)
     p.add_argument("--rollouts", nargs="+", required=True)
     p.add_argument("--cache", required=True)
+    p.add_argument("--transport", default="{}", help="JSON: the judge's transport keys")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

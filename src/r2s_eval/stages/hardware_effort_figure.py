@@ -12,6 +12,8 @@ from r2s_eval.report import hardware_effort_figure, save_figure
 from r2s_eval.stages import _cli
 from r2s_eval.errors import DataError
 
+READS = ("report.hardware_effort",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def experiment_scale(reference: pd.DataFrame) -> tuple[int, int, int]:
     """(policies, tasks, trials per task and policy, rounded mean) of a reference table."""

@@ -9,6 +9,8 @@ from r2s_eval.sim.tasks import get_task
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
 
+READS = ("tasks", "world", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     cfg = args.cfg

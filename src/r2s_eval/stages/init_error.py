@@ -15,6 +15,8 @@ from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_json, write_parquet
 from r2s_eval.errors import DataError
 
+READS = ()  # config paths the --cfg slice holds (see _reads.py)
+
 
 def score(estimates: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
     merged = estimates.merge(truth, on=["episode_index", "object"], suffixes=("_est", "_true"), validate="one_to_one")

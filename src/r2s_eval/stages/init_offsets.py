@@ -21,33 +21,14 @@ import logging
 import numpy as np
 import pandas as pd
 
-from r2s_eval.calib import calibration_subset, fit_offsets
+from r2s_eval.calib import calibration_subset, fit_offsets, median_error_mm, read_measured_poses
 from r2s_eval.stages import _cli
-from r2s_eval.stages.init_estimate import estimate_episodes
+from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.utils.io import write_json
-from r2s_eval.errors import DataError
+
+READS = ("calib", "world")  # config paths the --cfg slice holds (see _reads.py)
 
 log = logging.getLogger("r2s_eval.init_offsets")
-
-
-def _read_measured(path: str, episodes: list[int]) -> pd.DataFrame:
-    table = pd.read_parquet(path) if path.endswith(".parquet") else pd.read_csv(path)
-    missing = {"episode_index", "object", "x_m", "y_m", "yaw_rad"} - set(table.columns)
-    if missing:
-        raise DataError(f"{path}: measured poses lack columns {sorted(missing)}")
-    # Only the calibration episodes' measurements are read: the rest is test data.
-    columns = ["episode_index", "object", "x_m", "y_m", "yaw_rad"]
-    return table.loc[table["episode_index"].isin(episodes), columns].reset_index(drop=True)
-
-
-def _median_error_mm(estimates: pd.DataFrame, measured: pd.DataFrame, offsets: dict | None) -> dict:
-    merged = estimates.merge(measured, on=["episode_index", "object"], suffixes=("_est", "_true"))
-    out = {}
-    for (task, obj), g in merged.groupby(["task", "object"]):
-        dx, dy, _ = (offsets or {}).get(task, {}).get(obj, [0.0, 0.0, 0.0])
-        err = 1000 * np.hypot(g["x_m_est"] + dx - g["x_m_true"], g["y_m_est"] + dy - g["y_m_true"])
-        out.setdefault(task, {})[obj] = float(np.median(err))
-    return out
 
 
 def main(args) -> None:
@@ -60,9 +41,9 @@ def main(args) -> None:
               "fitted": False, "calibration_error": {}}
     if args.measured and episodes:
         raw = estimate_episodes(subset, args.frames, calib, world, offsets=None, desc="init_offsets")
-        measured = _read_measured(args.measured, episodes)
+        measured = read_measured_poses(args.measured, episodes)
         offsets = fit_offsets(raw, measured)
-        before, after = _median_error_mm(raw, measured, None), _median_error_mm(raw, measured, offsets)
+        before, after = median_error_mm(raw, measured, None), median_error_mm(raw, measured, offsets)
         result.update(offsets=offsets, fitted=True, calibration_error={
             task: {obj: {"xy_mm_median_before": before[task][obj], "xy_mm_median_after": after[task][obj]}
                    for obj in before[task]} for task in before})

@@ -18,6 +18,8 @@ from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_json
 
+READS = ("report.judge_audit",)  # config paths the --cfg slice holds (see _reads.py)
+
 log = logging.getLogger("r2s_eval.judge_audit")
 
 

@@ -11,6 +11,8 @@ from r2s_eval.report import judge_card_table
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_path, read_json
 
+READS = ("report.judge_card_table",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     opts = args.cfg["report.judge_card_table"]

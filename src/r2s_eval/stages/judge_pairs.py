@@ -20,6 +20,9 @@ from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.errors import DataError
 
+READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
+PROVIDED = ("judge", "name")  # keys the rule adds for this job
+
 
 def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, seed: int, n_reserve: int) -> pd.DataFrame:
     """The pairs' seeded continuation; checks first that the pairs came from these rollouts and seed."""
@@ -34,7 +37,8 @@ def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, se
 
 
 def main(args) -> None:
-    judge = make_judge(args.cfg["judge"])
+    # Transport keys (server address, timeouts, concurrency) come apart: they never rerun judging.
+    judge = make_judge({**args.cfg["judge"], **json.loads(args.transport)})
     pairs = pd.read_parquet(args.pairs)
     episodes = load_episodes(args.rollouts)
     descriptions = pd.read_parquet(args.descriptions) if args.descriptions else None
@@ -54,5 +58,6 @@ if __name__ == "__main__":
     p.add_argument("--rollouts", nargs="+", required=True)
     p.add_argument("--descriptions", default=None, help="descriptions table (two-step judges)")
     p.add_argument("--cache", required=True)
+    p.add_argument("--transport", default="{}", help="JSON: the judge's transport keys")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

@@ -7,8 +7,10 @@ import pandas as pd
 
 from r2s_eval.report import judge_averaged_scores, ranking_figure, reference_interval, save_figure
 from r2s_eval.stages import _cli
-from r2s_eval.stages.validate import reference_rates
+from r2s_eval.stats import reference_rates
 from r2s_eval.utils.io import read_json
+
+READS = ("report.overall_ranking",)  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:

@@ -9,6 +9,8 @@ from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import atomic_path
 
+READS = ("report.realsim_success_table",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     opts = args.cfg["report.realsim_success_table"]

@@ -10,8 +10,10 @@ import pandas as pd
 
 from r2s_eval.report import ranking_text, realsim_table, reference_interval
 from r2s_eval.stages import _cli
-from r2s_eval.stages.validate import reference_rates
+from r2s_eval.stats import reference_rates
 from r2s_eval.utils.io import atomic_path, read_json
+
+READS = ("report.realsim_table",)  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:

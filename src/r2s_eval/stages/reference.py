@@ -6,7 +6,7 @@ from a CSV of hardware trials with columns policy, task, trials, successes.
 The table stays per task: a policy's reference performance is the mean of its per-task
 rates (every task weighs the same), and its bootstrap interval resamples the trials within
 each task, so both are computed from these counts where they are used
-(``r2s_eval.stages.validate.reference_rates``; the interval in the validate stage, with the
+(``r2s_eval.stats.reference_rates``; the interval in the validate stage, with the
 statistics config and seed). Nothing here depends on that config, so changing it does not
 rerun the reference.
 """
@@ -20,6 +20,8 @@ import pandas as pd
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.errors import DataError
+
+READS = ()  # config paths the --cfg slice holds (see _reads.py)
 
 
 def from_rollouts(rollout_dirs: list[str]) -> pd.DataFrame:

@@ -14,9 +14,11 @@ from r2s_eval.replay import replay_episode
 from r2s_eval.sim.env import ACTION_DIM
 from r2s_eval.sim.world import CONTROL_DT_S
 from r2s_eval.stages import _cli
-from r2s_eval.stages._world import make_env
+from r2s_eval.sim.build import make_env
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.errors import DataError
+
+READS = ("replay", "world", "seed")  # config paths the --cfg slice holds (see _reads.py)
 
 log = logging.getLogger("r2s_eval.replay")
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from r2s_eval.rollout import sample_inits
 from r2s_eval.stages import _cli
-from r2s_eval.stages._world import configured_task
+from r2s_eval.sim.build import configured_task
 from r2s_eval.utils.io import write_parquet
+
+READS = ("tasks", "suite", "rollout.inits_per_task", "seed")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:

@@ -8,6 +8,8 @@ from r2s_eval.report import task_summary, tasks_table
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_path
 
+READS = ("report.tasks_table",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     opts = args.cfg["report.tasks_table"]

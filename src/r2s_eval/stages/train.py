@@ -8,6 +8,9 @@ from r2s_eval.policies import train_policy
 from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
+READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
+PROVIDED = ("policy", "name")  # keys the rule adds for this job
+
 
 def main(args) -> None:
     deterministic_torch(args.threads)

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import dataclasses
-
-import numpy as np
-
-from r2s_eval.sim import TwinMagnitudes, get_task, sample_twin_params
-from r2s_eval.sim.twin import ALL_OBJECT_NAMES, CAMERA_NAMES
 from r2s_eval.stages import _cli
+from r2s_eval.twin import twin_world
 from r2s_eval.utils.io import write_json
+
+READS = ("real.twin", "tasks")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
-    twin = args.cfg["real.twin"]
-    magnitudes = TwinMagnitudes(**(twin.get("magnitudes") or {}))
     # All objects of the suite, so the twin (and its seed) does not depend on which tasks run.
-    objects = sorted(set(ALL_OBJECT_NAMES) | {o.name for task in args.cfg.get("tasks", []) or [] for o in get_task(task).objects})
-    params = sample_twin_params(np.random.default_rng(int(twin["seed"])), magnitudes, tuple(objects), CAMERA_NAMES)
-    write_json(args.out, {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)})
+    write_json(args.out, twin_world(args.cfg["real.twin"], args.cfg.get("tasks", []) or []))
 
 
 if __name__ == "__main__":

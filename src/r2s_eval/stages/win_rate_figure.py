@@ -7,6 +7,8 @@ import pandas as pd
 from r2s_eval.report import save_figure, win_rate_figure, win_rate_matrix
 from r2s_eval.stages import _cli
 
+READS = ("report.win_rate_matrix",)  # config paths the --cfg slice holds (see _reads.py)
+
 
 def main(args) -> None:
     opts = args.cfg["report.win_rate_matrix"]

@@ -23,12 +23,16 @@ from r2s_eval.stats.bradley_terry import (
 from r2s_eval.stats.checkpoints import (
     INTERVALS,
     CheckpointMetrics,
+    bootstrap_checkpoints,
     check_interval,
     checkpoint_metrics,
+    metric_ci_tables,
     metric_intervals,
     metric_replicates,
     percentile_interval,
+    ranking_metrics,
 )
+from r2s_eval.stats.fit_table import fit_checkpoints, units_of, with_units
 from r2s_eval.stats.metrics import (
     PositionBias,
     ci_aware_rank,
@@ -43,13 +47,19 @@ from r2s_eval.stats.metrics import (
     spearman,
     spearman_batch,
 )
-from r2s_eval.stats.reference import bootstrap_task_mean_success, task_mean_success
+from r2s_eval.stats.reference import (
+    bootstrap_task_mean_success,
+    reference_bootstrap,
+    reference_rates,
+    task_mean_success,
+)
 from r2s_eval.stats.units import (
     ComparisonUnits,
     comparison_units,
     unit_bootstrap_bradley_terry,
     unit_bootstrap_wins,
 )
+from r2s_eval.stats.validation import validate
 
 __all__ = [
     "INTERVALS",
@@ -58,6 +68,7 @@ __all__ = [
     "DisconnectedComparisonsError",
     "PositionBias",
     "bootstrap_bradley_terry",
+    "bootstrap_checkpoints",
     "bootstrap_task_mean_success",
     "bootstrap_wins",
     "bt_ci_width",
@@ -70,9 +81,11 @@ __all__ = [
     "comparison_units",
     "fit_bradley_terry",
     "fit_bradley_terry_batch",
+    "fit_checkpoints",
     "flat_within_ci",
     "human_agreement_rate",
     "majority_vote",
+    "metric_ci_tables",
     "metric_intervals",
     "metric_replicates",
     "mmrv",
@@ -82,6 +95,9 @@ __all__ = [
     "pearson_batch",
     "percentile_interval",
     "position_bias",
+    "ranking_metrics",
+    "reference_bootstrap",
+    "reference_rates",
     "shuffled_label_control",
     "spearman",
     "spearman_batch",
@@ -89,4 +105,7 @@ __all__ = [
     "unit_bootstrap_bradley_terry",
     "unit_bootstrap_wins",
     "unit_share",
+    "units_of",
+    "validate",
+    "with_units",
 ]

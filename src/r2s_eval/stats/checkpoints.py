@@ -119,7 +119,34 @@ class CheckpointMetrics:
         return pd.DataFrame(rows)
 
 
-def _metric_ci_tables(boot_scores, ref, reference_boot, level, labels, coupled) -> tuple[pd.DataFrame, pd.Series]:
+def ranking_metrics(scores, reference) -> dict[str, float]:
+    """Spearman, Pearson and MMRV of one checkpoint's ``(P,)`` scores against ``reference``."""
+    return {"spearman": spearman(scores, reference), "pearson": pearson(scores, reference),
+            "mmrv": mmrv(scores, reference)}
+
+
+def bootstrap_checkpoints(
+    wins, units: ComparisonUnits | None, n_boot: int, seed, names, level: float, n_threads: int | None = 1
+) -> tuple[dict[str, np.ndarray], dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """Every bootstrap that applies, over all checkpoints in one pass each: ``binomial`` on
+    ``wins`` ``(C, P, P)`` and, with ``units``, ``unit``.  Returns the replicate strengths
+    ``{interval: (C, n_boot, P)}`` and their percentile score intervals ``{interval: (lower,
+    upper)}``, each ``(C, P)``."""
+    boots = {"binomial": bootstrap_bradley_terry(wins, n_boot=n_boot, seed=seed, names=names, n_threads=n_threads)}
+    if units is not None:
+        boots["unit"] = unit_bootstrap_bradley_terry(units, n_boot=n_boot, seed=seed, names=names, n_threads=n_threads)
+    return boots, {name: bt_confidence_intervals(boot, level) for name, boot in boots.items()}
+
+
+def metric_ci_tables(boot_scores, ref, reference_boot, level, labels, coupled) -> tuple[pd.DataFrame, pd.Series]:
+    """Percentile intervals of the ranking metrics per checkpoint and of their average.
+
+    ``boot_scores``: ``(C, n_boot, P)`` replicate scores; ``ref``: ``(P,)``;
+    ``reference_boot``: ``None`` or ``(n_boot, P)`` reference replicates.  Returns a table
+    indexed by ``labels`` with columns ``<metric>_low/_high`` (score side only) and, with
+    ``reference_boot``, ``<metric>_low_with_reference/_high_with_reference`` (both sides
+    vary), and the same for the average over checkpoints (NaN unless ``coupled``: replicate
+    ``b`` reuses the same draws at every checkpoint)."""
     sides = {"": ref}
     if reference_boot is not None:
         sides["_with_reference"] = reference_boot
@@ -199,23 +226,16 @@ def checkpoint_metrics(
         raise ValueError(f"checkpoints must have {C} labels, got shape {labels.shape}")
 
     strengths = fit_bradley_terry_batch(arr, names=names)
-    boots = {"binomial": bootstrap_bradley_terry(arr, n_boot=n_boot, seed=seed, names=names, n_threads=n_threads)}
-    if units is not None:
-        boots["unit"] = unit_bootstrap_bradley_terry(units, n_boot=n_boot, seed=seed, names=names, n_threads=n_threads)
-    cis = {name: bt_confidence_intervals(boot, level) for name, boot in boots.items()}
+    boots, cis = bootstrap_checkpoints(arr, units, n_boot, seed, names, level, n_threads)
     lower, upper = cis[interval]
     scores = bt_scores(strengths)
     index = pd.Index(labels, name="checkpoint")
+    ranking = [ranking_metrics(s, ref) for s in scores]
     per_checkpoint = pd.DataFrame(
-        {
-            "ci_width": (upper - lower).mean(axis=1),
-            "spearman": [spearman(s, ref) for s in scores],
-            "pearson": [pearson(s, ref) for s in scores],
-            "mmrv": [mmrv(s, ref) for s in scores],
-        },
+        {"ci_width": (upper - lower).mean(axis=1), **{m: [r[m] for r in ranking] for m in RANKING_METRICS}},
         index=index,
     )
-    metric_ci, average_ci = _metric_ci_tables(
+    metric_ci, average_ci = metric_ci_tables(
         bt_scores(boots[interval]), ref, reference_boot, level, labels, COUPLED[interval]
     )
     widths = pd.DataFrame({name: (hi - lo).mean(axis=1) for name, (lo, hi) in cis.items()}, index=index)

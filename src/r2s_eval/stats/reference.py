@@ -11,7 +11,9 @@ reference is the mean of those rates.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
+from r2s_eval.errors import DataError
 from r2s_eval.stats.bradley_terry import _check_n_boot
 from r2s_eval.stats.units import tagged_seed
 
@@ -60,3 +62,29 @@ def bootstrap_task_mean_success(successes, trials, n_boot: int = 1000, seed=0) -
     draws = rng.binomial(n.astype(np.int64), p, size=(n_boot,) + s.shape).astype(np.float64)
     rates = np.divide(draws, n, out=np.full_like(draws, np.nan), where=have)
     return np.nanmean(rates, axis=2)
+
+
+def _table_counts(reference: pd.DataFrame) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Policies and their ``(P, T)`` success and trial counts from a reference success table
+    (columns policy, task, trials, successes; rows of one policy and task add up)."""
+    lacking = [c for c in ("policy", "task", "trials", "successes") if c not in reference.columns]
+    if lacking:
+        raise DataError(f"reference success table lacks columns {lacking}")
+    grouped = reference.groupby(["policy", "task"])[["successes", "trials"]].sum()
+    successes = grouped["successes"].unstack("task", fill_value=0)
+    trials = grouped["trials"].unstack("task", fill_value=0)
+    return [str(p) for p in successes.index], successes.to_numpy(float), trials.to_numpy(float)
+
+
+def reference_rates(reference: pd.DataFrame) -> pd.Series:
+    """Reference performance per policy from a reference success table: the mean of its
+    per-task success rates (tasks it has trials on), not successes pooled over tasks."""
+    policies, successes, trials = _table_counts(reference)
+    return pd.Series(task_mean_success(successes, trials), index=pd.Index(policies, name="policy"))
+
+
+def reference_bootstrap(reference: pd.DataFrame, n_boot: int, seed) -> pd.DataFrame:
+    """(n_boot, policies) replicates of :func:`reference_rates`, trials resampled within each
+    task and policy."""
+    policies, successes, trials = _table_counts(reference)
+    return pd.DataFrame(bootstrap_task_mean_success(successes, trials, n_boot, seed), columns=policies)

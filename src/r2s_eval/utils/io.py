@@ -64,12 +64,35 @@ def read_json(path: str | os.PathLike) -> Any:
     return json.loads(Path(path).read_text())
 
 
+# What made the artefacts this process writes: set once by the stage runner (`set_provenance`).
+_PROVENANCE: dict[str, str] = {}
+
+
+def set_provenance(cfg: Any) -> dict[str, str]:
+    """Record the hash of the stage's config slice and the r2s-eval version; every parquet file
+    written afterwards carries them in its metadata (``read_provenance``)."""
+    from r2s_eval import __version__
+
+    _PROVENANCE.clear()
+    _PROVENANCE.update({"config_sha256": config_hash(cfg), "r2s_eval_version": __version__})
+    return dict(_PROVENANCE)
+
+
+def read_provenance(path: str | os.PathLike) -> dict[str, str]:
+    """The provenance recorded in a parquet file written by `write_parquet` ({} when none)."""
+    import pyarrow.parquet as pq
+
+    raw = (pq.read_schema(path).metadata or {}).get(b"r2s_eval")
+    return dict(json.loads(raw).get("provenance", {})) if raw else {}
+
+
 def write_parquet(path: str | os.PathLike, df: pd.DataFrame, metadata: dict | None = None) -> None:
-    """Write a parquet file atomically; `metadata` (e.g. the config hash) goes into the schema."""
+    """Write a parquet file atomically; `metadata` and the provenance go into the schema."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pa.Table.from_pandas(df, preserve_index=False)
+    metadata = {**(metadata or {}), **({"provenance": dict(_PROVENANCE)} if _PROVENANCE else {})}
     if metadata:
         meta = dict(table.schema.metadata or {})
         meta[b"r2s_eval"] = json.dumps(metadata, sort_keys=True, default=_json_default).encode()

@@ -1,8 +1,8 @@
-"""The reality twin: world parameters and their seeded perturbation.
+"""The reality twin: seeded perturbation of the simulated world's parameters.
 
 The twin plays the physical robot. It is the same ``TabletopEnv`` built with
-perturbed ``WorldParams``; its true object poses are readable only through
-``env.object_poses()`` (as a person watching the scene would see them).
+perturbed ``WorldParams`` (``r2s_eval.sim.params``); its true object poses are readable
+only through ``env.object_poses()`` (as a person watching the scene would see them).
 
 Perturbations (``TwinMagnitudes`` defaults; each sampled uniformly in
 [-m, +m] around nominal unless noted):
@@ -22,44 +22,21 @@ object_rgb_offset[obj]      added to object RGB          +-0.06
 table_rgb_offset            added to table RGB           +-0.05
 image_noise_std             additive Gaussian, 0-255     U(0, 3)
 ==========================  ===========================  ==================
-
-``WorldParams()`` is the nominal world (no perturbation).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
-CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
+from r2s_eval.sim import get_task
+from r2s_eval.sim.params import CAMERA_NAMES, WorldParams
+
 # Every object of the bundled suite (the twin perturbs each physical object once, whichever
 # task it appears in).
 ALL_OBJECT_NAMES = ("ball", "block_a", "block_b", "box", "cup", "plate")
-
-
-@dataclass
-class WorldParams:
-    """Physics and rendering parameters of one world; defaults are nominal."""
-
-    friction_scale: float = 1.0
-    object_mass_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
-    actuator_kp_scale: float = 1.0
-    object_size_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
-    camera_pos_offset_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    camera_rot_offset_rad: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    light_intensity_scale: float = 1.0
-    light_dir_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    object_rgb_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    table_rgb_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    image_noise_std: float = 0.0  # in 0-255 intensity units
-    noise_seed: int = 0  # seeds the image-noise generator
-
-    def mass_scale(self, obj: str) -> float:
-        return float(self.object_mass_scale.get(obj, 1.0))
-
-    def size_scale(self, obj: str) -> float:
-        return float(self.object_size_scale.get(obj, 1.0))
 
 
 @dataclass(frozen=True)
@@ -112,3 +89,16 @@ def sample_twin_params(
         image_noise_std=float(rng.uniform(0.0, m.image_noise_std_max)),
         noise_seed=int(rng.integers(0, 2**31 - 1)),
     )
+
+
+def twin_world(twin_cfg: dict, tasks=()) -> dict:
+    """The twin stage's record: the magnitudes and the world drawn from ``twin_cfg["seed"]``
+    (``twin_cfg``: the ``real.twin`` config group).
+
+    All objects of the suite are perturbed (and those of ``tasks``), so the twin (and its
+    seed) does not depend on which tasks run.
+    """
+    magnitudes = TwinMagnitudes(**(twin_cfg.get("magnitudes") or {}))
+    objects = sorted(set(ALL_OBJECT_NAMES) | {o.name for task in tasks for o in get_task(task).objects})
+    params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), CAMERA_NAMES)
+    return {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)}

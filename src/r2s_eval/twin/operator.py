@@ -45,7 +45,7 @@ Human-like variability (seeded by ``rng``): per-segment speed factor, short
 pauses, overshoot-and-correct on free-space moves, millimetre aiming error,
 and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps).
 
-Success rate: ``python -m r2s_eval.sim.teleop --task <key|all> --episodes 20 [--twin]``.
+Success rate: ``python -m r2s_eval.twin.operator --task <key|all> --episodes 20 [--twin]``.
 """
 
 from __future__ import annotations
@@ -61,6 +61,7 @@ from r2s_eval.sim import world
 from r2s_eval.sim.env import ACTION_DIM, TabletopEnv
 from r2s_eval.sim.objects import height_m
 from r2s_eval.sim.tasks import TASKS, Task, centre_m, get_task
+from r2s_eval.twin.perturb import sample_twin_params
 
 
 @dataclass(frozen=True)
@@ -571,8 +572,6 @@ def run_episode(env: TabletopEnv, operator: ScriptedOperator, max_steps: int = 1
 
 def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0) -> float:
     """Fraction of scripted episodes that end in success (physics only, no rendering)."""
-    from r2s_eval.sim.twin import sample_twin_params
-
     successes = 0
     for i in range(episodes):
         objects = get_task(task).object_names

@@ -9,7 +9,7 @@ import pytest
 
 from r2s_eval.compare import sample_pairs, wins_at_checkpoints
 from r2s_eval.judge import Description, KinematicJudge, RolloutInput, Verdict, describe_rollouts, judge_pairs
-from r2s_eval.judge.stages import DESCRIPTION_COLUMNS
+from r2s_eval.judge.drivers import DESCRIPTION_COLUMNS
 
 CFG = {"backend": "kinematic"}
 

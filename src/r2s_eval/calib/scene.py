@@ -1,0 +1,62 @@
+"""The calibrated sim as the pose estimator sees it: object geometry, camera model, renders.
+
+Everything here comes from the nominal (calibrated) world: its camera is the calibration and
+its renders are what the refinement matches. Nothing reads the twin's parameters or truth.
+"""
+
+from __future__ import annotations
+
+from r2s_eval.calib.estimate import CameraModel, ObjectGeometry
+from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim.objects import height_m, support_top_m
+
+
+def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
+    """Approximate silhouette-centre heights; the render-based refinement removes the rest."""
+    geoms = []
+    for name in env.task.object_names:
+        dims = env.object_dims(name)
+        kind = env.task.object(name).kind
+        height = dims["radius_m"] * 2 if env.task.placement(name) == "on_side" else height_m(kind, dims)
+        base = 0.0
+        parent = env.task.init_regions[name].relative_to
+        if parent is not None:  # resting inside another object (a block in a box)
+            base = support_top_m(env.task.object(parent).kind, env.object_dims(parent))
+        geoms.append(ObjectGeometry(name, centroid_height_m=base + 0.5 * height, yaw_symmetry=env.task.yaw_symmetry(name)))
+    return geoms
+
+
+def camera_model(env: TabletopEnv, camera: str) -> CameraModel:
+    return CameraModel(K=env.camera_K(camera), T_world_from_cam=env.camera_T_world_from_cam(camera))
+
+
+def mask_renderer(env, camera: str, supersample: int = 1):
+    """Render the sim's object masks for planar poses, from the calibrated camera.
+
+    With ``supersample`` k > 1 the masks are rendered at k times the resolution and
+    area-averaged back: soft masks (pixel coverage) whose centroid and overlap change
+    smoothly with the pose, instead of in whole-pixel steps.
+    """
+    names = env.task.object_names
+    h, w = env.image_size
+    k = int(supersample)
+
+    def render(poses):
+        env.reset(poses, settle=False, observe=False)  # kinematics only: a pose hypothesis
+        labels, label_names = env.render(camera, size=(h * k, w * k), segmentation=True)
+        by_name = {n: label for label, n in label_names.items()}
+        if k == 1:
+            return {n: labels == by_name[n] for n in names}
+        return {n: (labels == by_name[n]).reshape(h, k, w, k).mean(axis=(1, 3)) for n in names}
+
+    return render
+
+
+def image_renderer(env, camera: str):
+    """Render the sim's clean RGB frame for planar poses, from the calibrated camera."""
+
+    def render(poses):
+        env.reset(poses, settle=False, observe=False)
+        return env.render(camera)
+
+    return render

@@ -1,0 +1,802 @@
+"""The typed schema of the composed configuration, checked once when it is composed.
+
+Every top-level group of conf/config.yaml has a dataclass below; `validate_config` walks the
+composed (plain) config against them. A key the schema does not know, a missing key, a value
+of the wrong type or out of range, and a cross-group contradiction are all reported in one
+``ConfigError``, each problem naming its dotted key and the file (or command-line override)
+that set it, with the closest known key when a key looks misplaced or misspelt.
+
+The schema states structure, types and ranges, never values: a field without a default must be
+set by the group's YAML file (which owns its default); a field declared ``optional(...)`` may be
+left out, and the code that reads it owns its default (named in the field's note). Open-ended
+name -> settings maps are checked by their owners' validators: candidate policies by
+``r2s_eval.policies.config.validate_policy_cfg`` / ``r2s_eval.policies.sources.validate_source_cfg``,
+judges by constructing them with ``r2s_eval.judge.make_judge`` (which contacts no server), the
+scripted operator's and the twin's settings against their dataclasses (``OperatorConfig``,
+``TwinMagnitudes``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import re
+import types
+import typing
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import yaml
+
+from r2s_eval.errors import ConfigError, R2SError
+
+# ----------------------------------------------------------------------------- field markers
+
+
+@dataclass(frozen=True)
+class Range:
+    """Numeric bounds; `open_min` / `open_max` exclude the bound itself."""
+
+    min: float | None = None
+    max: float | None = None
+    open_min: bool = False
+    open_max: bool = False
+
+    def problem(self, v: float) -> str | None:
+        low = self.min is not None and (v <= self.min if self.open_min else v < self.min)
+        high = self.max is not None and (v >= self.max if self.open_max else v > self.max)
+        if not (low or high):
+            return None
+        lo = "-inf" if self.min is None else self.min
+        hi = "inf" if self.max is None else self.max
+        return f"must be in {'(' if self.open_min else '['}{lo}, {hi}{')' if self.open_max else ']'}, got {v!r}"
+
+
+@dataclass(frozen=True)
+class NonEmpty:
+    def problem(self, v: Sequence) -> str | None:
+        return "must not be empty" if len(v) == 0 else None
+
+
+@dataclass(frozen=True)
+class Increasing:
+    """A [low, high] pair with low <= high."""
+
+    def problem(self, v: Sequence) -> str | None:
+        return f"must be [low, high] with low <= high, got {list(v)}" if v[0] > v[1] else None
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """A value from a vocabulary its owner defines (loaded when first needed)."""
+
+    values: Callable[[], Sequence[str]]
+
+    def problem(self, v: str) -> str | None:
+        known = list(self.values())
+        if v in known:
+            return None
+        close = difflib.get_close_matches(v, known, n=1)
+        return f"must be one of {known}, got {v!r}" + (f"; did you mean {close[0]!r}?" if close else "")
+
+
+@dataclass(frozen=True)
+class FieldsOf:
+    """Settings that go verbatim to a dataclass of another module: its field names and types."""
+
+    cls: Callable[[], type]
+
+
+@dataclass(frozen=True)
+class Tagged:
+    """A mapping whose `key` entry picks the schema of the rest."""
+
+    key: str
+    options: dict[str, type]
+
+
+@dataclass(frozen=True)
+class Entries:
+    """An open name -> settings map whose entries the owner's validator checks (it raises)."""
+
+    validate: Callable[[str, dict], Any]
+
+
+def optional(default_owner: str) -> Any:
+    """A key that may be left out; `default_owner` names the code that then supplies its value."""
+    return field(default=None, metadata={"default_owner": default_owner})
+
+
+def _cameras() -> Sequence[str]:
+    from r2s_eval.sim import CAMERA_NAMES
+
+    return CAMERA_NAMES
+
+
+def _tasks() -> Sequence[str]:
+    from r2s_eval.sim.tasks import TASKS
+
+    return list(TASKS)
+
+
+def _intervals() -> Sequence[str]:
+    from r2s_eval.stats import INTERVALS
+
+    return INTERVALS
+
+
+def _operator_config() -> type:
+    from r2s_eval.twin.operator import OperatorConfig
+
+    return OperatorConfig
+
+
+def _twin_magnitudes() -> type:
+    from r2s_eval.twin import TwinMagnitudes
+
+    return TwinMagnitudes
+
+
+def _check_policy(name: str, entry: dict) -> dict:
+    from r2s_eval.policies.config import validate_policy_cfg
+    from r2s_eval.policies.sources import is_external, validate_source_cfg
+
+    if is_external(entry):
+        return validate_source_cfg(entry, name)
+    return validate_policy_cfg(dict(entry, name=name))
+
+
+def _check_judge(name: str, entry: dict) -> Any:
+    from r2s_eval.judge import make_judge
+
+    return make_judge(entry)  # builds the judge object only: no model is loaded, no server asked
+
+
+PositiveInt = Annotated[int, Range(min=1)]
+Count = Annotated[int, Range(min=0)]
+Positive = Annotated[float, Range(min=0, open_min=True)]
+NonNegative = Annotated[float, Range(min=0)]
+Share = Annotated[float, Range(0, 1)]
+Level = Annotated[float, Range(0, 1, open_min=True, open_max=True)]
+Interval = Annotated[tuple[float, float], Increasing()]
+Camera = Annotated[str, OneOf(_cameras)]
+TaskName = Annotated[str, OneOf(_tasks)]
+
+# ----------------------------------------------------------------------------- groups
+
+
+@dataclass
+class Region:
+    x_range_m: Interval
+    y_range_m: Interval
+    yaw_range_rad: Interval = optional("the task's own yaw range (r2s_eval.sim.tasks)")
+
+
+@dataclass
+class SuiteTask:
+    # null: the task's documented start regions; else {object: region} replacing them.
+    init_regions: dict[str, Region] | None
+
+
+@dataclass
+class World:
+    image_height: PositiveInt
+    image_width: PositiveInt
+    cameras: Annotated[list[Camera], NonEmpty()]
+
+
+@dataclass
+class Twin:
+    seed: Count
+    magnitudes: Annotated[dict, FieldsOf(_twin_magnitudes)]
+
+
+@dataclass
+class Real:
+    source: Literal["twin", "dataset"]
+    twin: Twin | None
+    dataset_root: str | None
+    reference_csv: str | None
+
+
+@dataclass
+class Teleop:
+    episodes_per_task: PositiveInt
+    max_steps: PositiveInt
+    keep_failed: bool
+    max_attempts_factor: PositiveInt
+    operator: Annotated[dict, FieldsOf(_operator_config)]
+
+
+@dataclass
+class Ingest:
+    repo_id: str
+    min_length: PositiveInt
+    max_length: PositiveInt
+    drop_bad_episodes: bool
+    check_videos: bool
+
+
+@dataclass
+class HueRange:
+    hue_lo: Annotated[int, Range(0, 179)]
+    hue_hi: Annotated[int, Range(0, 179)]
+    sat_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.HueRange")
+    val_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.HueRange")
+
+
+@dataclass
+class HsvSegmenter:
+    type: Literal["hsv"]
+    hue_tol: Annotated[int, Range(0, 90)] = optional("r2s_eval.calib.segment.make_segmenter")
+    sat_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.make_segmenter")
+    val_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.make_segmenter")
+    blur_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
+    min_area_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
+    objects: dict[str, HueRange] = optional("colour ranges around each object's nominal colour")
+
+
+@dataclass
+class GroundedSamSegmenter:
+    type: Literal["grounded_sam"]
+    detector_path: str
+    sam_path: str
+    prompts: dict[str, str] = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
+    box_threshold: Share = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
+    text_threshold: Share = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
+    device: str = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
+
+
+@dataclass
+class Refine:
+    max_iterations: PositiveInt
+    tolerance_px: Positive
+    supersample: PositiveInt
+    appearance: bool
+
+
+@dataclass
+class Calibration:
+    episodes_per_task: Count
+    measured_poses: str | None
+
+
+@dataclass
+class Calib:
+    camera: Camera
+    segmenter: Annotated[dict, Tagged("type", {"hsv": HsvSegmenter, "grounded_sam": GroundedSamSegmenter})]
+    refine: Refine
+    calibration: Calibration
+
+
+@dataclass
+class Replay:
+    max_attempts: PositiveInt
+    perturb_xy_m: NonNegative
+    perturb_yaw_rad: NonNegative
+
+
+@dataclass
+class Rollout:
+    chunk_size: PositiveInt
+    n_action_steps: PositiveInt
+    inits_per_task: PositiveInt
+    real_inits_per_task: PositiveInt | None
+    max_steps: PositiveInt
+    device: str
+    video_camera: Camera
+    video_size: tuple[PositiveInt, PositiveInt] | None
+    video_fps: PositiveInt
+
+
+@dataclass
+class Checkpoints:
+    start: PositiveInt
+    stop: PositiveInt
+    step: PositiveInt
+
+
+@dataclass
+class Compare:
+    checkpoints: Checkpoints
+
+
+@dataclass
+class Stats:
+    n_boot: PositiveInt
+    ci_level: Level
+    interval: Annotated[str, OneOf(_intervals)]
+
+
+@dataclass
+class Table:
+    decimals: Count
+
+
+@dataclass
+class RealSimTable(Table):
+    metrics_at: Literal["average", "last"]
+
+
+@dataclass
+class BtScoresTable(Table):
+    show_ci: bool
+
+
+@dataclass
+class JudgeAudit:
+    human_annotations: str | None
+    swapped_letter_columns: list[str]
+    swapped_winner_columns: list[str]
+    planted_order: list[str] | None
+    shuffled_permutations: Count
+    n_boot: PositiveInt
+    ci_level: Level
+    seed: Count
+
+
+@dataclass
+class Figure:
+    width_in: Positive
+    height_in: Positive
+    font_size: Positive
+    dpi: PositiveInt
+
+
+@dataclass
+class WinRateMatrix(Figure):
+    cmap: str
+    annotate: bool
+    decimals: Count
+
+
+@dataclass
+class BtConvergence(Figure):
+    columns: PositiveInt
+    band_alpha: Share
+    marker: str
+
+
+@dataclass
+class OverallRanking(Figure):
+    score_color: str
+    reference_color: str
+
+
+@dataclass
+class SecondsPerTrial:
+    execution: NonNegative
+    reset: NonNegative
+    monitoring: NonNegative
+    recording: NonNegative
+
+
+@dataclass
+class HardwareEffort(Figure):
+    seconds_per_trial: SecondsPerTrial
+    tasks: Annotated[list[PositiveInt], NonEmpty()]
+    max_trials_per_task: PositiveInt
+
+
+@dataclass
+class CaseStudy(Figure):
+    outcomes: Annotated[list[Literal["success", "failure", "any"]], NonEmpty()]
+    rank: Count
+    n_frames: PositiveInt
+    wrap_chars: PositiveInt
+
+
+@dataclass
+class Report:
+    tasks_table: Table
+    realsim_success_table: Table
+    realsim_table: RealSimTable
+    judge_audit: JudgeAudit
+    judge_card_table: Table
+    bt_scores_table: BtScoresTable
+    win_rate_matrix: WinRateMatrix
+    bt_convergence: BtConvergence
+    overall_ranking: OverallRanking
+    hardware_effort: HardwareEffort
+    case_study: CaseStudy
+
+
+@dataclass
+class Config:
+    """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
+
+    tasks: Annotated[list[TaskName], NonEmpty()]
+    seed: Count
+    suite: dict[TaskName, SuiteTask]
+    world: World
+    real: Real
+    teleop: Teleop
+    ingest: Ingest
+    calib: Calib
+    replay: Replay
+    policies: Annotated[dict[str, dict], NonEmpty(), Entries(_check_policy)]
+    rollout: Rollout
+    judges: Annotated[dict[str, dict], NonEmpty(), Entries(_check_judge)]
+    compare: Compare
+    stats: Stats
+    report: Report
+
+
+# ----------------------------------------------------------------------------- checking
+
+
+@dataclass
+class Problem:
+    path: str
+    message: str
+    unknown: bool = False  # a key the schema does not know (a close known key is suggested)
+    owner: bool = False  # the message is an owner's validator's, quoted after a colon
+
+
+def _join(path: str, key: Any) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def _describe(value: Any) -> str:
+    return f"{value!r} ({type(value).__name__})"
+
+
+def _split(tp: Any) -> tuple[Any, list[Any]]:
+    if typing.get_origin(tp) is Annotated:
+        base, *markers = typing.get_args(tp)
+        inner, more = _split(base)
+        return inner, [*more, *markers]
+    return tp, []
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+def _check(value: Any, tp: Any, path: str) -> list[Problem]:
+    tp, markers = _split(tp)
+    if isinstance(value, str) and value == "???":
+        return [Problem(path, "has no value (??? in its file); set it, e.g. on the command line")]
+    for m in markers:
+        if isinstance(m, FieldsOf):
+            tp = m.cls()
+    tagged = next((m for m in markers if isinstance(m, Tagged)), None)
+    if tagged is not None:
+        if not isinstance(value, dict):
+            return [Problem(path, f"must be a mapping, got {_describe(value)}")]
+        tag = value.get(tagged.key)
+        if tag not in tagged.options:
+            return [Problem(_join(path, tagged.key), f"must be one of {list(tagged.options)}, got {tag!r}")]
+        tp = tagged.options[tag]
+    problems = _check_type(value, tp, path)
+    if problems:
+        return problems
+    for m in markers:
+        if hasattr(m, "problem") and value is not None:
+            message = m.problem(value)
+            if message:
+                problems.append(Problem(path, message))
+        elif isinstance(m, Entries):
+            for name, entry in value.items():
+                problems += _entry_problems(m, path, str(name), entry)
+    return problems
+
+
+def _check_type(value: Any, tp: Any, path: str) -> list[Problem]:
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if tp is Any:
+        return []
+    if origin in (Union, types.UnionType):
+        if value is None:
+            return [] if type(None) in args else [Problem(path, "must not be null")]
+        options = [a for a in args if a is not type(None)]
+        results = [_check(value, a, path) for a in options]
+        return [] if any(not r for r in results) else results[0]
+    if value is None:
+        return [Problem(path, "must not be null")]
+    if origin is Literal:
+        return [] if value in args else [Problem(path, f"must be one of {list(args)}, got {value!r}")]
+    if tp is bool:
+        return [] if isinstance(value, bool) else [Problem(path, f"must be true or false, got {_describe(value)}")]
+    if tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+        return [] if ok else [Problem(path, f"must be an integer, got {_describe(value)}")]
+    if tp is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        return [] if ok else [Problem(path, f"must be a number, got {_describe(value)}")]
+    if tp is str:
+        return [] if isinstance(value, str) else [Problem(path, f"must be a string, got {_describe(value)}")]
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            return [Problem(path, f"must be a list, got {_describe(value)}")]
+        if origin is tuple and Ellipsis not in args:
+            if len(value) != len(args):
+                return [Problem(path, f"must be a list of {len(args)} values, got {list(value)}")]
+            return [p for i, (v, a) in enumerate(zip(value, args)) for p in _check(v, a, f"{path}[{i}]")]
+        item = args[0] if args else Any
+        return [p for i, v in enumerate(value) for p in _check(v, item, f"{path}[{i}]")]
+    if tp is dict or origin is dict:
+        if not isinstance(value, dict):
+            return [Problem(path, f"must be a mapping, got {_describe(value)}")]
+        key_tp, value_tp = args if args else (Any, Any)
+        problems = []
+        for k, v in value.items():
+            key_problems = _check(k, key_tp, _join(path, k))
+            problems += [Problem(p.path, f"is not a known name: {p.message}") for p in key_problems]
+            if not key_problems:
+                problems += _check(v, value_tp, _join(path, k))
+        return problems
+    if dataclasses.is_dataclass(tp):
+        return _check_fields(value, tp, path)
+    raise TypeError(f"schema type {tp!r} at {path} is not supported")
+
+
+def _check_fields(value: Any, cls: type, path: str) -> list[Problem]:
+    if not isinstance(value, dict):
+        return [Problem(path, f"must be a mapping, got {_describe(value)}")]
+    hints, fields = _hints(cls), {f.name: f for f in dataclasses.fields(cls)}
+    problems = [Problem(_join(path, k), f"is not a key of {path or 'the config'}", True)
+                for k in value if k not in fields]
+    for name, f in fields.items():
+        if name not in value:
+            required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+            if required:
+                problems.append(Problem(_join(path, name), "is missing"))
+            continue
+        problems += _check(value[name], hints[name], _join(path, name))
+    return problems
+
+
+def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[Problem]:
+    where = _join(path, name)
+    if not isinstance(entry, dict):
+        return [Problem(where, f"must be a mapping of settings, got {_describe(entry)}")]
+    try:
+        entries.validate(name, entry)
+    except (ValueError, TypeError, KeyError, R2SError) as exc:
+        message = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+        # Point at the entry's key the validator names first (its messages quote keys as 'key').
+        mentioned = [(message.find(f"'{k}'"), k) for k in entry if f"'{k}'" in message]
+        key = min(mentioned)[1] if mentioned else None
+        return [Problem(_join(where, key) if key else where, message, owner=True)]
+    return []
+
+
+# ----------------------------------------------------------------------------- cross-group checks
+
+
+def _cross_problems(cfg: dict) -> list[Problem]:
+    """Contradictions between groups (run once every group has passed its own schema)."""
+    problems: list[Problem] = []
+    real, world = cfg["real"], cfg["world"]
+    if real["source"] == "twin" and real["twin"] is None:
+        problems.append(Problem("real.twin", "must be set when real.source is twin"))
+    if real["source"] == "dataset":
+        for key in ("dataset_root", "reference_csv"):
+            if real[key] is None:
+                problems.append(Problem(f"real.{key}", "must be set when real.source is dataset"))
+    if cfg["ingest"]["min_length"] > cfg["ingest"]["max_length"]:
+        problems.append(Problem("ingest.min_length", f"must be <= ingest.max_length ({cfg['ingest']['max_length']})"))
+    c = cfg["compare"]["checkpoints"]
+    if c["start"] > c["stop"]:
+        problems.append(Problem("compare.checkpoints.start", f"must be <= compare.checkpoints.stop ({c['stop']})"))
+    if cfg["calib"]["camera"] not in world["cameras"]:
+        problems.append(Problem("calib.camera", f"must be one of the recorded world.cameras {world['cameras']}, "
+                                                f"got {cfg['calib']['camera']!r}"))
+    calibration = cfg["calib"]["calibration"]["episodes_per_task"]
+    if real["source"] == "twin" and calibration >= cfg["teleop"]["episodes_per_task"]:
+        problems.append(Problem("calib.calibration.episodes_per_task",
+                                f"must be below teleop.episodes_per_task ({cfg['teleop']['episodes_per_task']}): "
+                                f"the calibration episodes are never scored, so none would be left"))
+    for task, settings in cfg["suite"].items():
+        problems += _region_problems(task, settings["init_regions"])
+    rollout = cfg["rollout"]
+    if rollout["n_action_steps"] > rollout["chunk_size"]:
+        problems.append(Problem("rollout.n_action_steps", f"must be <= rollout.chunk_size ({rollout['chunk_size']})"))
+    trained = {name: p for name, entry in cfg["policies"].items()
+               if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server")}
+    for name, policy in trained.items():  # an external candidate's needs are checked when it is opened
+        cameras = [k.removeprefix("observation.images.") for k in policy["image_keys"]]
+        missing = [c for c in cameras if c not in world["cameras"]]
+        if missing:
+            problems.append(Problem(f"policies.{name}.image_keys",
+                                    f"uses cameras {missing} that world.cameras {world['cameras']} does not record"))
+    if trained:
+        name = min(trained, key=lambda n: trained[n]["chunk_size"])
+        if rollout["chunk_size"] > trained[name]["chunk_size"]:
+            problems.append(Problem("rollout.chunk_size", f"must be <= the chunk that policies.{name} predicts "
+                                                          f"({trained[name]['chunk_size']})"))
+    planted = cfg["report"]["judge_audit"]["planted_order"]
+    strangers = sorted(set(planted or ()) - set(cfg["policies"]))
+    if strangers:
+        problems.append(Problem("report.judge_audit.planted_order",
+                                f"names {strangers}, not candidates of this line-up {sorted(cfg['policies'])}; "
+                                f"list the line-up's planted order (best first) or set it to null"))
+    return problems
+
+
+def _region_problems(task: str, regions: dict | None) -> list[Problem]:
+    from r2s_eval.sim.tasks import TASKS
+
+    objects = list(TASKS[task].init_regions)
+    return [Problem(f"suite.{task}.init_regions.{name}", f"is not an object of task {task} {objects}", True)
+            for name in regions or {} if name not in objects]
+
+
+# ----------------------------------------------------------------------------- where a key was set
+
+
+@dataclass
+class Source:
+    """One layer of the composition: a YAML file (its content placed at its package) or an override."""
+
+    label: str  # "conf/experiment/smoke.yaml" or "the command-line override 'stats.n_boot=5'"
+    data: dict | None = None
+    override_key: str | None = None
+    group: str | None = None  # the config group of a group file
+
+    def sets(self, path: str) -> bool:
+        if self.override_key is not None:
+            k = self.override_key
+            return path == k or path.startswith(k + ".") or k.startswith(path + ".")
+        node: Any = self.data
+        for part in path.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return False
+            node = node[part]
+        return True
+
+
+def _package_of(path: Path, group: str | None) -> str:
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            break
+        m = re.match(r"#\s*@package\s+(\S+)", line)
+        if m:
+            return {"_global_": "", "_group_": group or ""}.get(m.group(1), m.group(1))
+    return group or ""
+
+
+def _yaml_source(config_dir: Path, rel: str, group: str | None) -> Source:
+    path = config_dir / rel
+    data = yaml.safe_load(path.read_text()) or {}
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if k != "defaults"}
+    package = _package_of(path, group)
+    for part in reversed(package.split(".") if package else []):
+        data = {part: data}
+    return Source(f"{config_dir.name}/{rel}", data, group=group)
+
+
+def composition_sources(config_dir: str | Path, config_name: str, choices: dict[str, Any],
+                        overrides: Sequence[str]) -> list[Source]:
+    """The layers of one composition, highest precedence first: the command-line overrides, then
+    the files in the reverse order of the root defaults list (`_self_` is the root file)."""
+    config_dir = Path(config_dir)
+    root = yaml.safe_load((config_dir / f"{config_name}.yaml").read_text()) or {}
+    order: list[str | None] = []  # group names; None for _self_
+    for item in root.get("defaults", []):
+        if item == "_self_":
+            order.append(None)
+        elif isinstance(item, dict):
+            order += [str(k).split("@")[0].lstrip("/") for k in item]
+    order += [g for g in choices if g not in order and not g.startswith("hydra")]
+    if None not in order:
+        order.insert(0, None)  # Hydra puts _self_ first when the list does not say
+    layers = []
+    for group in order:
+        if group is None:
+            layers.append(_yaml_source(config_dir, f"{config_name}.yaml", None))
+            continue
+        chosen = choices.get(group)
+        for option in chosen if isinstance(chosen, list) else [chosen]:
+            if option and (config_dir / group / f"{option}.yaml").is_file():
+                layers += _group_layers(config_dir, group, str(option))
+    for line in overrides:
+        key = _override_key(line)
+        if key is not None and not (key in choices and "." not in key):  # a group choice is a file above
+            layers.append(Source(f"the command-line override {line!r}", override_key=key))
+    return list(reversed(layers))
+
+
+def _group_layers(config_dir: Path, group: str, option: str) -> list[Source]:
+    """A group file, after the options of its own group it builds on (`defaults: [default, _self_]`)."""
+    rel = f"{group}/{option}.yaml"
+    data = yaml.safe_load((config_dir / rel).read_text()) or {}
+    layers = []
+    for item in data.get("defaults", []) if isinstance(data, dict) else []:
+        if isinstance(item, str) and item != "_self_" and (config_dir / group / f"{item}.yaml").is_file():
+            layers += _group_layers(config_dir, group, item)
+    return [*layers, _yaml_source(config_dir, rel, group)]
+
+
+def _override_key(line: str) -> str | None:
+    m = re.match(r"\s*(?:~|\+\+|\+)?([\w.\-/@]+)\s*=?", line)
+    return m.group(1) if m else None
+
+
+def where(path: str, sources: Sequence[Source]) -> str:
+    """Which layer set `path` (the effective one), as words for a message."""
+    bare = re.sub(r"\[\d+\]", "", path)
+    for source in sources:
+        if source.sets(bare):
+            return f"set in {source.label}" if source.override_key is None else f"set by {source.label}"
+    group = bare.split(".", 1)[0]
+    files = [s for s in sources if s.override_key is None]
+    owner = next((s for s in files if s.group == group), files[-1] if files else None)  # else the root file
+    return f"expected in {owner.label}" if owner else "set nowhere"
+
+
+# ----------------------------------------------------------------------------- suggestions
+
+
+def known_paths(cls: type = Config, prefix: str = "") -> list[str]:
+    """Every dotted key path the schema spells out (open maps contribute their own name only)."""
+    out = []
+    hints = _hints(cls)
+    for f in dataclasses.fields(cls):
+        path = _join(prefix, f.name)
+        out.append(path)
+        for tp in _schemas_of(hints[f.name]):
+            out += known_paths(tp, path)
+    return out
+
+
+def _schemas_of(tp: Any) -> Iterator[type]:
+    tp, markers = _split(tp)
+    for m in markers:
+        if isinstance(m, FieldsOf):
+            yield m.cls()
+        if isinstance(m, Tagged):
+            yield from m.options.values()
+    for a in typing.get_args(tp) if typing.get_origin(tp) in (Union, types.UnionType) else (tp,):
+        if dataclasses.is_dataclass(a):
+            yield a
+
+
+def suggest(path: str, known: Sequence[str]) -> str | None:
+    """The known key `path` was most likely meant to be: the same key elsewhere, else a close spelling."""
+    leaf = path.rsplit(".", 1)[-1]
+    same_leaf = [k for k in known if k.rsplit(".", 1)[-1] == leaf and k != path]
+    if same_leaf:
+        return max(same_leaf, key=lambda k: difflib.SequenceMatcher(None, k, path).ratio())
+    close = difflib.get_close_matches(path, known, n=1, cutoff=0.75)
+    return close[0] if close else None
+
+
+# ----------------------------------------------------------------------------- entry point
+
+
+def validate_config(cfg: dict, sources: Sequence[Source] = ()) -> None:
+    """Raise one ConfigError listing every problem of the composed `cfg`; return when it is sound."""
+    problems = _check(cfg, Config, "")
+    if not problems:
+        problems = _cross_problems(cfg)
+    if not problems:
+        return
+    known = known_paths()
+    lines = []
+    for p in problems:
+        line = f"{p.path} ({where(p.path, sources)}){':' if p.owner else ''} {p.message}"
+        if p.unknown and (hint := suggest(p.path, known)):
+            line += f"; did you mean {hint}?"
+        lines.append(line)
+    if len(lines) == 1:
+        raise ConfigError(lines[0])
+    raise ConfigError(f"{len(lines)} configuration problems:\n" + "\n".join(f"  - {line}" for line in lines))
+
+
+OPEN_MAPS = ("suite", "policies", "judges")  # groups whose entries are names chosen by the user
+
+
+def unknown_override_error(key: str, line: str) -> ConfigError:
+    """The error for an override of a key the composed config does not have (Hydra refused it)."""
+    by = f"set by the command-line override {line!r}"
+    known = known_paths()
+    if key in known or key.split(".", 1)[0] in OPEN_MAPS or any(k.startswith(key + ".") for k in known):
+        return ConfigError(f"{key} ({by}) is not in the composed config; to add it, write '+{line.lstrip('+')}'")
+    parent = key.rsplit(".", 1)[0] if "." in key else "the config"
+    hint = suggest(key, known)
+    return ConfigError(f"{key} ({by}) is not a key of {parent}" + (f"; did you mean {hint}?" if hint else ""))

@@ -1,0 +1,45 @@
+"""World parameters: the physics and rendering knobs one simulated world is built with.
+
+``WorldParams()`` is the nominal world (no perturbation); the reality twin
+(``r2s_eval.twin``) samples perturbed ones. ``load_world_params`` reads them back from the
+JSON the twin stage writes (``{"params": {...}}``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
+
+
+@dataclass
+class WorldParams:
+    """Physics and rendering parameters of one world; defaults are nominal."""
+
+    friction_scale: float = 1.0
+    object_mass_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
+    actuator_kp_scale: float = 1.0
+    object_size_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
+    camera_pos_offset_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    camera_rot_offset_rad: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    light_intensity_scale: float = 1.0
+    light_dir_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    object_rgb_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    table_rgb_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    image_noise_std: float = 0.0  # in 0-255 intensity units
+    noise_seed: int = 0  # seeds the image-noise generator
+
+    def mass_scale(self, obj: str) -> float:
+        return float(self.object_mass_scale.get(obj, 1.0))
+
+    def size_scale(self, obj: str) -> float:
+        return float(self.object_size_scale.get(obj, 1.0))
+
+
+def load_world_params(path: str | Path) -> WorldParams:
+    """The ``params`` of a world-parameter JSON file (as the twin stage writes it)."""
+    raw = json.loads(Path(path).read_text())["params"]
+    tuples = {"light_dir_offset", "table_rgb_offset"}
+    return WorldParams(**{k: tuple(v) if k in tuples else v for k, v in raw.items()})

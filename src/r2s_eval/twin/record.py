@@ -1,0 +1,80 @@
+"""The teleop dataset recorded in the reality twin, and the twin's true initial poses.
+
+Operators keep the demonstrations that succeed (as a lab discards botched takes); every
+attempt is logged. The true initial poses (read off the twin, as a person measuring the
+scene would) are kept apart from the dataset: they only score the initial-pose estimates
+and fit the offsets on the held-out calibration episodes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from r2s_eval.data import DatasetRecorder, lerobot_features
+from r2s_eval.errors import R2SError
+from r2s_eval.sim import TabletopEnv, WorldParams, get_task
+from r2s_eval.sim.build import image_size, make_env
+from r2s_eval.sim.world import ARM_JOINTS, ARMS, CONTROL_DT_S
+from r2s_eval.twin.operator import OperatorConfig, make_operator, run_episode
+
+log = logging.getLogger("r2s_eval.teleop")
+
+JOINT_NAMES = [f"{arm}_{j}" for arm in ARMS for j in (*ARM_JOINTS, "gripper")]
+
+
+def truth_rows(episode_index: int, task: str, env: TabletopEnv, initial: dict) -> list[dict]:
+    """One row per object: its true initial planar pose (``initial``: ``env.object_poses()``
+    right after the reset) and its yaw symmetry."""
+    rows = []
+    for name, pose in initial.items():
+        x, y, yaw = pose["planar"]  # the convention of reset() and of the estimates
+        rows.append({"episode_index": episode_index, "task": task, "object": name, "x_m": float(x), "y_m": float(y),
+                     "yaw_rad": float(yaw), "yaw_symmetry": env.task.yaw_symmetry(name)})
+    return rows
+
+
+def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dict, tasks: list[str],
+                  suite: dict, seed: int) -> tuple[pd.DataFrame, list[dict]]:
+    """Record ``teleop["episodes_per_task"]`` demonstrations of every task in the twin world
+    ``params`` into the LeRobot dataset at ``dataset``; returns the true initial poses (one
+    row per episode and object) and the attempt log.
+
+    ``teleop``, ``world``, ``suite``: those config groups; ``seed``: the experiment's seed.
+    """
+    operator_cfg = OperatorConfig(**(teleop.get("operator") or {}))
+    features = lerobot_features(JOINT_NAMES, JOINT_NAMES, world["cameras"], image_size(world))
+    truth, attempts = [], []
+    with DatasetRecorder(dataset, "local/teleop", round(1 / CONTROL_DT_S), features, "r2s_dual_arm") as rec:
+        for task_index, task in enumerate(tasks):
+            env = make_env(task, world, params, suite_cfg=suite)
+            rng = np.random.default_rng([seed, task_index, 11])
+            kept = tries = 0
+            progress = tqdm(total=teleop["episodes_per_task"], desc=f"teleop {task}", mininterval=5)
+            while kept < teleop["episodes_per_task"]:
+                if tries >= teleop["max_attempts_factor"] * teleop["episodes_per_task"]:
+                    raise R2SError(f"task {task}: only {kept} successful demonstrations in {tries} attempts")
+                started = time.perf_counter()
+                poses = env.sample_initial_poses(rng)
+                obs = env.reset(poses, seed=int(rng.integers(2**31)))
+                initial = env.object_poses()
+                steps = run_episode(env, make_operator(task, env, rng, operator_cfg), teleop["max_steps"], obs)
+                success = bool(env.is_success())
+                tries += 1
+                attempts.append({"task": task, "attempt": tries, "success": success, "length": len(steps),
+                                 "wall_s": time.perf_counter() - started})
+                if not success and not teleop["keep_failed"]:
+                    continue
+                index = rec.add_episode(steps, get_task(task).instruction)
+                kept += 1
+                progress.update()
+                truth += truth_rows(index, task, env, initial)
+            progress.close()
+            env.close()
+            rate = np.mean([a["success"] for a in attempts if a["task"] == task])
+            log.info("task %s: scripted teleop success %.1f%% over %d attempts", task, 100 * rate, tries)
+    return pd.DataFrame(truth), attempts

@@ -1,0 +1,128 @@
+"""The config schema: every shipped experiment validates; wrong keys fail naming key and file."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from r2s_eval.config import compose_config
+from r2s_eval.errors import ConfigError
+from r2s_eval.schema import known_paths, validate_config
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+
+
+@pytest.fixture
+def conf_copy(tmp_path) -> Path:
+    """A scratch copy of conf/ to break."""
+    return Path(shutil.copytree(CONF, tmp_path / "conf"))
+
+
+def _edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, f"{old!r} not in {path}"
+    path.write_text(text.replace(old, new, 1))
+
+
+@pytest.mark.parametrize("experiment", ["smoke", "demo", "paper"])
+def test_every_experiment_composes_and_validates(experiment):
+    cfg = compose_config(CONF, experiment)
+    validate_config(cfg)  # the returned dict is the validated one; checking it again is a no-op
+    assert {"tasks", "seed", "suite", "world", "real", "policies", "judges", "report"} <= set(cfg)
+
+
+def test_smoke_operator_is_tidy():
+    # The issue's example: smoke's tidy operator used to sit under calib, where nothing read it.
+    operator = compose_config(CONF, "smoke")["teleop"]["operator"]
+    assert operator == {"pause_prob": 0.0, "overshoot_prob": 0.0, "regrasp_prob": 0.0}
+
+
+def test_misplaced_key_in_experiment_file_names_key_and_file(conf_copy):
+    _edit(conf_copy / "experiment" / "smoke.yaml", "calib:\n",
+          "calib:\n  operator: {pause_prob: 0.0}\n")
+    with pytest.raises(ConfigError) as err:
+        compose_config(conf_copy, "smoke")
+    message = str(err.value)
+    assert "calib.operator (set in conf/experiment/smoke.yaml) is not a key of calib" in message
+    assert "did you mean teleop.operator?" in message
+
+
+def test_unknown_key_in_group_file_names_that_file(conf_copy):
+    _edit(conf_copy / "stats" / "default.yaml", "n_boot: 1000\n", "n_boot: 1000\nnboot: 5\n")
+    with pytest.raises(ConfigError, match=r"stats\.nboot \(set in conf/stats/default\.yaml\) .*did you mean stats\.n_boot\?"):
+        compose_config(conf_copy, "demo")
+
+
+def test_missing_key_names_the_file_that_owns_it(conf_copy):
+    _edit(conf_copy / "replay" / "default.yaml", "max_attempts: 9\n", "")
+    with pytest.raises(ConfigError, match=r"replay\.max_attempts \(expected in conf/replay/default\.yaml\) is missing"):
+        compose_config(conf_copy, "demo")
+
+
+@pytest.mark.parametrize("override", ["stats.n_bot=3", "+stats.n_bot=3"])
+def test_unknown_override_fails_naming_it(override):
+    with pytest.raises(ConfigError) as err:
+        compose_config(CONF, "smoke", [override])
+    message = str(err.value)
+    assert f"stats.n_bot (set by the command-line override '{override}') is not a key of stats" in message
+    assert "did you mean stats.n_boot?" in message
+
+
+def test_override_of_an_unset_entry_key_says_how_to_add_it():
+    with pytest.raises(ConfigError, match=r"judges\.kinematic\.concurrency .* write '\+judges\.kinematic\.concurrency=2'"):
+        compose_config(CONF, "smoke", ["judges.kinematic.concurrency=2"])
+
+
+def test_wrong_type_fails_naming_the_key():
+    with pytest.raises(ConfigError, match=r"rollout\.max_steps \(set by the command-line override .*\) must be an integer, got 'abc'"):
+        compose_config(CONF, "smoke", ["rollout.max_steps=abc"])
+    with pytest.raises(ConfigError, match=r"stats\.ci_level .* must be in \(0, 1\)"):
+        compose_config(CONF, "smoke", ["stats.ci_level=1.5"])
+    with pytest.raises(ConfigError, match=r"world\.cameras\[1\] .* got 'cam9'"):
+        compose_config(CONF, "smoke", ["world.cameras=[head_left,cam9]"])
+
+
+def test_wrong_type_in_a_file_names_the_file(conf_copy):
+    _edit(conf_copy / "teleop" / "default.yaml", "keep_failed: false", "keep_failed: sometimes")
+    with pytest.raises(ConfigError, match=r"teleop\.keep_failed \(set in conf/teleop/default\.yaml\) must be true or false"):
+        compose_config(conf_copy, "demo")
+
+
+def test_open_entries_are_checked_by_their_owners():
+    with pytest.raises(ConfigError, match=r"policies\.act\.stepz \(set by .*\): unknown policy config key"):
+        compose_config(CONF, "smoke", ["+policies.act.stepz=3"])
+    with pytest.raises(ConfigError, match=r"judges\.video\.swap_shar .*: video judge: unknown config keys"):
+        compose_config(CONF, "demo", ["+judges.video.swap_shar=0.1"])
+    with pytest.raises(ConfigError, match=r"teleop\.operator\.pause_prb .*did you mean teleop\.operator\.pause_prob\?"):
+        compose_config(CONF, "smoke", ["+teleop.operator.pause_prb=0.1"])
+    with pytest.raises(ConfigError, match=r"suite\.cup_on_plat .*did you mean 'cup_on_plate'\?"):
+        compose_config(CONF, "smoke", ["+suite.cup_on_plat.init_regions=null"])
+
+
+def test_keys_set_by_a_group_option_it_builds_on_are_located(conf_copy):
+    # demo's judges=audited extends judges/default.yaml; a bad key there is found there.
+    _edit(conf_copy / "judges" / "default.yaml", "backend: video", "backend: video\n  blurr_px: 2")
+    with pytest.raises(ConfigError, match=r"judges\.video\.blurr_px \(set in conf/judges/default\.yaml\)"):
+        compose_config(conf_copy, "demo")
+
+
+def test_cross_group_contradictions():
+    with pytest.raises(ConfigError, match=r"calib\.camera .* must be one of the recorded world\.cameras"):
+        compose_config(CONF, "smoke", ["calib.camera=head_right"])
+    with pytest.raises(ConfigError, match=r"policies\.act\.image_keys .* \['wrist_left'\]"):
+        compose_config(CONF, "smoke", ["policies.act.image_keys=[observation.images.wrist_left]"])
+    with pytest.raises(ConfigError, match=r"report\.judge_audit\.planted_order .* names \['act_subset'\]"):
+        compose_config(CONF, "demo", ["~policies.act_subset"])
+
+
+def test_a_missing_group_option_is_a_config_error():
+    with pytest.raises(ConfigError, match="judges/vlm"):
+        compose_config(CONF, "smoke", ["judges=vlm"])
+
+
+def test_every_group_has_a_schema():
+    top = {p for p in known_paths() if "." not in p}
+    assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
+            "compare", "stats", "report", "tasks", "seed"} == top

@@ -25,7 +25,7 @@ def main(args) -> None:
     pairs = pd.read_parquet(args.pairs) if args.pairs else None
     table, replicates = fit_checkpoints(
         verdicts, checkpoint_sizes(cfg["compare"]["checkpoints"]), int(stats["n_boot"]), float(stats["ci_level"]), int(cfg["seed"]),
-        interval=str(stats.get("interval", "unit")), pairs=pairs,
+        interval=str(stats["interval"]), pairs=pairs,
     )
     a_share = float(np.mean(verdicts["verdict"] == "A"))
     meta = {"stage": "fit", "share_of_A_answers": a_share, "interval": str(table["interval"].iloc[0]),

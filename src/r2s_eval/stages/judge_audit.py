@@ -30,9 +30,9 @@ def main(args) -> None:
     audit = judge_audit(
         verdicts, load_episodes(args.rollouts), annotations=annotations, annotations_source=str(args.annotations),
         swapped_letter_columns=opts["swapped_letter_columns"], swapped_winner_columns=opts["swapped_winner_columns"],
-        planted_order=opts.get("planted_order"), n_boot=int(opts.get("n_boot", 1000)),
-        ci_level=float(opts.get("ci_level", 0.95)), seed=int(opts.get("seed", 0)),
-        shuffled_permutations=int(opts.get("shuffled_permutations", 20)),
+        planted_order=opts["planted_order"], n_boot=int(opts["n_boot"]),
+        ci_level=float(opts["ci_level"]), seed=int(opts["seed"]),
+        shuffled_permutations=int(opts["shuffled_permutations"]),
     )
     if audit["swap_consistency"] is None:
         log.info("%s: no swapped answers (looked for %s)", args.verdicts,

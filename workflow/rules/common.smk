@@ -72,13 +72,19 @@ wildcard_constraints:
     arm="real|sim",
 
 
-def stage_params(stage, **provided):
+def stage_cfg(stage, **provided):
     """The --cfg of a stage: the config paths it declares in READS, plus the values the rule
-    provides (its PROVIDED keys), as one sorted JSON string that Snakemake compares on rerun."""
-    undeclared = set(provided) - set(stage_declaration(stage)["PROVIDED"])
+    provides (its PROVIDED keys)."""
+    declared = stage_declaration(stage)
+    undeclared = set(provided) - set(declared["PROVIDED"])
     if undeclared:
         raise ValueError(f"stage {stage}: {sorted(undeclared)} are not in its PROVIDED declaration")
-    return to_json({**select(CFG, *stage_declaration(stage)["READS"]), **provided})
+    return {**select(CFG, *declared["READS"]), **provided}
+
+
+def stage_params(stage, **provided):
+    """`stage_cfg` as one sorted JSON string, which Snakemake compares on rerun."""
+    return to_json(stage_cfg(stage, **provided))
 
 
 def policy_params(wildcards):

@@ -21,10 +21,9 @@ def rollout_inputs(wildcards):
 
 
 def rollout_params(wildcards):
-    cfg = json.loads(stage_params("rollout", arm=wildcards.arm, policy=wildcards.policy,
-                                  policy_cfg=rollout_policy_cfg(wildcards)))
+    cfg = stage_cfg("rollout", arm=wildcards.arm, policy=wildcards.policy, policy_cfg=rollout_policy_cfg(wildcards))
     if wildcards.arm == "sim":  # read by the real arm only: a change must not rerun sim rollouts
-        cfg["rollout"].pop("real_inits_per_task", None)
+        cfg["rollout"] = {k: v for k, v in cfg["rollout"].items() if k != "real_inits_per_task"}
     return to_json(cfg)
 
 

@@ -82,6 +82,11 @@ class Problems:
         for p in problems:
             self.add(p)
 
+    def merge(self, other: Problems) -> None:
+        self.dataset += other.dataset
+        for episode, problems in other.episodes.items():
+            self.episodes[episode] += problems
+
     def lines(self) -> list[str]:
         return [p.line() for p in self.dataset] + [
             p.line() for ep in sorted(self.episodes) for p in self.episodes[ep]
@@ -345,11 +350,11 @@ def data_problems(meta: LocalMetadata) -> tuple[Problems, dict[int, pd.DataFrame
         for row in group.itertuples(index=False):
             e = int(row.episode_index)
             rows = by_episode.get(e)
+            rows = rows.sort_values("frame_index") if rows is not None else None
             ep_problems = _episode_row_problems(rel, e, row, rows, feats, widths, task_text, fps)
             problems.extend(ep_problems)
             if not ep_problems:
-                frames[e] = rows.sort_values("frame_index").drop(columns=[c for c in rows.columns
-                                                                          if c.startswith("__width__")])
+                frames[e] = rows.drop(columns=[c for c in rows.columns if c.startswith("__width__")])
     if total_rows and total_rows != int(meta.info["total_frames"]) and not problems.episodes:
         problems.add(Problem(INFO, f"total_frames is {meta.info['total_frames']} but the data files hold {total_rows} rows"))
     return problems, frames
@@ -357,13 +362,13 @@ def data_problems(meta: LocalMetadata) -> tuple[Problems, dict[int, pd.DataFrame
 
 def _episode_row_problems(rel: str, e: int, row, rows: pd.DataFrame | None, feats: dict, widths: dict,
                           task_text: dict[int, str], fps: float) -> list[Problem]:
+    """One episode's rows of one data file (sorted by frame_index) against meta/episodes and info.json."""
     length = int(row.length)
     if rows is None or not len(rows):
         return [Problem(rel, "has no rows in this data file", episode=e)]
     out = []
     if len(rows) != length:
         out.append(Problem(rel, f"holds {len(rows)} rows, meta/episodes says length {length}", episode=e))
-    rows = rows.sort_values("frame_index")
     frame_index = rows["frame_index"].to_numpy(dtype=np.int64)
     if not np.array_equal(frame_index, np.arange(len(rows))):
         out.append(Problem(rel, "frame_index is not 0, 1, 2, ... in order", episode=e))

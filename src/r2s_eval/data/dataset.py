@@ -132,13 +132,6 @@ def open_metadata(root: str | Path, repo_id: str = "local/dataset"):
     return LeRobotDatasetMetadata(repo_id, root=Path(root))
 
 
-def episode_table(meta) -> pd.DataFrame:
-    """One row per episode: index, task text, length and where its rows and videos live."""
-    episodes = meta.episodes.to_pandas()
-    episodes["task"] = [tasks[0] if len(tasks) else "" for tasks in episodes["tasks"]]
-    return episodes
-
-
 def episode_frames(root: str | Path, meta, episode_index: int) -> pd.DataFrame:
     """The per-frame rows (state, action, timestamps) of one episode."""
     row = meta.episodes[int(episode_index)]
@@ -147,19 +140,3 @@ def episode_frames(root: str | Path, meta, episode_index: int) -> pd.DataFrame:
     )
     data = pd.read_parquet(path)
     return data[data["episode_index"] == episode_index].sort_values("frame_index").reset_index(drop=True)
-
-
-def decode_frame(root: str | Path, meta, episode_index: int, camera: str, frame_index: int = 0) -> np.ndarray:
-    """Decode one frame of one camera as uint8 HxWx3."""
-    from lerobot.datasets.video_utils import decode_video_frames
-
-    key = camera if camera.startswith(IMAGE_PREFIX) else camera_key(camera)
-    row = meta.episodes[int(episode_index)]
-    path = Path(root) / meta.video_path.format(
-        video_key=key,
-        chunk_index=row[f"videos/{key}/chunk_index"],
-        file_index=row[f"videos/{key}/file_index"],
-    )
-    timestamp = row[f"videos/{key}/from_timestamp"] + frame_index / meta.fps
-    frames = decode_video_frames(path, [timestamp], tolerance_s=0.5 / meta.fps, backend="pyav")
-    return (frames[0].permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)

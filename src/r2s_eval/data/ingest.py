@@ -101,10 +101,8 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
     found, frames = data_problems(meta)
     checked = cameras if spec.check_videos else {first_key: cameras[first_key]}
     found_videos, first_frames = video_problems(meta, checked, first_key)
-    for group in (found, found_videos):
-        problems.dataset += group.dataset
-        for e, ps in group.episodes.items():
-            problems.episodes[e] += ps
+    problems.merge(found)
+    problems.merge(found_videos)
     if problems.dataset:
         raise fail(root, problems.lines())
 

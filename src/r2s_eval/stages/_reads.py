@@ -30,7 +30,3 @@ def declaration(stage: str) -> dict[str, tuple[str, ...]]:
             if name in found:
                 found[name] = tuple(ast.literal_eval(node.value))
     return found
-
-
-def reads(stage: str) -> tuple[str, ...]:
-    return declaration(stage)["READS"]

@@ -101,6 +101,16 @@ def test_open_entries_are_checked_by_their_owners():
         compose_config(CONF, "smoke", ["+suite.cup_on_plat.init_regions=null"])
 
 
+def test_the_receding_horizon_has_one_owner():
+    """How many actions run before the next query is the evaluation's, never a policy's."""
+    with pytest.raises(ConfigError, match=r"policies\.act\.n_action_steps .*receding horizon, rollout\.n_action_steps"):
+        compose_config(CONF, "smoke", ["+policies.act.n_action_steps=5"])
+    for experiment in ("smoke", "demo", "paper"):
+        cfg = compose_config(CONF, experiment)
+        assert not [name for name, p in cfg["policies"].items() if "n_action_steps" in p]
+        assert cfg["rollout"]["n_action_steps"] == 5
+
+
 def test_keys_set_by_a_group_option_it_builds_on_are_located(conf_copy):
     # demo's judges=audited extends judges/default.yaml; a bad key there is found there.
     _edit(conf_copy / "judges" / "default.yaml", "backend: video", "backend: video\n  blurr_px: 2")

@@ -146,7 +146,7 @@ def test_policies_missing_image_key_is_named(dataset_root, tmp_path):
     with pytest.raises(DataError, match="meta/info.json is missing"):
         train_policy(tmp_path / "nowhere", REPO_ID, _tiny("act"), tmp_path / "run2", seed=0)
     with pytest.raises(PolicyError, match="config.json"):
-        load_policy(tmp_path / "no_checkpoint")
+        load_policy(tmp_path / "no_checkpoint", n_action_steps=5)
 
 
 # -- training ---------------------------------------------------------------------------------
@@ -185,7 +185,7 @@ def test_policies_training_is_deterministic(dataset_root, tmp_path):
 
 @pytest.mark.parametrize("name", ["act", "diffusion"])
 def test_policies_receding_horizon(trained, name):
-    runner = load_policy(trained[name])
+    runner = load_policy(trained[name], n_action_steps=5)
     assert (runner.chunk_size, runner.n_action_steps) == (25, 5)
     rng = np.random.default_rng(1)
     first_chunk = None
@@ -210,7 +210,7 @@ def test_policies_receding_horizon(trained, name):
 
 def test_policies_inference_deterministic_for_seed(trained):
     obs_seq = [_obs(np.random.default_rng(i)) for i in range(7)]
-    a, b = load_policy(trained["diffusion"], seed=3), load_policy(trained["diffusion"], seed=3)
+    a, b = load_policy(trained["diffusion"], n_action_steps=5, seed=3), load_policy(trained["diffusion"], n_action_steps=5, seed=3)
     run_a = np.stack([a.act(o) for o in obs_seq])
     np.testing.assert_array_equal(run_a, np.stack([b.act(o) for o in obs_seq]))
     b.reset(seed=4)  # another seed, other diffusion noise
@@ -220,7 +220,7 @@ def test_policies_inference_deterministic_for_seed(trained):
 
 
 def test_policies_observation_errors(trained):
-    runner = load_policy(trained["act"])
+    runner = load_policy(trained["act"], n_action_steps=5)
     obs = _obs(np.random.default_rng(0))
     del obs[HEAD]
     with pytest.raises(PolicyError, match=HEAD):

@@ -119,7 +119,6 @@ def _cfg(policy_type: str, pretrained: dict, **changes) -> dict:
         "image_keys": list(CAMS),
         "image_size": [64, 64],
         "chunk_size": 10,
-        "n_action_steps": 5,
     }
     cfg.update(changes)
     return cfg
@@ -248,7 +247,7 @@ def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
     from r2s_eval.rollout import run_episode
     from r2s_eval.sim.build import make_env
 
-    runner = load_policy(trained[policy_type])
+    runner = load_policy(trained[policy_type], n_action_steps=5)
     spec = runner.policy.spec
     assert spec.cameras == CAMS and spec.action_dim == ROBOT_DIM and spec.uses_task
     assert (runner.chunk_size, runner.n_action_steps) == (10, 5)
@@ -269,7 +268,7 @@ def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
 
 
 def test_vla_sampling_is_seeded_per_episode(trained, offline):
-    runner = load_policy(trained["pi0"])
+    runner = load_policy(trained["pi0"], n_action_steps=5)
     rng = np.random.default_rng(0)
     obs = {"observation.state": rng.normal(0, 0.1, ROBOT_DIM).astype(np.float32), "task": "pick the cube"}
     for cam in CAMS:
@@ -297,14 +296,14 @@ def test_reload_refuses_weights_that_did_not_load(trained, offline, tmp_path):
     weights[key] = torch.zeros(weights[key].shape[0] + 1, weights[key].shape[1])
     save_file(weights, weights_file, metadata={"format": "pt"})
     with pytest.raises(PolicyError, match=r"pretrained_model.*did not load.*action_out_proj"):
-        load_policy(run)
+        load_policy(run, n_action_steps=5)
 
     runner_file = run / "pretrained_model" / "runner_config.json"
     runner_cfg = json.loads(runner_file.read_text())
     runner_cfg["tokenizer_path"] = str(tmp_path / "moved_away")
     runner_file.write_text(json.dumps(runner_cfg))
     with pytest.raises(PolicyError, match="moved_away"):
-        load_policy(run)
+        load_policy(run, n_action_steps=5)
 
 
 # -- configuration errors ---------------------------------------------------------------------

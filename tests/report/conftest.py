@@ -2,8 +2,18 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pandas as pd
 import pytest
+import yaml
+
+REPORT_CONF = Path(__file__).resolve().parents[2] / "conf" / "report" / "default.yaml"
+
+
+def figure_opts(name: str, **changes) -> dict:
+    """A figure's options as conf/report (their one owner) sets them, with ``changes``."""
+    return {**yaml.safe_load(REPORT_CONF.read_text())[name], **changes}
 
 
 def _verdicts(rows):

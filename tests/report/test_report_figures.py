@@ -20,6 +20,8 @@ from r2s_eval.report import (
 )
 from r2s_eval.rollout.video import write_video
 
+from .conftest import figure_opts
+
 SECONDS = {"execution": 60, "reset": 45, "monitoring": 15, "recording": 10}
 
 
@@ -38,7 +40,7 @@ def visible_axes(fig):
 
 
 def test_win_rate_figure(tmp_path, verdicts):
-    fig = win_rate_figure(win_rate_matrix(verdicts), "kinematic", {"annotate": True})
+    fig = win_rate_figure(win_rate_matrix(verdicts), "kinematic", figure_opts("win_rate_matrix", annotate=True))
     heatmap, colorbar = fig.axes
     assert heatmap.get_title() == "Win rate, judge kinematic"
     assert [t.get_text() for t in heatmap.get_yticklabels()] == ["a", "b", "c"]
@@ -49,7 +51,7 @@ def test_win_rate_figure(tmp_path, verdicts):
 
 def test_convergence_figure_one_panel_per_judge(tmp_path, make_fit):
     fit = make_fit({10: {"a": (60, 50, 70), "b": (40, 30, 50)}, 20: {"a": (65, 58, 72), "b": (35, 28, 42)}})
-    fig = convergence_figure({"j1": fit, "j2": fit, "j3": fit, "j4": fit}, {"columns": 3})
+    fig = convergence_figure({"j1": fit, "j2": fit, "j3": fit, "j4": fit}, figure_opts("bt_convergence", columns=3))
     panels = visible_axes(fig)
     assert [ax.get_title() for ax in panels] == ["j1", "j2", "j3", "j4"]
     assert len(fig.axes) == 6  # a 2 x 3 grid, the last two hidden
@@ -61,7 +63,7 @@ def test_convergence_figure_one_panel_per_judge(tmp_path, make_fit):
 def test_ranking_figure_beside_reference(tmp_path, make_fit):
     fits = {"j1": make_fit({10: {"a": (70, 60, 80), "b": (30, 20, 40)}}),
             "j2": make_fit({10: {"a": (50, 40, 60), "b": (50, 40, 60)}})}
-    fig = ranking_figure(judge_averaged_scores(fits), {"a": 0.2, "b": 0.6}, {})
+    fig = ranking_figure(judge_averaged_scores(fits), {"a": 0.2, "b": 0.6}, figure_opts("overall_ranking"))
     scores, reference = fig.axes
     assert scores.get_title() == "Preference (2 judges)" and reference.get_title() == "Reference"
     assert [t.get_text() for t in scores.get_yticklabels()] == ["a", "b"]  # best reference on top
@@ -69,7 +71,7 @@ def test_ranking_figure_beside_reference(tmp_path, make_fit):
     np.testing.assert_allclose([p.get_width() for p in reference.patches], [20, 60])
     assert "-1.00" in fig.get_suptitle()  # the judges reverse the reference order
     with pytest.raises(ValueError, match=r"no reference success rate for policies \['b'\]"):
-        ranking_figure(judge_averaged_scores(fits), {"a": 0.2}, {})
+        ranking_figure(judge_averaged_scores(fits), {"a": 0.2}, figure_opts("overall_ranking"))
     saved(fig, tmp_path)
 
 
@@ -82,7 +84,7 @@ def test_operator_hours_grow_with_tasks_and_trials():
 
 
 def test_hardware_effort_figure(tmp_path):
-    fig = hardware_effort_figure(SECONDS, 3, (1, 6), {"tasks": [1, 7], "max_trials_per_task": 20})
+    fig = hardware_effort_figure(SECONDS, 3, (1, 6), figure_opts("hardware_effort", tasks=[1, 7], max_trials_per_task=20))
     left, right = fig.axes
     assert len(left.collections) == 4  # one stacked area per component
     labels = [line.get_label() for line in right.lines]
@@ -104,7 +106,7 @@ def test_case_study_from_rollout_videos(tmp_path):
         assert len(picked) == 4 and picked[0].shape == (32, 32, 3)
         assert times[0] == 0.0 and times[-1] == pytest.approx((n_frames - 1) / 10)
         rows.append((label, picked, times))
-    fig = case_study_figure(rows, "Judge kinematic, task cup_on_plate", "smoother approach " * 20, {"wrap_chars": 60})
+    fig = case_study_figure(rows, "Judge kinematic, task cup_on_plate", "smoother approach " * 20, figure_opts("case_study", wrap_chars=60))
     assert len(visible_axes(fig)) == 8  # two rollouts x four frames
     assert fig.axes[0].get_ylabel() == "preferred\na (success)" and fig.axes[4].get_ylabel() == "other\nb (success)"
     assert fig.axes[3].get_xlabel() == "t = 1.9 s"
@@ -121,16 +123,16 @@ def test_sample_frames_errors(tmp_path):
 
 def test_pdf_is_reproducible(tmp_path, make_fit):
     fit = make_fit({10: {"a": (60, 50, 70), "b": (40, 30, 50)}})
-    a, _ = saved(convergence_figure({"j": fit}, {}), tmp_path, "a")
-    b, _ = saved(convergence_figure({"j": fit}, {}), tmp_path, "b")
+    a, _ = saved(convergence_figure({"j": fit}, figure_opts("bt_convergence")), tmp_path, "a")
+    b, _ = saved(convergence_figure({"j": fit}, figure_opts("bt_convergence")), tmp_path, "b")
     assert a.read_bytes() == b.read_bytes()
 
 
 def test_figures_name_the_interval_and_show_the_reference_interval(tmp_path, make_fit):
     fit = make_fit({10: {"a": (70, 60, 80), "b": (30, 20, 40)}})
     fit["interval"], fit["ci_level"] = "unit", 0.95
-    assert convergence_figure({"j": fit}, {}).get_suptitle() == "bands: 95% unit-bootstrap interval"
-    fig = ranking_figure(judge_averaged_scores({"j": fit}), {"a": 0.2, "b": 0.6}, {},
+    assert convergence_figure({"j": fit}, figure_opts("bt_convergence")).get_suptitle() == "bands: 95% unit-bootstrap interval"
+    fig = ranking_figure(judge_averaged_scores({"j": fit}), {"a": 0.2, "b": 0.6}, figure_opts("overall_ranking"),
                          reference_ci={"a": (0.1, 0.35), "b": (0.5, 0.7)})
     reference = fig.axes[1]
     assert reference.get_xlabel() == "real success (%, mean over tasks)"

@@ -84,7 +84,9 @@ def test_tables_from_artefacts(run_dir, cfg):
     run_stage("judge_card_table", cfg, "report.judge_card_table", "--audits", "results/audit/kin.json",
               "--out", "reports/judge_card_table.tex")
     card = Path("reports/judge_card_table.tex").read_text()
-    assert card.startswith(r"\begin{tabular}") and r"kin & 75.0 {\scriptsize [" in card
+    made_by, body = card.split("\n", 1)  # first line: the provenance, as a LaTeX comment
+    assert made_by.startswith("% config_sha256=") and "r2s_eval_version=" in made_by
+    assert body.startswith(r"\begin{tabular}") and r"kin & 75.0 {\scriptsize [" in body
 
     run_stage("realsim_table", cfg, "report.realsim_table", "--validation", "results/validate/kin.json",
               "--audits", "results/audit/kin.json", "--fits", "results/fit/kin.parquet", "--reference",

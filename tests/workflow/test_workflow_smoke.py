@@ -129,6 +129,15 @@ def test_real_inits_change_reruns_only_real_rollouts_onward(smoke_run):
     assert not {rule for rule, _ in jobs} & {"train", "rollout_inits", "compare_pairs", "describe", "judge_pairs", "fit"}
 
 
+def test_receding_horizon_change_reruns_rollouts_not_training(smoke_run):
+    # The evaluation owns n_action_steps: every candidate's rollouts rerun on both arms, no training.
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.n_action_steps=4"])
+    jobs = planned_jobs(proc.stdout)
+    rollouts = {(wc["arm"], wc["policy"]) for rule, wc in jobs if rule == "rollout"}
+    assert rollouts == {(arm, p) for arm in ("real", "sim") for p in ("act", "act_subset", "act_weak")}, rollouts
+    assert not {rule for rule, _ in jobs} & {"train", "teleop", "ingest", "replay", "rollout_inits"}
+
+
 def test_judge_concurrency_change_plans_nothing(smoke_run):
     # How fast a judge is asked never changes its answers.
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.concurrency=2"])
@@ -146,6 +155,44 @@ def test_every_parquet_records_its_provenance(smoke_run):
     for path in files:
         prov = read_provenance(path)
         assert prov.get("r2s_eval_version") == __version__ and len(prov.get("config_sha256", "")) == 16, path
+
+
+def _is_provenance(prov: dict) -> bool:
+    from r2s_eval import __version__
+
+    return prov.get("r2s_eval_version") == __version__ and len(prov.get("config_sha256", "")) == 16
+
+
+def test_every_other_artefact_records_its_provenance(smoke_run):
+    """Stage JSON, training logs, recorded datasets, LaTeX tables and figures: each says which config
+    slice and which r2s-eval version made it (parquet tables: the test above)."""
+    from PIL import Image
+
+    from r2s_eval.data.dataset import PROVENANCE_FILE
+
+    results, reports = smoke_run.workdir / "results", smoke_run.workdir / "reports"
+    stage_json = [results / "real/twin_params.json", results / "ingest/report.json", results / "init/offsets.json",
+                  results / "init/error_summary.json", results / "world/report.json",
+                  *results.glob("validate/*.json"), *results.glob("audit/*.json"),
+                  *results.glob("judge/*/*_stats.json"), *results.glob("train/*/*/train_log.json")]
+    assert len(stage_json) >= 5 + 2 * 2 + 2 * 2 + 6, stage_json
+    for path in stage_json:
+        assert _is_provenance(json.loads(path.read_text())["provenance"]), path
+    for dataset in (results / "real/dataset", results / "replay/dataset"):
+        assert _is_provenance(json.loads((dataset / PROVENANCE_FILE).read_text())), dataset
+    tables = sorted(reports.glob("*.tex"))
+    assert len(tables) >= 5
+    hashes = set()
+    for path in tables:
+        first = path.read_text().splitlines()[0]
+        fields = dict(kv.split("=", 1) for kv in first.removeprefix("% ").split())
+        assert _is_provenance(fields), (path, first)
+        hashes.add(fields["config_sha256"])
+    assert len(hashes) == len(tables), "each table is made from its own config slice"
+    for png in reports.glob("*.png"):
+        assert _is_provenance(dict(kv.split("=", 1) for kv in Image.open(png).info["r2s_eval"].split())), png
+    for pdf in reports.glob("*.pdf"):
+        assert b"config_sha256=" in pdf.read_bytes(), pdf
 
 
 def test_dvc_round_trip_plans_nothing(smoke_run, tmp_path):

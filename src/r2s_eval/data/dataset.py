@@ -14,9 +14,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from r2s_eval.utils.io import current_provenance, write_json
+
 STATE_KEY = "observation.state"
 ACTION_KEY = "action"
 IMAGE_PREFIX = "observation.images."
+PROVENANCE_FILE = "meta/r2s_eval_provenance.json"  # config hash and version of the stage that recorded it
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +100,10 @@ class DatasetRecorder:
         self._dataset.finalize()
         if self.num_episodes == 0:
             raise ValueError(f"no episode was recorded into {self.root}")
+        # LeRobot's own meta files stay as LeRobot writes them; what made the dataset sits beside them.
+        provenance = current_provenance()
+        if provenance:
+            write_json(self.tmp_root / PROVENANCE_FILE, provenance)
         if self.root.exists():
             shutil.rmtree(self.root)
         self.tmp_root.rename(self.root)

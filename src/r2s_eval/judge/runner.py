@@ -157,6 +157,6 @@ def finish(stats: StageStats, t0: float, df: pd.DataFrame, stats_path: str | Pat
     stats.wall_s = round(time.perf_counter() - t0, 3)
     df.attrs["stats"] = stats.to_dict()
     if stats_path is not None:
-        write_json(stats_path, stats.to_dict())
+        write_json(stats_path, stats.to_dict(), provenance=True)
     log.info("%s", {k: v for k, v in stats.to_dict().items() if k != "exclusions"})
     return df

@@ -5,38 +5,62 @@ Public API:
     RecedingHorizon(policy, chunk_size, n_action_steps).act(obs) -> np.ndarray (14,)
     load_lerobot_policy(checkpoint_dir, device="cpu") -> LeRobotPolicy (a ChunkPolicy)
     train_policy(dataset_root, repo_id, policy_cfg, out_dir, seed, device="cpu") -> summary dict
-    load_policy(checkpoint_dir, device="cpu", chunk_size=None, n_action_steps=None, seed=0) -> RecedingHorizon
+    load_policy(checkpoint_dir, n_action_steps=..., chunk_size=None, device="cpu", seed=0) -> RecedingHorizon
     candidate_configs(experiment), candidate_config(name, experiment)   # read from conf/policies
+
+Names are imported on first use: validating a config (the workflow does it at every start) needs
+`config` and `sources` only, not torch, lerobot and transformers.
 """
 
-from r2s_eval.policies.config import (
-    PolicyConfigError,
-    candidate_config,
-    candidate_configs,
-    make_lerobot_config,
-    validate_policy_cfg,
-)
-from r2s_eval.policies.data import DatasetContractError
-from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError, PolicySpec, RecedingHorizon
-from r2s_eval.policies.lerobot_policy import LeRobotPolicy, load_lerobot_policy
-from r2s_eval.policies.runner import PolicyRunner, load_policy
-from r2s_eval.policies.train import train_policy
+from __future__ import annotations
 
-__all__ = [
-    "ActionMap",
-    "ChunkPolicy",
-    "LeRobotPolicy",
-    "PolicyError",
-    "PolicySpec",
-    "RecedingHorizon",
-    "load_lerobot_policy",
-    "DatasetContractError",
-    "PolicyConfigError",
-    "PolicyRunner",
-    "candidate_config",
-    "candidate_configs",
-    "load_policy",
-    "make_lerobot_config",
-    "train_policy",
-    "validate_policy_cfg",
-]
+import importlib
+from typing import TYPE_CHECKING
+
+_WHERE = {
+    "PolicyConfigError": "config",
+    "candidate_config": "config",
+    "candidate_configs": "config",
+    "make_lerobot_config": "config",
+    "validate_policy_cfg": "config",
+    "DatasetContractError": "data",
+    "ActionMap": "interface",
+    "ChunkPolicy": "interface",
+    "PolicyError": "interface",
+    "PolicySpec": "interface",
+    "RecedingHorizon": "interface",
+    "LeRobotPolicy": "lerobot_policy",
+    "load_lerobot_policy": "lerobot_policy",
+    "PolicyRunner": "runner",
+    "load_policy": "runner",
+    "train_policy": "train",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_WHERE})
+
+
+if TYPE_CHECKING:
+    from r2s_eval.policies.config import (
+        PolicyConfigError,
+        candidate_config,
+        candidate_configs,
+        make_lerobot_config,
+        validate_policy_cfg,
+    )
+    from r2s_eval.policies.data import DatasetContractError
+    from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError, PolicySpec, RecedingHorizon
+    from r2s_eval.policies.lerobot_policy import LeRobotPolicy, load_lerobot_policy
+    from r2s_eval.policies.runner import PolicyRunner, load_policy
+    from r2s_eval.policies.train import train_policy

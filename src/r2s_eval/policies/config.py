@@ -4,12 +4,14 @@ A policy config is a plain (JSON/Hydra-friendly) dict:
 
     {"type": "act", "steps": 300, "batch_size": 16, "lr": 1e-4,
      "image_keys": ["observation.images.head_left"], "image_size": [64, 64],
-     "chunk_size": 25, "n_action_steps": 5, "overrides": {"dim_model": 128}}
+     "chunk_size": 25, "overrides": {"dim_model": 128}}
 
-Top-level keys are ours (training loop, receding horizon, camera selection); the keys under
+Top-level keys are ours (training loop, chunk length, camera selection); the keys under
 `overrides` go verbatim to the lerobot config class (`ACTConfig`, `DiffusionConfig`, `PI0Config`,
 `PI05Config`, `SmolVLAConfig`, `XVLAConfig`). Unknown keys at either level are an error that names
-the key.
+the key. How many of a chunk's actions run before the next query is the evaluation's setting
+(`rollout.n_action_steps`), never the policy's: a policy config only says how long a chunk its
+model predicts (`chunk_size`).
 
 Types: `act` and `diffusion` train from scratch. The VLA types `pi0`, `pi05`, `smolvla` and `xvla`
 fine-tune a pretrained LeRobot checkpoint:
@@ -75,7 +77,6 @@ TOP_LEVEL_DEFAULTS: dict[str, Any] = {
     "image_keys": ["observation.images.head_left"],
     "image_size": None,  # [H, W]: resize cameras inside the preprocessor; None = native size
     "chunk_size": 25,  # actions predicted per model call
-    "n_action_steps": 5,  # actions executed before re-querying (receding horizon)
     "overrides": {},
     "pretrained_path": None,  # VLA types: local LeRobot checkpoint folder to fine-tune
     "tokenizer_path": None,  # VLA types: local tokenizer / processor folder (None: local HF cache)
@@ -157,6 +158,11 @@ def validate_policy_cfg(policy_cfg: Mapping) -> dict:
         policy_cfg = _plain(policy_cfg)
     if not isinstance(policy_cfg, dict):
         raise PolicyConfigError(f"policy config must be a dict, got {type(policy_cfg).__name__}")
+    if "n_action_steps" in policy_cfg:
+        raise PolicyConfigError(
+            "policy config key 'n_action_steps' is not a policy setting: how many actions run before the "
+            "next query is the evaluation's receding horizon, rollout.n_action_steps"
+        )
     unknown = sorted(set(policy_cfg) - set(TOP_LEVEL_DEFAULTS))
     if unknown:
         raise PolicyConfigError(
@@ -177,11 +183,8 @@ def validate_policy_cfg(policy_cfg: Mapping) -> dict:
     _validate_training_keys(cfg)
     if not cfg["image_keys"]:
         raise PolicyConfigError("policy config 'image_keys' must list at least one camera")
-    if cfg["n_action_steps"] < 1 or cfg["n_action_steps"] > cfg["chunk_size"]:
-        raise PolicyConfigError(
-            f"policy config needs 1 <= n_action_steps <= chunk_size, got "
-            f"n_action_steps={cfg['n_action_steps']} chunk_size={cfg['chunk_size']}"
-        )
+    if int(cfg["chunk_size"]) < 1:
+        raise PolicyConfigError(f"policy config 'chunk_size' must be at least 1, got {cfg['chunk_size']}")
     if cfg["image_size"] is not None:
         cfg["image_size"] = [int(v) for v in cfg["image_size"]]
         if len(cfg["image_size"]) != 2 or min(cfg["image_size"]) <= 0:
@@ -252,7 +255,7 @@ def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
     for key in ("chunk_size", "horizon", "n_action_steps", "device", "input_features", "output_features"):
         if key in overrides:
             raise PolicyConfigError(
-                f"override {key!r} is set by the pipeline (top-level 'chunk_size'/'n_action_steps', "
+                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.n_action_steps, "
                 f"the dataset features or the device argument); remove it"
             )
     if overrides.get("pretrained_backbone_weights") is not None:
@@ -265,9 +268,9 @@ def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
         if key in kwargs and isinstance(kwargs[key], list):
             kwargs[key] = tuple(kwargs[key])
     if cfg["type"] == "act":
-        # ACT returns its whole chunk from predict_action_chunk; n_action_steps here only
-        # matters to lerobot's own select_action, kept equal to ours for clarity.
-        kwargs.update(chunk_size=cfg["chunk_size"], n_action_steps=cfg["n_action_steps"])
+        # Our runner takes whole chunks from predict_action_chunk; lerobot's n_action_steps only
+        # sizes its own select_action queue, which the evaluation never uses: the whole chunk.
+        kwargs.update(chunk_size=cfg["chunk_size"], n_action_steps=cfg["chunk_size"])
         kwargs.setdefault("optimizer_lr_backbone", cfg["lr"])
     else:
         # Diffusion predicts `horizon` steps starting n_obs_steps-1 in the past and its
@@ -345,7 +348,7 @@ def _vla_lerobot_config(cfg: dict, device: str):
     for key in pipeline_keys:
         if key in overrides:
             raise PolicyConfigError(
-                f"override {key!r} is set by the pipeline (top-level 'chunk_size'/'n_action_steps', "
+                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.n_action_steps, "
                 f"'image_size', 'pretrained_path', 'tokenizer_path', the dataset features or the device); remove it"
             )
     kwargs = {name: getattr(loaded, name) for name in field_names}
@@ -356,7 +359,7 @@ def _vla_lerobot_config(cfg: dict, device: str):
     kwargs.update(
         optimizer_lr=cfg["lr"],
         chunk_size=cfg["chunk_size"],
-        n_action_steps=cfg["n_action_steps"],
+        n_action_steps=cfg["chunk_size"],  # lerobot's own action queue; the evaluation's horizon is ours
         device=device,
         pretrained_path=None,
         push_to_hub=False,

@@ -159,7 +159,7 @@ class RecedingHorizon:
     `act(obs)` returns one robot action; the model is called only when the queue is empty.
     """
 
-    def __init__(self, policy: ChunkPolicy, chunk_size: int = 25, n_action_steps: int = 5,
+    def __init__(self, policy: ChunkPolicy, chunk_size: int, n_action_steps: int,
                  action_map: ActionMap | None = None, slot: int = 0, seed: int = 0):
         if not 1 <= n_action_steps <= chunk_size <= policy.spec.max_chunk:
             raise PolicyError(

@@ -32,7 +32,7 @@ from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
 from r2s_eval.data import open_metadata
 from r2s_eval.policies.lerobot_policy import CHECKPOINT_SUBDIR, RUNNER_CONFIG
 from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
-from r2s_eval.utils.io import atomic_dir
+from r2s_eval.utils.io import atomic_dir, current_provenance
 from r2s_eval.utils.numerics import deterministic_torch
 
 log = logging.getLogger(__name__)
@@ -289,7 +289,6 @@ def train_policy(
         postprocessor.save_pretrained(ckpt)
         runner_cfg = {
             "chunk_size": cfg["chunk_size"],
-            "n_action_steps": cfg["n_action_steps"],
             "image_keys": cfg["image_keys"],
             "policy_type": cfg["type"],
         }
@@ -303,7 +302,7 @@ def train_policy(
         (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
         summary["wall_s"] = time.perf_counter() - t_start
         summary["cpu_s"] = time.process_time() - cpu_start
-        train_log = {"summary": summary, "config": cfg, "losses": losses}
+        train_log = {"summary": summary, "config": cfg, "losses": losses, "provenance": current_provenance()}
         if vla:
             train_log["pretrained_load"] = {k: load_report[k] for k in ("counts", "loaded", "resized", "new", "unused")}
         (tmp / TRAIN_LOG).write_text(json.dumps(train_log, indent=2, sort_keys=True) + "\n")

@@ -1,6 +1,6 @@
 """Figures (matplotlib, headless). Each function takes plain data plus its plotting options
-(the figure's slice of ``conf/report``) and returns a Figure; :func:`save_figure` writes it
-as PDF and PNG.
+(the figure's slice of ``conf/report``, which owns every default: pass all its keys) and returns
+a Figure; :func:`save_figure` writes it as PDF and PNG.
 
 Common options: ``width_in``, ``height_in`` (inches; per panel where a figure has a grid of
 panels, as noted), ``font_size``, ``dpi`` (PNG only).
@@ -21,13 +21,13 @@ from matplotlib.ticker import MaxNLocator
 
 from r2s_eval.report.summaries import fit_interval
 from r2s_eval.stats import spearman
-from r2s_eval.utils.io import atomic_path
+from r2s_eval.utils.io import atomic_path, provenance_line
 
 HARDWARE_COMPONENTS = ("execution", "reset", "monitoring", "recording")
 
 
 def _rc(opts: Mapping) -> dict:
-    return {"font.size": float(opts.get("font_size", 9))}
+    return {"font.size": float(opts["font_size"])}
 
 
 def _figure(width_in: float, height_in: float) -> Figure:
@@ -37,12 +37,16 @@ def _figure(width_in: float, height_in: float) -> Figure:
 
 def save_figure(fig: Figure, pdf: str | Path, png: str | Path, dpi: int = 200) -> None:
     """Write ``fig`` as PDF and PNG (atomically). The PDF embeds TrueType fonts (editable
-    text) and carries no creation date, so the same data and options give the same bytes."""
+    text) and carries no creation date, so the same data and options give the same bytes. Both
+    record the provenance of the stage that drew them (PDF keywords, a PNG text chunk)."""
+    made_by = provenance_line()
     with matplotlib.rc_context({"pdf.fonttype": 42}):
         with atomic_path(pdf) as tmp:
-            fig.savefig(tmp, format="pdf", bbox_inches="tight", metadata={"CreationDate": None, "ModDate": None})
+            fig.savefig(tmp, format="pdf", bbox_inches="tight",
+                        metadata={"CreationDate": None, "ModDate": None, **({"Keywords": made_by} if made_by else {})})
         with atomic_path(png) as tmp:
-            fig.savefig(tmp, format="png", dpi=int(dpi), bbox_inches="tight")
+            fig.savefig(tmp, format="png", dpi=int(dpi), bbox_inches="tight",
+                        metadata={"r2s_eval": made_by} if made_by else None)
 
 
 # ------------------------------------------------------------------ win rates
@@ -52,18 +56,18 @@ def win_rate_figure(rates: pd.DataFrame, judge: str, opts: Mapping) -> Figure:
     """Heatmap of ``rates`` (row policy's win share against the column policy), annotated
     with percentages. Options: cmap, annotate, decimals."""
     with matplotlib.rc_context(_rc(opts)):
-        fig = _figure(opts.get("width_in", 4.2), opts.get("height_in", 3.6))
+        fig = _figure(opts["width_in"], opts["height_in"])
         ax = fig.subplots()
         data = 100 * rates.to_numpy(dtype=float)
-        im = ax.imshow(np.ma.masked_invalid(data), cmap=opts.get("cmap", "RdBu"), vmin=0, vmax=100)
+        im = ax.imshow(np.ma.masked_invalid(data), cmap=opts["cmap"], vmin=0, vmax=100)
         names = list(rates.index)
         ax.set_xticks(range(len(names)), names, rotation=35, ha="right")
         ax.set_yticks(range(len(names)), names)
         ax.set_xlabel("against (column policy)")
         ax.set_ylabel("row policy")
         ax.set_title(f"Win rate, judge {judge}")
-        if opts.get("annotate", True):
-            decimals = int(opts.get("decimals", 0))
+        if opts["annotate"]:
+            decimals = int(opts["decimals"])
             for i in range(len(names)):
                 for j in range(len(names)):
                     if np.isfinite(data[i, j]):
@@ -84,20 +88,20 @@ def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figur
     judges = sorted(fits)
     if not judges:
         raise ValueError("no fit tables to plot")
-    ncols = max(1, min(int(opts.get("columns", 3)), len(judges)))
+    ncols = max(1, min(int(opts["columns"]), len(judges)))
     nrows = math.ceil(len(judges) / ncols)
     with matplotlib.rc_context(_rc(opts)):
-        fig = _figure(opts.get("width_in", 3.4) * ncols, opts.get("height_in", 2.8) * nrows)
+        fig = _figure(opts["width_in"] * ncols, opts["height_in"] * nrows)
         axes = fig.subplots(nrows, ncols, squeeze=False, sharey=True)
         policies = sorted(set().union(*(set(fits[j]["policy"]) for j in judges)))
         colors = {p: matplotlib.colormaps["tab10"](k % 10) for k, p in enumerate(policies)}
         for ax, judge in zip(axes.flat, judges):
             for policy, g in fits[judge].groupby("policy"):
                 g = g.sort_values("checkpoint")
-                ax.plot(g["checkpoint"], g["score"], marker=opts.get("marker", "o"), ms=3, color=colors[policy],
+                ax.plot(g["checkpoint"], g["score"], marker=opts["marker"], ms=3, color=colors[policy],
                         label=policy)
                 ax.fill_between(g["checkpoint"], g["ci_low"], g["ci_high"], color=colors[policy],
-                                alpha=float(opts.get("band_alpha", 0.2)), linewidth=0)
+                                alpha=float(opts["band_alpha"]), linewidth=0)
             ax.set_title(judge)
             ax.set_xlabel("comparisons per policy pair")
             checkpoints = np.unique(fits[judge]["checkpoint"])
@@ -136,10 +140,10 @@ def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], 
     y = np.arange(len(policies))
     judges = [c.split(":", 1)[1] for c in avg.columns if c.startswith("score:")]
     with matplotlib.rc_context(_rc(opts)):
-        fig = _figure(opts.get("width_in", 6.4), opts.get("height_in", 0.45 * len(policies) + 1.4))
+        fig = _figure(opts["width_in"], opts["height_in"])
         ax_s, ax_r = fig.subplots(1, 2, sharey=True)
         err = np.vstack([avg["score"] - avg["ci_low"], avg["ci_high"] - avg["score"]]).clip(min=0)
-        ax_s.barh(y, avg["score"], xerr=err, color=opts.get("score_color", "#4C72B0"), capsize=3)
+        ax_s.barh(y, avg["score"], xerr=err, color=opts["score_color"], capsize=3)
         if len(judges) > 1:
             for judge in judges:
                 ax_s.plot(avg[f"score:{judge}"], y, "k.", ms=4)
@@ -151,7 +155,7 @@ def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], 
             bounds = np.array([[100 * (reference_ci.get(p) or (np.nan, np.nan))[k] for p in policies] for k in (0, 1)],
                               dtype=float)
             ref_err = np.nan_to_num(np.vstack([ref - bounds[0], bounds[1] - ref]).clip(min=0))
-        ax_r.barh(y, ref, xerr=ref_err, color=opts.get("reference_color", "#55A868"),
+        ax_r.barh(y, ref, xerr=ref_err, color=opts["reference_color"],
                   capsize=3 if ref_err is not None else 0)
         ax_r.set_xlabel("real success (%, mean over tasks)")
         ax_r.set_xlim(0, 100)
@@ -186,11 +190,11 @@ def hardware_effort_figure(seconds_per_trial: Mapping[str, float], n_policies: i
     ``opts["tasks"]``. Options: tasks (list), max_trials_per_task.
     """
     n_tasks, n_trials = current
-    max_trials = int(opts.get("max_trials_per_task", 50))
-    task_counts = [int(t) for t in opts.get("tasks", [1, 3, 7])]
+    max_trials = int(opts["max_trials_per_task"])
+    task_counts = [int(t) for t in opts["tasks"]]
     per_task = np.arange(0, max_trials + 1)
     with matplotlib.rc_context(_rc(opts)):
-        fig = _figure(opts.get("width_in", 7.0), opts.get("height_in", 2.8))
+        fig = _figure(opts["width_in"], opts["height_in"])
         ax_a, ax_b = fig.subplots(1, 2)
         total_trials = per_task * max(n_tasks, 1)
         hours = operator_hours(seconds_per_trial, n_policies, max(n_tasks, 1), per_task)
@@ -230,7 +234,7 @@ def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[f
     under the title. Options: wrap_chars; width_in and height_in are per frame."""
     ncols = max(len(frames) for _, frames, _ in rows)
     with matplotlib.rc_context(_rc(opts)):
-        fig = _figure(opts.get("width_in", 1.6) * ncols, opts.get("height_in", 1.7) * len(rows) + 0.8)
+        fig = _figure(opts["width_in"] * ncols, opts["height_in"] * len(rows) + 0.8)
         axes = fig.subplots(len(rows), ncols, squeeze=False)
         for r, (label, frames, times) in enumerate(rows):
             for c in range(ncols):
@@ -243,6 +247,6 @@ def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[f
                 else:
                     ax.set_visible(False)
             axes[r, 0].set_ylabel(label)
-        wrapped = textwrap.fill(caption, int(opts.get("wrap_chars", 110)))
-        fig.suptitle(f"{title}\n{wrapped}" if caption else title, fontsize=float(opts.get("font_size", 9)))
+        wrapped = textwrap.fill(caption, int(opts["wrap_chars"]))
+        fig.suptitle(f"{title}\n{wrapped}" if caption else title, fontsize=float(opts["font_size"]))
     return fig

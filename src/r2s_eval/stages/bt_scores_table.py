@@ -11,7 +11,7 @@ import pandas as pd
 from r2s_eval.report import bt_scores_table, reference_interval
 from r2s_eval.stages import _cli
 from r2s_eval.stats import reference_rates
-from r2s_eval.utils.io import atomic_path, read_json
+from r2s_eval.utils.io import read_json, write_text
 
 READS = ("report.bt_scores_table",)  # config paths the --cfg slice holds (see _reads.py)
 
@@ -21,9 +21,9 @@ def main(args) -> None:
     fits = _cli.by_judge(args.fits, pd.read_parquet)
     reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
     reference_ci = reference_interval(_cli.by_judge(args.validation, read_json))
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(bt_scores_table(fits, reference, decimals=int(opts["decimals"]), show_ci=bool(opts["show_ci"]),
-                                       reference_ci=reference_ci))
+    table = bt_scores_table(fits, reference, decimals=int(opts["decimals"]), show_ci=bool(opts["show_ci"]),
+                            reference_ci=reference_ci)
+    write_text(args.out, table, comment="%")
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ def main(args) -> None:
     with atomic_dir(args.frames) as frames_dir:
         index, report = ingest_dataset(args.dataset, ingest["repo_id"], spec, frames_dir)
     write_parquet(args.index, index, metadata={"stage": "ingest", "dataset": str(args.dataset)})
-    write_json(args.report, report)
+    write_json(args.report, report, provenance=True)
 
 
 if __name__ == "__main__":

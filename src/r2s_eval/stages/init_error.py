@@ -52,7 +52,7 @@ def main(args) -> None:
     truth = pd.read_parquet(args.truth)[["episode_index", "object", "x_m", "y_m", "yaw_rad"]]
     errors = score(estimates, truth)
     write_parquet(args.table, errors)
-    write_json(args.summary, summarise(errors))
+    write_json(args.summary, {"tasks": summarise(errors)}, provenance=True)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ def main(args) -> None:
                          1000 * dx, 1000 * dy, np.rad2deg(dyaw), before[task][obj], after[task][obj])
     else:
         log.warning("no measured poses for the calibration episodes: offsets are zero")
-    write_json(args.out, result)
+    write_json(args.out, result, provenance=True)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ def main(args) -> None:
     if audit["swap_consistency"] is None:
         log.info("%s: no swapped answers (looked for %s)", args.verdicts,
                  opts["swapped_letter_columns"] + opts["swapped_winner_columns"])
-    write_json(args.out, {"judge": args.judge, "verdicts": str(args.verdicts), **audit})
+    write_json(args.out, {"judge": args.judge, "verdicts": str(args.verdicts), **audit}, provenance=True)
     log.info("%s", {k: v for k, v in audit.items() if k != "shuffled_label_control"})
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from r2s_eval.report import judge_card_table
 from r2s_eval.stages import _cli
-from r2s_eval.utils.io import atomic_path, read_json
+from r2s_eval.utils.io import read_json, write_text
 
 READS = ("report.judge_card_table",)  # config paths the --cfg slice holds (see _reads.py)
 
@@ -17,8 +17,7 @@ READS = ("report.judge_card_table",)  # config paths the --cfg slice holds (see 
 def main(args) -> None:
     opts = args.cfg["report.judge_card_table"]
     audits = _cli.by_judge(args.audits, read_json)
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(judge_card_table(audits, decimals=int(opts["decimals"])))
+    write_text(args.out, judge_card_table(audits, decimals=int(opts["decimals"])), comment="%")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import pandas as pd
 from r2s_eval.report import realsim_success_table, success_by_task
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
-from r2s_eval.utils.io import atomic_path
+from r2s_eval.utils.io import write_text
 
 READS = ("report.realsim_success_table",)  # config paths the --cfg slice holds (see _reads.py)
 
@@ -15,8 +15,7 @@ READS = ("report.realsim_success_table",)  # config paths the --cfg slice holds 
 def main(args) -> None:
     opts = args.cfg["report.realsim_success_table"]
     success = success_by_task(pd.read_parquet(args.reference), load_episodes(args.rollouts))
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(realsim_success_table(success, decimals=int(opts["decimals"])))
+    write_text(args.out, realsim_success_table(success, decimals=int(opts["decimals"])), comment="%")
     print(success.to_string(index=False))
 
 

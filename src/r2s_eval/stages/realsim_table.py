@@ -11,7 +11,7 @@ import pandas as pd
 from r2s_eval.report import ranking_text, realsim_table, reference_interval
 from r2s_eval.stages import _cli
 from r2s_eval.stats import reference_rates
-from r2s_eval.utils.io import atomic_path, read_json
+from r2s_eval.utils.io import read_json, write_text
 
 READS = ("report.realsim_table",)  # config paths the --cfg slice holds (see _reads.py)
 
@@ -23,11 +23,9 @@ def main(args) -> None:
     fits = _cli.by_judge(args.fits, pd.read_parquet)
     reference = reference_rates(pd.read_parquet(args.reference))
     table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
-    with atomic_path(args.table) as tmp:
-        tmp.write_text(table)
+    write_text(args.table, table, comment="%")
     text = ranking_text(fits, reference.to_dict(), reference_interval(validations))
-    with atomic_path(args.ranking) as tmp:
-        tmp.write_text(text)
+    write_text(args.ranking, text)  # printed at the end of a run: kept free of metadata lines
     print(text)
 
 

@@ -6,7 +6,7 @@ import pandas as pd
 
 from r2s_eval.report import task_summary, tasks_table
 from r2s_eval.stages import _cli
-from r2s_eval.utils.io import atomic_path
+from r2s_eval.utils.io import write_text
 
 READS = ("report.tasks_table",)  # config paths the --cfg slice holds (see _reads.py)
 
@@ -14,8 +14,7 @@ READS = ("report.tasks_table",)  # config paths the --cfg slice holds (see _read
 def main(args) -> None:
     opts = args.cfg["report.tasks_table"]
     summary = task_summary(pd.read_parquet(args.index), pd.read_parquet(args.replay_log))
-    with atomic_path(args.out) as tmp:
-        tmp.write_text(tasks_table(summary, decimals=int(opts["decimals"])))
+    write_text(args.out, tasks_table(summary, decimals=int(opts["decimals"])), comment="%")
     print(summary.to_string(index=False))
 
 

@@ -11,7 +11,7 @@ READS = ("real.twin", "tasks")  # config paths the --cfg slice holds (see _reads
 
 def main(args) -> None:
     # All objects of the suite, so the twin (and its seed) does not depend on which tasks run.
-    write_json(args.out, twin_world(args.cfg["real.twin"], args.cfg.get("tasks", []) or []))
+    write_json(args.out, twin_world(args.cfg["real.twin"], args.cfg.get("tasks", []) or []), provenance=True)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ def main(args) -> None:
     replicates = pd.read_parquet(args.replicates) if args.replicates else None
     result = validate(pd.read_parquet(args.fit), pd.read_parquet(args.reference), replicates,
                       level=float(stats["ci_level"]), n_boot=int(stats["n_boot"]), seed=int(args.cfg["seed"]))
-    write_json(args.out, result)
+    write_json(args.out, result, provenance=True)
 
 
 if __name__ == "__main__":

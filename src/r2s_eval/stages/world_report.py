@@ -33,7 +33,7 @@ def main(args: argparse.Namespace) -> None:
     report = build_report(attempts, errors, replay_log, init_s)
     print(format_table(report))
     if args.out:
-        write_json(args.out, report)
+        write_json(args.out, report, provenance=True)
 
 
 def parser() -> argparse.ArgumentParser:

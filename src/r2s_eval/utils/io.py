@@ -55,9 +55,22 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-def write_json(path: str | os.PathLike, data: Any) -> None:
+def write_json(path: str | os.PathLike, data: Any, *, provenance: bool = False) -> None:
+    """Write JSON atomically; with ``provenance`` a dict gains a ``provenance`` entry (the
+    stage's config hash and the r2s-eval version) when a stage runner has set one."""
+    if provenance and _PROVENANCE and isinstance(data, dict):
+        data = {**data, "provenance": dict(_PROVENANCE)}
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def write_text(path: str | os.PathLike, text: str, *, comment: str | None = None) -> None:
+    """Write text atomically; with ``comment`` (the format's comment marker, e.g. ``%`` for
+    LaTeX) the first line records the provenance when a stage runner has set one."""
+    if comment and _PROVENANCE:
+        text = f"{comment} {provenance_line()}\n{text}"
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
 
 
 def read_json(path: str | os.PathLike) -> Any:
@@ -76,6 +89,16 @@ def set_provenance(cfg: Any) -> dict[str, str]:
     _PROVENANCE.clear()
     _PROVENANCE.update({"config_sha256": config_hash(cfg), "r2s_eval_version": __version__})
     return dict(_PROVENANCE)
+
+
+def current_provenance() -> dict[str, str]:
+    """The provenance set by the stage runner ({} outside a stage)."""
+    return dict(_PROVENANCE)
+
+
+def provenance_line() -> str:
+    """The provenance as one line, for formats that carry free text (LaTeX comments, figure metadata)."""
+    return " ".join(f"{k}={v}" for k, v in sorted(_PROVENANCE.items()))
 
 
 def read_provenance(path: str | os.PathLike) -> dict[str, str]:

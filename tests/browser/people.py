@@ -232,6 +232,16 @@ def open_annotator(b, url: str, name: str):
     return page
 
 
+def wait_until(page, expression: str, timeout_s: float = 20.0) -> None:
+    """Poll a JS expression until it is truthy. (Playwright's wait_for_function evaluates its
+    predicate with eval, which the page's Content-Security-Policy rightly forbids.)"""
+    deadline = time.monotonic() + timeout_s
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {expression}")
+        time.sleep(0.05)
+
+
 def answered(page) -> int:
     return int(page.get_attribute("body", "data-answered") or 0)
 
@@ -240,8 +250,8 @@ def answer_with_keyboard(page, letter: str) -> None:
     """Press A or B and wait until the server has acknowledged it (the count moves on)."""
     before = answered(page)
     page.keyboard.press(letter)
-    page.wait_for_function(f"Number(document.body.dataset.answered) > {before} && "
-                           "['ready', 'done'].includes(document.body.dataset.state)")
+    wait_until(page, f"Number(document.body.dataset.answered) > {before} && "
+                     "['ready', 'done'].includes(document.body.dataset.state)")
 
 
 def videos_state(page, wait_ms: int = 800) -> dict:

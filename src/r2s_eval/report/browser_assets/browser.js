@@ -86,10 +86,10 @@
     }
     const H = withHuman[0][1].card.human;  // the annotators' own agreement is the same in every judge's audit
     const kappa = (f) => (f && f.kappa !== null ? `${fmt(f.kappa, 3)} (${f.n_pairs} pairs \u00d7 ${f.n_raters} raters)` : "\u2013");
-    const cats = Object.keys(H.by_category);
+    const cats = Object.keys(CATEGORY).filter((c) => c in H.by_category);
     const head = el("tr", {}, el("th", {}, ""), el("th", {}, "all pairs"), ...cats.map((c) => el("th", {}, CATEGORY[c] || c)));
     const part = (block, c) => (c === null ? block : block.by_category[c]);  // c: a category, null for all pairs
-    const row = (name, f) => el("tr", {}, el("td", {}, name), ...[null, ...cats].map((c) => el("td", { class: "num" }, f(c))));
+    const row = (name, f) => el("tr", {}, el("td", {}, name), ...[null, ...cats].map((c) => el("td", {}, f(c))));
     const rows = [
       row("Pairs annotated", (c) => String(part(H, c).n_pairs)),
       row("Unanimous", (c) => share(part(H, c).unanimous, "pairs")),
@@ -101,7 +101,7 @@
     ];
     $("human-body").append(el("div", { class: "card" },
       el("p", { class: "note" }, `${H.n_annotators} annotators; ${H.n_tied_pairs} tied pairs have no majority.`),
-      el("table", {}, el("thead", {}, head), el("tbody", {}, rows))));
+      el("table", { class: "human" }, el("thead", {}, head), el("tbody", {}, rows))));
   }
 
   // ------------------------------------------------------------- compared rollouts

@@ -188,3 +188,20 @@ def test_killing_the_server_mid_burst_loses_no_acknowledged_answer(annotation_se
     csv = export_csv(annotation_set["dir"], db, tmp_path / "annotations.csv")
     assert len(csv) == len(answers) >= len(acked)
     assert set(pd.unique(csv["annotator"])) <= {"anna", "ben", "cleo"}
+
+
+def test_command_line_status_and_export(annotation_set, tmp_path, capsys):
+    from r2s_eval.annotate.__main__ import main
+
+    db = tmp_path / "answers.sqlite"
+    store = AnswerStore(db, annotation_set["items"])
+    for position in range(2):
+        store.record("anna", store.item_at("anna", position)["item_id"], "A")
+    store.close()
+    args = ["--set", str(annotation_set["dir"]), "--db", str(db)]
+    assert main(["status", *args]) == 0
+    assert f"anna{'':<20}    2 / {len(annotation_set['items'])}" in capsys.readouterr().out
+    assert main(["export", *args, "--out", str(tmp_path / "a.csv")]) == 0
+    assert pd.read_csv(tmp_path / "a.csv")["annotator"].tolist() == ["anna", "anna"]
+    assert main(["status", "--set", str(tmp_path / "nowhere"), "--db", str(db)]) == 1
+    assert "set.parquet does not exist" in capsys.readouterr().err

@@ -128,6 +128,8 @@ def test_audit_human_agreement_by_outcome_category(verdicts, sim_episodes):
     human = audit["human"]
     assert audit["human_agreement"] == pytest.approx(2 / 3) and human["n_annotators"] == 3
     assert human["votes_per_pair"] == {"3": 3} and human["n_tied_pairs"] == 0 and human["n_unjudged_pairs"] == 0
+    assert [(p["episode_a"], p["episode_b"], p["votes_a"], p["votes_b"], p["majority"]) for p in human["pairs"]] == [
+        ("a1", "b1", 2, 1, "a1"), ("b2", "c2", 3, 0, "b2"), ("a1", "c1", 2, 1, "a1")]
     assert human["unanimous"]["share"] == pytest.approx(1 / 3) and human["unanimous"]["n_pairs"] == 3
     # Votes per pair (A, B): (2, 1), (3, 0), (2, 1): P_bar = 5/9, P_e = (7/9)^2 + (2/9)^2 = 53/81.
     assert human["fleiss"]["kappa"] == pytest.approx((5 / 9 - 53 / 81) / (1 - 53 / 81))

@@ -5,7 +5,6 @@ table's agreement column shows a number, and the results browser shows it all.""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -34,20 +33,11 @@ LINE_UP = ["act", "act_subset", "act_weak"]  # the smoke line-up, best first by 
 
 @pytest.fixture(scope="module")
 def workdir(smoke_run, tmp_path_factory) -> Path:
-    """A copy of the smoke run, so the annotations change nothing the other tests see. The
-    artefacts under results/ are hard links (stages replace files, never write into them: same
-    inode, same times); Snakemake's records, the logs and the reports, which are written in
-    place, are copied."""
+    """A copy of the smoke run (times kept, so Snakemake plans nothing there), so the annotations
+    change nothing the other tests see. A full copy, not hard links: DVC treats linked files
+    differently, and the DVC round trip runs on the original."""
     copy = tmp_path_factory.mktemp("people") / "run"
-
-    def link(src, dst):
-        try:
-            os.link(src, dst)
-        except OSError:
-            shutil.copy2(src, dst)
-
-    shutil.copytree(smoke_run.workdir, copy, symlinks=True, ignore=shutil.ignore_patterns("results"))
-    shutil.copytree(smoke_run.workdir / "results", copy / "results", symlinks=True, copy_function=link)
+    shutil.copytree(smoke_run.workdir, copy, symlinks=True)
     return copy
 
 

@@ -156,6 +156,8 @@ def serve(set_dir: str | Path, db: str | Path, *, host: str = "127.0.0.1", port:
     app = make_app(store, Path(set_dir) / "videos", allowed_hosts=LOCAL_HOSTS if local else None)
     shown = f"[{host}]" if ":" in host else host
     print(f"annotation page: http://{shown}:{port}/  ({len(store.items)} pairs; answers in {store.path})", flush=True)
+    if not local:
+        print(f"listening on {host}: anyone who can reach this address can open the page and answer", flush=True)
     try:
         web.run_app(app, host=host, port=port, print=None, access_log=None)
     finally:

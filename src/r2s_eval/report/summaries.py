@@ -148,8 +148,9 @@ def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episo
     ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or 'B'
     for the videos in that order) and optionally annotator (without it, each row counts as its own
     annotator). Pairs are unordered: an annotation in the other order counts with its letter
-    flipped. Among the annotators: the majority vote per pair (ties have none), the share of
-    unanimous pairs and Fleiss' kappa (:func:`~r2s_eval.stats.fleiss`). Against the judge: the
+    flipped. Among the annotators: the majority vote per pair (``pairs``: the votes and the
+    majority's episode, None for a tie), the share of unanimous pairs and Fleiss' kappa
+    (:func:`~r2s_eval.stats.fleiss`). Against the judge: the
     share of its verdicts on annotated pairs with a majority that pick the majority's video
     (every verdict counts, in whichever order the judge saw the pair); annotated pairs the judge
     never compared (e.g. an excluded comparison) are counted, not scored. Shares carry unit
@@ -178,8 +179,9 @@ def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episo
     def block(keep: set) -> dict:
         sub = votes.loc[[p for p in pairs if p in keep]]
         agree = [k for k, s in enumerate(scored) if judged[s] in keep]
+        same = unanimous(sub)
         out = {"n_pairs": len(sub), "n_majority_pairs": int(majority.loc[sub.index].notna().sum()),
-               "unanimous": unit_share(unanimous(sub).to_numpy(), [units[p] for p in unanimous(sub).index], **shares),
+               "unanimous": unit_share(same.to_numpy(), [units[p] for p in same.index], **shares),
                "fleiss": fleiss(sub),
                "judge_agreement": unit_share([hits[k] for k in agree], [verdict_units[scored[k]] for k in agree],
                                              **shares)}
@@ -190,6 +192,9 @@ def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episo
               "votes_per_pair": {str(n): int(c) for n, c in (votes["A"] + votes["B"]).value_counts().sort_index().items()},
               "n_tied_pairs": int(majority.isna().sum()), "n_unjudged_pairs": len(set(pairs) - judged_pairs),
               **block(set(pairs)),
+              "pairs": [{"episode_a": p[0], "episode_b": p[1], "votes_a": int(votes.at[p, "A"]),
+                         "votes_b": int(votes.at[p, "B"]), "majority": winner.get(p), "category": category[p]}
+                        for p in pairs],
               "by_category": {c: block({p for p in pairs if category[p] == c})
                               for c in OUTCOME_CATEGORIES if c in category.values()}}
     return {"human_agreement": detail["judge_agreement"]["share"], "n_annotated_pairs": len(pairs),

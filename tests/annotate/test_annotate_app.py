@@ -129,7 +129,7 @@ def test_nothing_served_names_a_policy_an_outcome_or_an_episode(server, annotati
     items = annotation_set["items"]
     secrets = [*POLICIES, "success", "failure", "fail", *items["episode_a"], *items["episode_b"]]
     texts = [request(server, p)[1].decode() for p in ("/", "/static/app.js", "/static/app.css", "/api/info")]
-    texts.append(request(server, "/api/session?annotator=anna")[1].decode())
+    texts.append(request(server, "/api/progress?annotator=anna")[1].decode())
     for position in range(len(items)):
         item = fetch_json(f"{server.url}/api/item?annotator=anna&position={position}")
         assert set(item) == {"position", "total", "answered", "instruction", "video_a", "video_b", "fps_a", "fps_b",

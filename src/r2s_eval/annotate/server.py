@@ -95,7 +95,7 @@ def make_app(store: AnswerStore, videos_dir: str | Path, *, allowed_hosts: tuple
         return _json({"total": len(items), "question": QUESTION,
                       "criteria": [{"name": name, "text": text} for name, text in CRITERIA_TEXT.values()]})
 
-    async def session(request: web.Request) -> web.Response:
+    async def progress(request: web.Request) -> web.Response:
         return _json(store.progress(request.query.get("annotator", "")))
 
     def item_payload(annotator: str, position: int) -> dict:
@@ -134,7 +134,7 @@ def make_app(store: AnswerStore, videos_dir: str | Path, *, allowed_hosts: tuple
         web.get("/static/{name}", static),
         web.get(r"/video/{token:[0-9a-f]{20}\.mp4}", video),
         web.get("/api/info", info),
-        web.get("/api/session", session),
+        web.get("/api/progress", progress),
         web.get("/api/item", item),
         web.post("/api/answer", answer),
     ])

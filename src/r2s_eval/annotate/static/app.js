@@ -154,14 +154,14 @@ async function previous() {
 }
 
 async function firstUnanswered() {
-  const progress = await api(`/api/session?annotator=${encodeURIComponent(state.annotator)}`);
+  const progress = await api(`/api/progress?annotator=${encodeURIComponent(state.annotator)}`);
   if (progress.position < progress.total) await load(progress.position);
 }
 
-// -------------------------------------------------------------------------- session
+// ------------------------------------------------------------------------ annotator
 
 async function begin(name) {
-  const progress = await api(`/api/session?annotator=${encodeURIComponent(name)}`);
+  const progress = await api(`/api/progress?annotator=${encodeURIComponent(name)}`);
   state.annotator = progress.annotator;
   state.total = progress.total;
   localStorage.setItem("r2s-annotator", state.annotator);

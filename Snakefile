@@ -16,10 +16,12 @@ include: "workflow/rules/judge.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/annotate.smk"
 
 
 rule all:
     input:
         REPORTS,  # every table and figure (workflow/rules/report.smk); alone: `snakemake reports`
+        "results/annotate/set.parquet",  # the human annotation set (workflow/rules/annotate.smk)
         "results/init/error_summary.json" if TWIN else [],
         "results/world/report.json" if TWIN else [],  # per-task teleop, pose error, replay

@@ -24,13 +24,15 @@ MANIFEST = "artifacts.mtimes.json"
 
 
 def tracked_paths(root: Path) -> list[Path]:
-    """What DVC tracks: the real dataset, every trained policy folder, every report file."""
+    """What DVC tracks: the real dataset, every trained policy folder, every report file and folder
+    (the results browser keeps its videos in reports/browser/)."""
     paths = []
     dataset = root / "results" / "real" / "dataset"
     if dataset.exists():
         paths.append(dataset)
     paths += sorted(p for p in (root / "results" / "train").glob("*/*") if p.is_dir())
-    paths += sorted(p for p in (root / "reports").glob("*") if p.is_file() and not p.name.startswith(".") and p.suffix != ".dvc")
+    paths += sorted(p for p in (root / "reports").glob("*") if (p.is_file() or p.is_dir()) and not p.name.startswith(".")
+                    and p.suffix != ".dvc")
     return paths
 
 

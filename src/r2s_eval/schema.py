@@ -332,9 +332,6 @@ class JudgeAudit:
     swapped_winner_columns: list[str]
     planted_order: list[str] | None
     shuffled_permutations: Count
-    n_boot: PositiveInt
-    ci_level: Level
-    seed: Count
 
 
 @dataclass
@@ -389,6 +386,12 @@ class CaseStudy(Figure):
 
 
 @dataclass
+class ResultsBrowser:
+    page_size: PositiveInt
+    max_pairs_per_policy_pair: PositiveInt | None
+
+
+@dataclass
 class Report:
     tasks_table: Table
     realsim_success_table: Table
@@ -401,6 +404,12 @@ class Report:
     overall_ranking: OverallRanking
     hardware_effort: HardwareEffort
     case_study: CaseStudy
+    results_browser: ResultsBrowser
+
+
+@dataclass
+class Annotate:
+    n_pairs: PositiveInt
 
 
 @dataclass
@@ -422,6 +431,7 @@ class Config:
     compare: Compare
     stats: Stats
     report: Report
+    annotate: Annotate
 
 
 # ----------------------------------------------------------------------------- checking

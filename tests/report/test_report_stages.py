@@ -12,6 +12,7 @@ import pytest
 
 from r2s_eval.config import compose_config, select, to_json
 from r2s_eval.rollout.video import write_video
+from r2s_eval.stages._reads import declaration
 from r2s_eval.utils.io import read_json, write_json, write_parquet
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -70,7 +71,7 @@ def test_tables_from_artefacts(run_dir, cfg):
               "results/reference/success.parquet", "--rollouts", *rollouts, "--out", "reports/realsim_success_table.tex")
     assert r"a & 100.0 & 100.0 \\" in Path("reports/realsim_success_table.tex").read_text()
 
-    run_stage("judge_audit", cfg, "report.judge_audit", "--judge", "kin", "--verdicts",
+    run_stage("judge_audit", cfg, declaration("judge_audit")["READS"], "--judge", "kin", "--verdicts",
               "results/judge/kin/verdicts.parquet", "--rollouts", *rollouts, "--annotations", "annotations.csv",
               "--out", "results/audit/kin.json")
     audit = read_json("results/audit/kin.json")

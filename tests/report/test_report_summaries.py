@@ -114,10 +114,54 @@ def test_audit_human_agreement_majority_and_flipped_order(verdicts, sim_episodes
     assert audit["n_annotated_pairs"] == 4 and audit["n_annotations"] == 7
 
 
-def test_audit_names_unjudged_annotation(verdicts, sim_episodes):
-    annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["c2"], "choice": ["A"]})
-    with pytest.raises(ValueError, match=r"ann\.csv, row 0: the judge never compared episodes a1 / c2"):
+def test_audit_human_agreement_by_outcome_category(verdicts, sim_episodes):
+    annotations = pd.DataFrame({
+        # a1/b1 both succeeded: 2-1 for a1 (the judge's pick). b2/c2 both failed, shown the other way
+        # round than the judge saw it: 3-0 for b2 (the judge's pick). a1/c1 mixed: 2-1 for a1, the
+        # judge picked c1.
+        "episode_a": ["a1", "a1", "a1", "b2", "b2", "b2", "a1", "a1", "a1"],
+        "episode_b": ["b1", "b1", "b1", "c2", "c2", "c2", "c1", "c1", "c1"],
+        "choice": ["A", "A", "B", "A", "A", "A", "A", "A", "B"],
+        "annotator": ["x", "y", "z"] * 3,
+    })
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=200)
+    human = audit["human"]
+    assert audit["human_agreement"] == pytest.approx(2 / 3) and human["n_annotators"] == 3
+    assert human["votes_per_pair"] == {"3": 3} and human["n_tied_pairs"] == 0 and human["n_unjudged_pairs"] == 0
+    assert [(p["episode_a"], p["episode_b"], p["votes_a"], p["votes_b"], p["majority"]) for p in human["pairs"]] == [
+        ("a1", "b1", 2, 1, "a1"), ("b2", "c2", 3, 0, "b2"), ("a1", "c1", 2, 1, "a1")]
+    assert human["unanimous"]["share"] == pytest.approx(1 / 3) and human["unanimous"]["n_pairs"] == 3
+    # Votes per pair (A, B): (2, 1), (3, 0), (2, 1): P_bar = 5/9, P_e = (7/9)^2 + (2/9)^2 = 53/81.
+    assert human["fleiss"]["kappa"] == pytest.approx((5 / 9 - 53 / 81) / (1 - 53 / 81))
+    by = human["by_category"]
+    assert set(by) == {"success-success", "failure-failure", "success-failure"}
+    assert by["success-success"]["judge_agreement"]["share"] == 1.0
+    assert by["failure-failure"]["judge_agreement"]["share"] == 1.0 and by["failure-failure"]["unanimous"]["share"] == 1.0
+    assert by["success-failure"]["judge_agreement"]["share"] == 0.0
+    ci = human["judge_agreement"]
+    # The three verdicts sit at two (task, init) units: a1/b1 and a1/c1 were both compared at init 0.
+    assert ci["ci_low"] <= ci["share"] <= ci["ci_high"] and ci["n_pairs"] == 3 and ci["n_units"] == 2
+
+
+def test_audit_counts_annotated_pairs_the_judge_never_compared(verdicts, sim_episodes):
+    # A judge may lack an annotated pair (an excluded comparison): it is counted, not scored.
+    annotations = pd.DataFrame({"episode_a": ["a1", "a1"], "episode_b": ["c2", "b1"], "choice": ["A", "A"]})
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv")
+    assert audit["human"]["n_unjudged_pairs"] == 1 and audit["n_annotated_pairs"] == 2
+    assert audit["human_agreement"] == 1.0 and audit["human"]["judge_agreement"]["n_pairs"] == 1
+
+
+def test_audit_names_annotation_of_unknown_episode(verdicts, sim_episodes):
+    annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["zz"], "choice": ["A"]})
+    with pytest.raises(ValueError, match=r"ann\.csv, row 0: episode zz has no sim rollout"):
         judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv")
+
+
+def test_audit_names_an_annotator_answering_a_pair_twice(verdicts, sim_episodes):
+    annotations = pd.DataFrame({"episode_a": ["a1", "b1"], "episode_b": ["b1", "a1"], "choice": ["A", "A"],
+                                "annotator": ["x", "x"]})
+    with pytest.raises(ValueError, match=r"rows 0 and 1: annotator x answered episodes b1 / a1 twice"):
+        judge_audit(verdicts, sim_episodes, annotations=annotations)
 
 
 def test_audit_rejects_bad_choice(verdicts, sim_episodes):

@@ -96,15 +96,18 @@ def test_second_invocation_plans_nothing(smoke_run):
 
 
 def test_statistics_change_reruns_only_fit_onward(smoke_run):
+    # The judge audit's share intervals use the same bootstrap settings, so it reruns too.
     proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    assert rules == {"fit", "validate", "realsim_table", *FIT_REPORTS}, rules
+    assert rules == {"fit", "validate", "realsim_table", "judge_audit", "judge_card_table", "results_browser",
+                     *FIT_REPORTS}, rules
 
 
 def test_judge_change_reruns_describe_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table", *FIT_REPORTS, *VERDICT_REPORTS}
+    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table",
+                "results_browser", *FIT_REPORTS, *VERDICT_REPORTS}
     assert rules == expected, rules
 
 

@@ -16,6 +16,7 @@ REPORTS = [
     *expand("reports/overall_ranking.{ext}", ext=FIGURE_EXTS),
     *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
     *expand("reports/case_study_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
+    "reports/index.html",
 ]
 
 
@@ -198,3 +199,37 @@ rule case_study:
         "{PY} -m r2s_eval.stages.case_study_figure --cfg {params.cfg:q} --judge {wildcards.judge}"
         " --verdicts {input.verdicts} --rollouts {input.rollouts} --pdf {output.pdf} --png {output.png}"
         " --log {log}"
+
+
+# The static results browser. It links the figures where they lie, so a figure redrawn after a
+# plotting change shows without rebuilding the page: they are inputs only so that they exist.
+BROWSER_FIGURES = [
+    "reports/bt_convergence.png",
+    "reports/overall_ranking.png",
+    *expand("reports/win_rate_matrix_{judge}.png", judge=JUDGES),
+    *expand("reports/case_study_{judge}.png", judge=JUDGES),
+]
+DESCRIBED_JUDGES = [j for j in JUDGES if CFG["judges"][j].get("mode", "two_step") == "two_step"]
+
+
+rule results_browser:
+    input:
+        fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
+        validation=expand("results/validate/{judge}.json", judge=JUDGES),
+        audits=expand("results/audit/{judge}.json", judge=JUDGES),
+        verdicts=expand("results/judge/{judge}/verdicts.parquet", judge=JUDGES),
+        descriptions=expand("results/judge/{judge}/descriptions.parquet", judge=DESCRIBED_JUDGES),
+        rollouts=SIM_ROLLOUTS,
+        figures=[ancient(f) for f in BROWSER_FIGURES],
+    output:
+        page="reports/index.html",
+        media=directory("reports/browser"),
+    params:
+        cfg=stage_params("results_browser"),
+        descriptions=lambda wc, input: f"--descriptions {' '.join(input.descriptions)}" if input.descriptions else "",
+    log:
+        "logs/report/results_browser.log",
+    shell:
+        "{PY} -m r2s_eval.stages.results_browser --cfg {params.cfg:q} --fits {input.fits}"
+        " --validation {input.validation} --audits {input.audits} --verdicts {input.verdicts} {params.descriptions}"
+        " --rollouts {input.rollouts} --figures {input.figures} --out {output.page} --media {output.media} --log {log}"

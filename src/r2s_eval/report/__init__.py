@@ -16,8 +16,8 @@ from r2s_eval.report.figures import (
 )
 from r2s_eval.report.frames import sample_frames
 from r2s_eval.report.summaries import (
-    agreement_with_annotations,
     fit_interval,
+    human_agreement,
     judge_audit,
     judge_averaged_scores,
     last_checkpoint,
@@ -40,12 +40,12 @@ from r2s_eval.report.tables import (
 )
 
 __all__ = [
-    "agreement_with_annotations",
     "bt_scores_table",
     "case_study_figure",
     "convergence_figure",
     "fit_interval",
     "hardware_effort_figure",
+    "human_agreement",
     "judge_audit",
     "judge_card_table",
     "judge_averaged_scores",

@@ -14,11 +14,16 @@ import pandas as pd
 
 from r2s_eval.compare import wins_at_checkpoints
 from r2s_eval.stats import (
-    human_agreement_rate,
+    OUTCOME_CATEGORIES,
+    fleiss,
+    majority_letters,
     order_swap_consistency,
+    outcome_category,
     position_bias,
     shuffled_label_control,
+    unanimous,
     unit_share,
+    vote_table,
 )
 
 
@@ -98,41 +103,102 @@ def success_gaps(success: pd.DataFrame) -> pd.DataFrame:
 # ------------------------------------------------------------------ judge audit
 
 
-def _pair_letters(verdicts: pd.DataFrame) -> dict[tuple[str, str], str]:
-    """(episode_a, episode_b) -> the judge's letter; one answer per ordered pair of videos."""
-    letters: dict[tuple[str, str], str] = {}
-    for ea, eb, v in zip(verdicts["episode_a"].astype(str), verdicts["episode_b"].astype(str), verdicts["verdict"]):
-        v = str(v).strip().upper()
-        if letters.setdefault((ea, eb), v) != v:
-            raise ValueError(f"judge answered both {letters[(ea, eb)]} and {v} for episodes {ea} / {eb}")
-    return letters
-
-
-def agreement_with_annotations(verdicts: pd.DataFrame, annotations: pd.DataFrame, source: str = "annotations") -> dict:
-    """Majority vote of the annotators against the judge on the annotated pairs.
-
-    ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or
-    'B', for the videos in that order) and optionally annotator. A pair annotated in the
-    other order than the judge saw it counts with its letter flipped. ``source`` names the
-    file in errors.
-    """
+def _annotation_votes(annotations: pd.DataFrame, known: set[str], source: str) -> pd.DataFrame:
+    """One row per annotation: pair (the two episodes in the orientation of the pair's first
+    annotation), letter (for that orientation) and annotator; rows checked and named in errors."""
     _require(annotations, ["episode_a", "episode_b", "choice"], f"{source}")
-    judge = _pair_letters(verdicts)
     flip = {"A": "B", "B": "A"}
-    votes: dict[tuple[str, str], list[str]] = {}
-    for row, (ea, eb, choice) in enumerate(zip(annotations["episode_a"].astype(str), annotations["episode_b"].astype(str),
-                                               annotations["choice"].astype(str).str.strip().str.upper())):
+    who = (annotations["annotator"].astype(str).tolist() if "annotator" in annotations.columns
+           else [f"row {k}" for k in range(len(annotations))])  # without names, every row its own annotator
+    oriented: dict[frozenset, tuple[str, str]] = {}
+    seen: dict[tuple, int] = {}
+    rows = []
+    for row, (ea, eb, choice, annotator) in enumerate(zip(
+            annotations["episode_a"].astype(str), annotations["episode_b"].astype(str),
+            annotations["choice"].astype(str).str.strip().str.upper(), who)):
         if choice not in flip:
             raise ValueError(f"{source}, row {row} (episodes {ea} / {eb}): choice must be A or B, got {choice!r}")
-        if (ea, eb) in judge:
-            votes.setdefault((ea, eb), []).append(choice)
-        elif (eb, ea) in judge:
-            votes.setdefault((eb, ea), []).append(flip[choice])
-        else:
-            raise ValueError(f"{source}, row {row}: the judge never compared episodes {ea} / {eb}")
-    rate = human_agreement_rate(judge, votes)
-    return {"human_agreement": _nan_to_none(rate), "n_annotated_pairs": len(votes),
-            "n_annotations": len(annotations)}
+        for e in (ea, eb):
+            if e not in known:
+                raise ValueError(f"{source}, row {row}: episode {e} has no sim rollout")
+        if ea == eb:
+            raise ValueError(f"{source}, row {row}: episode {ea} is compared with itself")
+        pair = oriented.setdefault(frozenset((ea, eb)), (ea, eb))
+        if (annotator, pair) in seen:
+            raise ValueError(f"{source}, rows {seen[(annotator, pair)]} and {row}: annotator {annotator} answered "
+                             f"episodes {ea} / {eb} twice")
+        seen[(annotator, pair)] = row
+        rows.append((pair, choice if pair == (ea, eb) else flip[choice], annotator))
+    return pd.DataFrame(rows, columns=["pair", "letter", "annotator"])
+
+
+def _pair_units(pairs: Sequence[tuple[str, str]], sim_episodes: pd.DataFrame) -> list:
+    """The (task, init) of each pair of rollouts; without those columns, each pair its own unit."""
+    if {"task", "init_id"} <= set(sim_episodes.columns):
+        unit = dict(zip(sim_episodes["episode_id"].astype(str),
+                        zip(sim_episodes["task"].astype(str), sim_episodes["init_id"].astype(str))))
+        return [unit[a] for a, _ in pairs]
+    return [("", f"{a}/{b}") for a, b in pairs]
+
+
+def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episodes: pd.DataFrame, *,
+                    source: str = "annotations", n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+    """Human annotators among themselves and against the judge, overall and by outcome category.
+
+    ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or 'B'
+    for the videos in that order) and optionally annotator (without it, each row counts as its own
+    annotator). Pairs are unordered: an annotation in the other order counts with its letter
+    flipped. Among the annotators: the majority vote per pair (``pairs``: the votes and the
+    majority's episode, None for a tie), the share of unanimous pairs and Fleiss' kappa
+    (:func:`~r2s_eval.stats.fleiss`). Against the judge: the
+    share of its verdicts on annotated pairs with a majority that pick the majority's video
+    (every verdict counts, in whichever order the judge saw the pair); annotated pairs the judge
+    never compared (e.g. an excluded comparison) are counted, not scored. Shares carry unit
+    bootstrap intervals over the (task, init) units (:func:`~r2s_eval.stats.unit_share`).
+    ``source`` names the file in errors.
+    """
+    success = dict(zip(sim_episodes["episode_id"].astype(str), sim_episodes["success"].astype(bool)))
+    votes_long = _annotation_votes(annotations, set(success), source)
+    votes = vote_table(votes_long["pair"], votes_long["letter"])
+    pairs = list(votes.index)
+    majority = majority_letters(votes)
+    winner = {p: (p[0] if m == "A" else p[1]) for p, m in majority.items() if m is not None}
+    category = {p: outcome_category(success[p[0]], success[p[1]]) for p in pairs}
+    units = dict(zip(pairs, _pair_units(pairs, sim_episodes)))
+    shares = {"n_boot": n_boot, "level": level, "seed": seed}
+
+    ea, eb = verdicts["episode_a"].astype(str).tolist(), verdicts["episode_b"].astype(str).tolist()
+    letters = verdicts["verdict"].astype(str).str.strip().str.upper().tolist()
+    key = {frozenset(p): p for p in pairs}
+    judged = [key.get(frozenset((a, b))) for a, b in zip(ea, eb)]
+    scored = [k for k, p in enumerate(judged) if p in winner]
+    hits = [(ea[k] if letters[k] == "A" else eb[k]) == winner[judged[k]] for k in scored]
+    verdict_units = _units(verdicts)
+    judged_pairs = {p for p in judged if p is not None}
+
+    def block(keep: set) -> dict:
+        sub = votes.loc[[p for p in pairs if p in keep]]
+        agree = [k for k, s in enumerate(scored) if judged[s] in keep]
+        same = unanimous(sub)
+        out = {"n_pairs": len(sub), "n_majority_pairs": int(majority.loc[sub.index].notna().sum()),
+               "unanimous": unit_share(same.to_numpy(), [units[p] for p in same.index], **shares),
+               "fleiss": fleiss(sub),
+               "judge_agreement": unit_share([hits[k] for k in agree], [verdict_units[scored[k]] for k in agree],
+                                             **shares)}
+        out["judge_agreement"]["n_pairs_judged"] = len({judged[scored[k]] for k in agree})
+        return out
+
+    detail = {"source": source, "n_annotations": len(votes_long), "n_annotators": int(votes_long["annotator"].nunique()),
+              "votes_per_pair": {str(n): int(c) for n, c in (votes["A"] + votes["B"]).value_counts().sort_index().items()},
+              "n_tied_pairs": int(majority.isna().sum()), "n_unjudged_pairs": len(set(pairs) - judged_pairs),
+              **block(set(pairs)),
+              "pairs": [{"episode_a": p[0], "episode_b": p[1], "votes_a": int(votes.at[p, "A"]),
+                         "votes_b": int(votes.at[p, "B"]), "majority": winner.get(p), "category": category[p]}
+                        for p in pairs],
+              "by_category": {c: block({p for p in pairs if category[p] == c})
+                              for c in OUTCOME_CATEGORIES if c in category.values()}}
+    return {"human_agreement": detail["judge_agreement"]["share"], "n_annotated_pairs": len(pairs),
+            "n_annotations": len(votes_long), "human": detail}
 
 
 def _present(verdicts: pd.DataFrame, candidates: Sequence[str]) -> str | None:
@@ -238,7 +304,8 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
 
     Position bias (share of A answers, overall and on pairs whose two rollouts had the same
     outcome), order-swap consistency where the verdicts carry swapped answers, agreement
-    with human annotators where annotations are given, agreement with the sim outcomes on
+    with human annotators where annotations are given (``human_agreement``: the share, and
+    ``human``: the annotators' own agreement and everything by outcome category), agreement with the sim outcomes on
     mixed-outcome pairs (``outcome_agreement``), agreement with a planted policy order on
     same-outcome pairs (``planted_order_agreement``, None without ``planted_order``) and the
     shuffled-label control of the BT fit (``shuffled_label_control``). Missing quantities
@@ -261,11 +328,11 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
     swap["n_swap_consistent"] = (int(round(swap["swap_consistency"] * swap["n_swapped"]))
                                  if swap["swap_consistency"] is not None else 0)
     out.update(swap)
-    if annotations is not None:
-        out.update(agreement_with_annotations(verdicts, annotations, annotations_source))
-    else:
-        out.update({"human_agreement": None, "n_annotated_pairs": 0, "n_annotations": 0})
     shares = {"n_boot": n_boot, "level": ci_level, "seed": seed}
+    if annotations is not None:
+        out.update(human_agreement(verdicts, annotations, sim_episodes, source=annotations_source, **shares))
+    else:
+        out.update({"human_agreement": None, "n_annotated_pairs": 0, "n_annotations": 0, "human": None})
     out["outcome_agreement"] = outcome_agreement(verdicts, success, **shares)
     out["planted_order_agreement"] = planted_order_agreement(verdicts, success, planted_order, **shares)
     out["shuffled_label_control"] = shuffled_labels(verdicts, n_permutations=shuffled_permutations, **shares)

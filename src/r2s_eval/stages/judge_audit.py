@@ -2,7 +2,8 @@
 
 Position bias (share of A answers, overall and on same-outcome pairs), order-swap
 consistency where the verdicts carry swapped answers, and agreement with human annotators
-where an annotations CSV is configured; the report card: agreement with the sim outcomes on
+where an annotations CSV is configured (majority vote, unanimous share, Fleiss' kappa, and
+the judge's agreement with the majority, by outcome category); the report card: agreement with the sim outcomes on
 mixed-outcome pairs, with a planted policy order on same-outcome pairs, and the
 shuffled-label control of the BT fit. Quantities without data are null.
 """
@@ -18,7 +19,8 @@ from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_json
 
-READS = ("report.judge_audit",)  # config paths the --cfg slice holds (see _reads.py)
+# The share intervals use the statistics' bootstrap settings and the run's seed.
+READS = ("report.judge_audit", "stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds
 
 log = logging.getLogger("r2s_eval.judge_audit")
 
@@ -30,15 +32,15 @@ def main(args) -> None:
     audit = judge_audit(
         verdicts, load_episodes(args.rollouts), annotations=annotations, annotations_source=str(args.annotations),
         swapped_letter_columns=opts["swapped_letter_columns"], swapped_winner_columns=opts["swapped_winner_columns"],
-        planted_order=opts["planted_order"], n_boot=int(opts["n_boot"]),
-        ci_level=float(opts["ci_level"]), seed=int(opts["seed"]),
+        planted_order=opts["planted_order"], n_boot=int(args.cfg["stats.n_boot"]),
+        ci_level=float(args.cfg["stats.ci_level"]), seed=int(args.cfg["seed"]),
         shuffled_permutations=int(opts["shuffled_permutations"]),
     )
     if audit["swap_consistency"] is None:
         log.info("%s: no swapped answers (looked for %s)", args.verdicts,
                  opts["swapped_letter_columns"] + opts["swapped_winner_columns"])
     write_json(args.out, {"judge": args.judge, "verdicts": str(args.verdicts), **audit}, provenance=True)
-    log.info("%s", {k: v for k, v in audit.items() if k != "shuffled_label_control"})
+    log.info("%s", {k: v for k, v in audit.items() if k not in ("shuffled_label_control", "human")})
 
 
 if __name__ == "__main__":

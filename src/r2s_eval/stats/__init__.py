@@ -8,6 +8,14 @@ is ``s = 100 b``.  Two bootstraps give intervals: the binomial one
 within each task).
 """
 
+from r2s_eval.stats.annotators import (
+    OUTCOME_CATEGORIES,
+    fleiss,
+    majority_letters,
+    outcome_category,
+    unanimous,
+    vote_table,
+)
 from r2s_eval.stats.audit import flat_within_ci, shuffled_label_control, unit_share
 from r2s_eval.stats.bradley_terry import (
     DisconnectedComparisonsError,
@@ -62,6 +70,12 @@ from r2s_eval.stats.units import (
 from r2s_eval.stats.validation import validate
 
 __all__ = [
+    "OUTCOME_CATEGORIES",
+    "fleiss",
+    "majority_letters",
+    "outcome_category",
+    "unanimous",
+    "vote_table",
     "INTERVALS",
     "CheckpointMetrics",
     "ComparisonUnits",

@@ -121,6 +121,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=8, help="episodes per loop and repeat")
     parser.add_argument("--batch", type=int, default=8, help="episodes side by side in the batched loop")
     parser.add_argument("--threads", type=int, default=1, help="worker threads of the batched loop")
+    parser.add_argument("--model-batch", type=int, default=None, help="rows of a model call (default: the demo's)")
     parser.add_argument("--cameras", type=int, default=4, choices=range(1, len(CAMERA_NAMES) + 1),
                         help="cameras the policy reads (the first N of the world's)")
     parser.add_argument("--max-steps", type=int, default=None, help="default: the demo's rollout.max_steps")
@@ -133,6 +134,8 @@ def main() -> None:
     cfg["world"]["cameras"] = list(CAMERA_NAMES)
     if args.max_steps:
         cfg["rollout"]["max_steps"] = args.max_steps
+    if args.model_batch:
+        cfg["rollout"]["model_batch"] = args.model_batch
     image_hw = (int(cfg["world"]["image_height"]), int(cfg["world"]["image_width"]))
     work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
     try:

@@ -48,8 +48,10 @@ class PlannedEpisode:
 class EnvPool:
     """The lanes' environments: one compiled model per task, shared by all its environments
     (MuJoCo only reads a model while stepping); one set of renderers per task and worker
-    thread, shared by the environments that thread renders; one environment per lane and task,
-    reused episode after episode (`TabletopEnv.reset` restores everything an episode reads).
+    thread, shared by the environments that thread renders; one environment per lane, reused
+    episode after episode (`TabletopEnv.reset` restores everything an episode reads) and
+    replaced when the lane moves on to another task (an environment's MjData holds a 16 MB
+    arena; with shared model and renderers a new one takes a few ms).
 
     `make_env(task, **shared)` builds an environment; `shared` holds `model` and `renderers`
     once the task has them."""
@@ -59,11 +61,12 @@ class EnvPool:
         self._lock = threading.Lock()
         self._models: dict[str, mujoco.MjModel] = {}
         self._renderers: dict[tuple[int, str], dict] = {}
-        self._envs: dict[tuple[int, str], TabletopEnv] = {}
+        self._envs: dict[int, TabletopEnv] = {}
 
     def get(self, lane: int, task: str) -> TabletopEnv:
         """The lane's environment for `task`; call it from the lane's worker thread."""
-        if (lane, task) not in self._envs:
+        env = self._envs.get(lane)
+        if env is None or env.task.key != task:
             renderers = self._renderers.setdefault((threading.get_ident(), task), {})
             with self._lock:  # compiling a task's model once is worth the wait
                 if task not in self._models:
@@ -71,8 +74,8 @@ class EnvPool:
                     self._models[task] = env.model
                 else:
                     env = self._make_env(task, model=self._models[task], renderers=renderers)
-            self._envs[lane, task] = env
-        return self._envs[lane, task]
+            self._envs[lane] = env
+        return env
 
     def close_thread(self) -> None:
         """Close the renderers this thread made (a GL context is freed where it is current)."""

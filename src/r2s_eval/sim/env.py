@@ -243,18 +243,22 @@ class TabletopEnv:
 
     def _renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
         if size_hw not in self._renderers:
-            # A size beyond the model's offscreen buffer (a large judge video) grows the buffer;
-            # renderers already made keep theirs, and no image of another size changes.
+            # Each renderer's offscreen buffer is exactly its image size: software GL clears and
+            # rasterises the whole buffer, and a 128 px image drawn in a 640x480 buffer costs
+            # ~10 % more for the same pixels. The model's own buffer size is left as it was.
             with _BUFFER_LOCK:
                 vis = self.model.vis.global_
-                vis.offheight, vis.offwidth = max(vis.offheight, size_hw[0]), max(vis.offwidth, size_hw[1])
-            try:
-                self._renderers[size_hw] = mujoco.Renderer(self.model, height=size_hw[0], width=size_hw[1])
-            except Exception as err:  # GL backend is fixed when mujoco is first imported
-                raise RuntimeError(
-                    "could not create an offscreen GL context; set MUJOCO_GL=egl (or osmesa) before "
-                    "mujoco is first imported, e.g. import r2s_eval.sim first"
-                ) from err
+                model_size = vis.offheight, vis.offwidth
+                vis.offheight, vis.offwidth = size_hw
+                try:
+                    self._renderers[size_hw] = mujoco.Renderer(self.model, height=size_hw[0], width=size_hw[1])
+                except Exception as err:  # GL backend is fixed when mujoco is first imported
+                    raise RuntimeError(
+                        "could not create an offscreen GL context; set MUJOCO_GL=egl (or osmesa) before "
+                        "mujoco is first imported, e.g. import r2s_eval.sim first"
+                    ) from err
+                finally:
+                    vis.offheight, vis.offwidth = model_size
         return self._renderers[size_hw]
 
     def render(

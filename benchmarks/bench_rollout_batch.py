@@ -17,7 +17,7 @@ CPU time is the process's (every thread, software GL's included), so running on 
 counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
 interleave the two loops so machine load hits both alike; the best repeat of each is reported.
 
-Run: ``python benchmarks/bench_rollout_batch.py [--episodes 8] [--batch 8] [--cameras 4] [--repeats 2]``
+Run: ``python benchmarks/bench_rollout_batch.py [--episodes 16] [--batch 16] [--cameras 4] [--repeats 2]``
 """
 
 from __future__ import annotations
@@ -118,8 +118,9 @@ def batched(out: Path, trained: Path, inits_path: Path, cfg: dict, batch: int, t
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", default="cup_on_plate")
-    parser.add_argument("--episodes", type=int, default=8, help="episodes per loop and repeat")
-    parser.add_argument("--batch", type=int, default=8, help="episodes side by side in the batched loop")
+    parser.add_argument("--episodes", type=int, default=16, help="episodes per loop and repeat")
+    parser.add_argument("--batch", type=int, default=None,
+                        help="episodes side by side in the batched loop (default: rollout.batch_episodes)")
     parser.add_argument("--threads", type=int, default=1, help="worker threads of the batched loop")
     parser.add_argument("--model-batch", type=int, default=None, help="rows of a model call (default: the demo's)")
     parser.add_argument("--cameras", type=int, default=4, choices=range(1, len(CAMERA_NAMES) + 1),
@@ -136,6 +137,7 @@ def main() -> None:
         cfg["rollout"]["max_steps"] = args.max_steps
     if args.model_batch:
         cfg["rollout"]["model_batch"] = args.model_batch
+    args.batch = args.batch or cfg["rollout"]["batch_episodes"]
     image_hw = (int(cfg["world"]["image_height"]), int(cfg["world"]["image_width"]))
     work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
     try:

@@ -53,8 +53,8 @@ class EnvPool:
     replaced when the lane moves on to another task (an environment's MjData holds a 16 MB
     arena; with shared model and renderers a new one takes a few ms).
 
-    `make_env(task, **shared)` builds an environment; `shared` holds `model` and `renderers`
-    once the task has them."""
+    `make_env(task, **shared)` builds an environment; `shared` holds the `renderers` to use and,
+    once the task has one, its `model`."""
 
     def __init__(self, make_env: Callable[..., TabletopEnv]):
         self._make_env = make_env

@@ -22,6 +22,7 @@ class VideoWriter:
     def __init__(self, path: str | Path, fps: int):
         self.path = Path(path)
         self.fps = int(fps)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         os.close(fd)
         self._tmp = Path(tmp)

@@ -286,6 +286,9 @@ class Rollout:
     real_inits_per_task: PositiveInt | None
     max_steps: PositiveInt
     device: str
+    batch_episodes: PositiveInt
+    threads: PositiveInt
+    model_batch: PositiveInt
     video_camera: Camera
     video_size: tuple[PositiveInt, PositiveInt] | None
     video_fps: PositiveInt

@@ -284,6 +284,28 @@ def test_vla_sampling_is_seeded_per_episode(trained, offline):
     assert not np.array_equal(a, first_chunk(6))
 
 
+@pytest.mark.parametrize("policy_type", FAMILIES)
+def test_vla_chunks_do_not_depend_on_the_slots_beside_it(policy_type, trained, offline):
+    """With a fixed call shape, a slot's sampled chunk is the same alone or beside another slot
+    (its noise is its own: per-slot noise, or one slot per call for X-VLA)."""
+    from r2s_eval.policies.lerobot_policy import load_lerobot_policy
+
+    policy = load_lerobot_policy(trained[policy_type], call_batch=2)
+    rng = np.random.default_rng(1)
+    obs = []
+    for _ in range(2):
+        o = {"observation.state": rng.normal(0, 0.1, ROBOT_DIM).astype(np.float32), "task": "pick the cube"}
+        o.update({cam: rng.integers(0, 255, (64, 64, 3), dtype=np.uint8) for cam in CAMS})
+        obs.append(policy.select(o))
+    policy.reset(0, 5)
+    alone = policy.predict_chunks([0], obs[:1])
+    policy.reset(0, 5)
+    policy.reset(3, 9)
+    together = policy.predict_chunks([0, 3], obs)
+    np.testing.assert_array_equal(alone[0], together[0])
+    assert not np.array_equal(together[0], together[1])
+
+
 def test_reload_refuses_weights_that_did_not_load(trained, offline, tmp_path):
     """pi0's from_pretrained prints load errors and returns random weights: the loader checks."""
     from safetensors.torch import load_file, save_file

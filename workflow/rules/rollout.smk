@@ -20,10 +20,16 @@ def rollout_inputs(wildcards):
     return inputs
 
 
+# How many episodes run side by side, on how many threads, changes no result: passed apart
+# from --cfg, so a change reruns nothing.
+ROLLOUT_UNTRACKED = ("batch_episodes", "threads")
+
+
 def rollout_params(wildcards):
     cfg = stage_cfg("rollout", arm=wildcards.arm, policy=wildcards.policy, policy_cfg=rollout_policy_cfg(wildcards))
-    if wildcards.arm == "sim":  # read by the real arm only: a change must not rerun sim rollouts
-        cfg["rollout"] = {k: v for k, v in cfg["rollout"].items() if k != "real_inits_per_task"}
+    untracked = ROLLOUT_UNTRACKED + (("real_inits_per_task",) if wildcards.arm == "sim" else ())
+    # real_inits_per_task is read by the real arm only: a change must not rerun sim rollouts.
+    cfg["rollout"] = {k: v for k, v in cfg["rollout"].items() if k not in untracked}
     return to_json(cfg)
 
 
@@ -38,13 +44,16 @@ rule rollout:
         trained=lambda w, input: f"--policy {input.policy}" if "policy" in input.keys() else "",
         twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
         transport=rollout_transport,
-    threads: 1
+        batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
+    # Model calls on one thread; physics, rendering (llvmpipe rasterises in the thread that
+    # renders: LP_NUM_THREADS=0) and video on `threads` workers.
+    threads: CFG["rollout"]["threads"]
     log:
         "logs/rollout/{arm}/{policy}.log",
     shell:
-        "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
+        "OMP_NUM_THREADS=1 LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
         " {params.trained} --inits {input.inits} {params.twin} --transport {params.transport:q}"
-        " --out {output} --log {log}"
+        " --batch-episodes {params.batch_episodes} --threads {threads} --out {output} --log {log}"
 
 
 if TWIN:

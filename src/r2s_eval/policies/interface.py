@@ -29,7 +29,12 @@ IMAGE_PREFIX = "observation.images."
 
 
 class PolicyError(PolicyLoadError):
-    """A policy that cannot be loaded, reached, or mapped onto the robot; the message names it."""
+    """A policy that cannot be loaded, reached, or mapped onto the robot; the message names it.
+
+    `slot`: the episode slot it concerns, when it concerns one (a batched call names the episode).
+    """
+
+    slot: int | None = None
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,9 @@ class ChunkPolicy:
 
     spec: PolicySpec
     name: str = "policy"
+    # Rows of every model call, when fixed (slot `s` then sits in row `s % call_batch`, so callers
+    # that run many episodes keep two in flight out of one row); None: as many as asked.
+    call_batch: int | None = None
 
     def reset(self, slot: int, seed: int) -> None:
         """A new episode starts in `slot`."""

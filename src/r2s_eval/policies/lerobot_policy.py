@@ -3,6 +3,22 @@
 Covers what r2s-eval trains (ACT, Diffusion Policy, the VLA families) and any local LeRobot
 `pretrained_model` folder. One model call serves a whole batch of episode slots. lerobot's own
 `select_action` queues are not used: the evaluation's `RecedingHorizon` owns re-planning.
+
+What a slot gets must not depend on which other slots share its call, or an episode's result
+would depend on how many episodes run side by side:
+
+- Rounding: a batched forward takes other kernel paths than a single one (at batch 1 torch runs
+  ResNet's 3x3 convolutions through im2col + GEMM, at batch 2 and more through oneDNN; the
+  transformer's GEMMs block by row count), so the same observation gives actions a few ulps
+  apart at different batch sizes; even at one shape, a GEMM's last rows may take a tail kernel
+  that rounds differently from the others. With `call_batch`, every model call has exactly that
+  many rows and slot `s` always sits in row `s % call_batch` (callers number slots by episode, so
+  an episode keeps its row whatever else runs): the other rows are padded with copies of a real
+  observation, and slots that want the same row go in separate calls. At a fixed shape and row,
+  what a row gets does not depend on the other rows (`tests/policies/test_policies_batch.py`
+  checks it).
+- Noise: sampling policies draw their noise per slot from the slot's generator (seeded by
+  `reset`), never from one draw shared by the batch.
 """
 
 from __future__ import annotations
@@ -20,16 +36,28 @@ from r2s_eval.policies.interface import STATE_KEY, TASK_KEY, ChunkPolicy, Policy
 CHECKPOINT_SUBDIR = "pretrained_model"
 RUNNER_CONFIG = "runner_config.json"  # our settings next to lerobot's files (cameras used)
 WEIGHTS_FILE = "model.safetensors"
-# Flow-matching VLAs draw their initial noise from torch's global RNG: seeded per episode slot.
-_SAMPLING_TYPES = ("pi0", "pi05", "smolvla", "xvla")
+# Flow-matching VLAs whose initial noise can be given per slot; X-VLA draws it from torch's global
+# RNG, so it is called one slot at a time with that RNG seeded from the slot's generator.
+_NOISE_ARG_TYPES = ("pi0", "pi05", "smolvla")
+_GLOBAL_RNG_TYPES = ("xvla",)
 
 
 class LeRobotPolicy(ChunkPolicy):
     def __init__(self, policy, preprocessor, postprocessor, image_keys: Sequence[str],
-                 device: str = "cpu", name: str = "policy", identity: dict | None = None):
+                 device: str = "cpu", name: str = "policy", identity: dict | None = None,
+                 call_batch: int | None = None):
+        """`call_batch`: rows of every model call (see the module docstring); None: each call
+        has as many rows as slots asked, and its rounding depends on that number."""
         from lerobot.utils.constants import ACTION
 
         self.policy = policy.eval()
+        self.call_batch = None if call_batch is None else int(call_batch)
+        if self.call_batch is not None and self.call_batch < 1:
+            raise PolicyError(f"policy {name!r}: call_batch must be >= 1, got {call_batch}")
+        if self.call_batch is not None and torch.device(device).type == "cpu":
+            # Channels-last weights: oneDNN's convolutions then take them as they are instead of
+            # reordering every weight at every call (half the time of a batched ResNet18 call).
+            self.policy.to(memory_format=torch.channels_last)
         self.preprocessor = preprocessor
         self.postprocessor = postprocessor
         self.device = torch.device(device)
@@ -98,52 +126,86 @@ class LeRobotPolicy(ChunkPolicy):
 
     @torch.no_grad()
     def predict_chunks(self, slots: Sequence[int], observations: Sequence[dict]) -> np.ndarray:
+        if len(slots) != len(observations):
+            raise PolicyError(f"policy {self.name!r}: {len(slots)} slots but {len(observations)} observations")
+        if self.call_batch is None:
+            return self._call(list(slots), list(observations))
+        out: list[np.ndarray | None] = [None] * len(slots)
+        pending = list(range(len(slots)))
+        while pending:  # one call per round; slots whose row is taken wait for the next round
+            rows: dict[int, int] = {}  # row of the call -> index into slots
+            waiting = []
+            for i in pending:
+                row = int(slots[i]) % self.call_batch
+                one_slot = self.policy_type in _GLOBAL_RNG_TYPES and rows  # the draw must be the slot's alone
+                if row in rows or one_slot:
+                    waiting.append(i)
+                else:
+                    rows[row] = i
+            first = observations[next(iter(rows.values()))]
+            call_slots: list[int | None] = [None] * self.call_batch  # None: a padding row
+            call_obs = [first] * self.call_batch  # padding rows repeat a real observation
+            for row, i in rows.items():
+                call_slots[row], call_obs[row] = slots[i], observations[i]
+            chunks = self._call(call_slots, call_obs)
+            for row, i in rows.items():
+                out[i] = chunks[row]
+            pending = waiting
+        return np.stack(out)
+
+    def _generator(self, slot: int | None) -> torch.Generator:
+        if slot is None:  # a padding row: any fixed draw
+            return torch.Generator(device="cpu").manual_seed(0)
+        return self._generators.setdefault(slot, torch.Generator(device="cpu").manual_seed(0))
+
+    def _call(self, slots: list[int | None], observations: list[dict]) -> np.ndarray:
+        """One model call; row i belongs to `slots[i]`."""
         if self.policy_type == "diffusion":
             actions = self._diffusion_chunks(slots, observations)
-        elif self.policy_type in _SAMPLING_TYPES:
-            batch = self._preprocess(observations)
+        elif self.policy_type in _NOISE_ARG_TYPES:
+            cfg = self.policy.config
+            noise = torch.stack([torch.randn((cfg.chunk_size, cfg.max_action_dim), generator=self._generator(s))
+                                 for s in slots])
+            actions = self.policy.predict_action_chunk(self._preprocess(observations), noise=noise.to(self.device))
+        elif self.policy_type in _GLOBAL_RNG_TYPES:
+            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self._generator(slots[0])))
             devices = [self.device] if self.device.type == "cuda" else []
             with torch.random.fork_rng(devices=devices):
-                torch.manual_seed(self._call_seed(slots))
-                actions = self.policy.predict_action_chunk(batch)
+                torch.manual_seed(seed)
+                actions = self.policy.predict_action_chunk(self._preprocess(observations))
         else:
             actions = self.policy.predict_action_chunk(self._preprocess(observations))
         actions = self.postprocessor(actions)
         return actions.detach().cpu().numpy().astype(np.float32)
 
-    def _call_seed(self, slots: Sequence[int]) -> int:
-        seeds = []
-        for slot in slots:
-            gen = self._generators.setdefault(slot, torch.Generator(device="cpu").manual_seed(0))
-            seeds.append(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
-        return seeds[0] if len(seeds) == 1 else hash(tuple(seeds)) % 2**31
-
-    def _diffusion_chunks(self, slots: Sequence[int], observations: Sequence[dict]) -> torch.Tensor:
+    def _diffusion_chunks(self, slots: list[int | None], observations: list[dict]) -> torch.Tensor:
         from lerobot.utils.constants import OBS_IMAGES, OBS_STATE
 
-        histories = []
-        for slot, obs in zip(slots, observations, strict=True):
-            history = list(self._history.get(slot) or [self._preprocess([obs])])
-            while len(history) < self.n_obs_steps:  # first step: repeat it, as lerobot does
-                history.insert(0, history[0])
-            histories.append(history)
+        histories = {}
+        for i, (slot, obs) in enumerate(zip(slots, observations, strict=True)):
+            if slot is not None:
+                history = list(self._history.get(slot) or [self._preprocess([obs])])
+                while len(history) < self.n_obs_steps:  # first step: repeat it, as lerobot does
+                    history.insert(0, history[0])
+                histories[i] = history
+        pad = next(iter(histories.values()))  # padding rows repeat a real row's history
+        histories = [histories.get(i, pad) for i in range(len(slots))]
         state = torch.cat([torch.stack([h[OBS_STATE] for h in hist], dim=1) for hist in histories])
         images = torch.cat([
             torch.stack([torch.stack([h[k] for k in self.spec.cameras], dim=-4) for h in hist], dim=1)
             for hist in histories
         ])
         cfg = self.policy.config
-        noise, step_seeds = [], []
-        for slot in slots:
-            gen = self._generators.setdefault(slot, torch.Generator(device="cpu").manual_seed(0))
-            noise.append(torch.randn((1, cfg.horizon, self.spec.action_dim), generator=gen))
-            step_seeds.append(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
-        # DDPM draws extra noise per denoising step from the global RNG: seed it locally.
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(step_seeds[0] if len(step_seeds) == 1 else hash(tuple(step_seeds)) % 2**31)
-            return self.policy.diffusion.generate_actions(
-                {OBS_STATE: state, OBS_IMAGES: images}, noise=torch.cat(noise).to(self.device)
-            )
+        generators = [self._generator(s) for s in slots]
+        noise = torch.cat([torch.randn((1, cfg.horizon, self.spec.action_dim), generator=g) for g in generators])
+        # lerobot's generate_actions, with the denoising steps' noise drawn per row from the
+        # row's own generator (DDPM draws fresh noise at every step).
+        model = self.policy.diffusion
+        global_cond = model._prepare_global_conditioning({OBS_STATE: state, OBS_IMAGES: images})
+        actions = model.conditional_sample(len(slots), global_cond=global_cond, generator=generators,
+                                           noise=noise.to(self.device))
+        start = self.n_obs_steps - 1
+        return actions[:, start : start + cfg.n_action_steps]
 
 
 def resolve_checkpoint(checkpoint_dir: str | Path) -> Path:
@@ -218,11 +280,13 @@ def load_lerobot_policy(
     device: str = "cpu",
     name: str | None = None,
     tokenizer_path: str | Path | None = None,
+    call_batch: int | None = None,
 ) -> LeRobotPolicy:
     """A local LeRobot `pretrained_model` folder (ours or anyone's) as a `ChunkPolicy`.
 
     `tokenizer_path`: local folder of the tokenizer / processor a VLA's preprocessor loads (saved
     pipelines name hub ids); default: the one recorded at training in `runner_config.json`.
+    `call_batch`: rows of every model call (`LeRobotPolicy`).
     """
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.configs.types import FeatureType
@@ -267,4 +331,4 @@ def load_lerobot_policy(
         k for k, ft in cfg.input_features.items() if ft.type is FeatureType.VISUAL
     ]
     return LeRobotPolicy(policy, preprocessor, postprocessor, image_keys, device=device,
-                         name=name or cfg.type, identity={"checkpoint": str(ckpt)})
+                         name=name or cfg.type, identity={"checkpoint": str(ckpt)}, call_batch=call_batch)

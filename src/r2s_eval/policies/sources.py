@@ -167,18 +167,20 @@ def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int) -> dict:
     return {"folder": str(folder), "type": policy_type, "action_dim": action_dim}
 
 
-def open_policy(cfg: Mapping, name: str, trained_dir: str | os.PathLike | None = None, device: str = "cpu") -> ChunkPolicy:
+def open_policy(cfg: Mapping, name: str, trained_dir: str | os.PathLike | None = None, device: str = "cpu",
+                call_batch: int | None = None) -> ChunkPolicy:
     """The candidate as a ChunkPolicy: a trained folder, a checkpoint, or a server connection.
 
-    In-process models run on `device` (a checkpoint entry's own `device` wins)."""
+    In-process models run on `device` (a checkpoint entry's own `device` wins), every call with
+    `call_batch` rows (`LeRobotPolicy`; a server computes what it computes)."""
     from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 
     if not is_external(cfg):
         if trained_dir is None:
             raise PolicyError(f"policy {name!r} is trained here, but no trained folder was given")
-        return load_lerobot_policy(trained_dir, device=device, name=name)
+        return load_lerobot_policy(trained_dir, device=device, name=name, call_batch=call_batch)
     if cfg["type"] == "checkpoint":
-        return load_lerobot_policy(cfg["path"], device=cfg.get("device") or device, name=name)
+        return load_lerobot_policy(cfg["path"], device=cfg.get("device") or device, name=name, call_batch=call_batch)
     from r2s_eval.serving.client import ServerPolicy
 
     spec = dict(cfg.get("spec") or {})

@@ -1,36 +1,43 @@
 """Closed-loop rollouts of one candidate on one arm (sim, or the real side), as one folder.
 
 The candidate is a policy trained here, a checkpoint folder, or a policy server; all are driven
-through the same receding horizon. :func:`run_candidate` writes, into one folder:
+through the same receding horizon, `batch_episodes` episodes side by side
+(`r2s_eval.rollout.batch`: one batched model call per query step; an episode's bytes do not
+depend on how many run beside it). :func:`run_candidate` writes, into one folder:
 episodes.parquet (one row per episode), videos/<id>.mp4 and trajectories/<id>.parquet. Episode
 ids are opaque hashes so no file name tells a judge which policy it is watching.
 
-Each finished episode is kept in a sibling folder (`.<folder>.episodes/`) until the whole set
-is done, so a job that dies (a server gone, a killed machine) resumes with the episodes it had
-not finished yet; that folder is discarded when the config, inits, world or policy change.
+Each finished episode is kept in a sibling folder (`.<folder>.episodes/`) as soon as it ends, until
+the whole set is done, so a job that dies (a server gone, a killed machine) resumes with the
+episodes it had not finished yet; that folder is discarded when the config, inits, world or
+policy change (not when `batch_episodes` or the thread count do: they change no result).
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from r2s_eval.policies import PolicyError, RecedingHorizon
 from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, open_policy
+from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
-from r2s_eval.rollout.loop import episode_id, run_episode
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.loop import EpisodeRecorder, episode_id
+from r2s_eval.rollout.video import VideoWriter
 from r2s_eval.sim import ACTION_DIM, get_task, load_world_params
 from r2s_eval.sim.build import make_env
 from r2s_eval.utils.io import atomic_dir, config_hash, file_sha256, write_json, write_parquet
 
 log = logging.getLogger("r2s_eval.rollout")
+# Rollout settings that change no result (the workflow keeps them out of the rerun check too).
+UNTRACKED = ("batch_episodes", "threads")
 
 
 def select_inits(inits: pd.DataFrame, arm: str, real_inits_per_task: int | None) -> pd.DataFrame:
@@ -41,12 +48,13 @@ def select_inits(inits: pd.DataFrame, arm: str, real_inits_per_task: int | None)
     return inits
 
 
-def planned_episodes(inits: pd.DataFrame, arm: str, policy: str, seed: int) -> list[tuple[str, int, int, str]]:
-    """(task, init_id, episode seed, episode id) of every episode, in the inits' order."""
+def planned_episodes(inits: pd.DataFrame, arm: str, policy: str, seed: int) -> list[PlannedEpisode]:
+    """Every episode, in the inits' order; its index there is the policy slot it runs in."""
     planned = []
     for task, init_id in inits[["task", "init_id"]].drop_duplicates().itertuples(index=False):
         episode_seed = int(np.random.default_rng([seed, int(init_id)]).integers(2**31))
-        planned.append((task, init_id, episode_seed, episode_id(arm, policy, task, init_id, episode_seed)))
+        planned.append(PlannedEpisode(len(planned), task, int(init_id), episode_seed,
+                                      episode_id(arm, policy, task, init_id, episode_seed), poses_of(inits, task, init_id)))
     return planned
 
 
@@ -73,13 +81,38 @@ def episode_store(out: Path, identity: str) -> Path:
     return store
 
 
-def _collect(out: Path, store: Path, planned: list) -> pd.DataFrame:
+class _EpisodeFolder:
+    """A running episode's files, in a temporary folder of the store that is renamed to the
+    episode id once the episode is whole; its video is encoded as the frames come."""
+
+    def __init__(self, store: Path, planned: PlannedEpisode, fps: int):
+        self.store, self.planned = store, planned
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{planned.episode_id}.", suffix=".tmp", dir=store))
+        self.video = VideoWriter(self.tmp / f"{planned.episode_id}.mp4", fps)
+
+    def add(self, frame: np.ndarray) -> None:
+        self.video.add(frame)
+
+    def finish(self, row: dict, trajectory: pd.DataFrame) -> None:
+        ep = self.planned.episode_id
+        self.video.close()
+        write_parquet(self.tmp / f"{ep}.parquet", trajectory)
+        write_json(self.tmp / "row.json", row)
+        os.replace(self.tmp, self.store / ep)
+
+    def abort(self) -> None:
+        self.video.abort()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+def _collect(out: Path, store: Path, planned: list[PlannedEpisode]) -> pd.DataFrame:
     """Move the finished episodes into ``out`` (atomically) and drop the store."""
     rows = []
     with atomic_dir(out) as tmp:
         (tmp / "videos").mkdir()
         (tmp / "trajectories").mkdir()
-        for _, _, _, ep in planned:
+        for p in planned:
+            ep = p.episode_id
             row = json.loads((store / ep / "row.json").read_text())
             stats = row.pop("policy_stats")
             shutil.copyfile(store / ep / f"{ep}.mp4", tmp / row["video_path"])
@@ -94,7 +127,7 @@ def _collect(out: Path, store: Path, planned: list) -> pd.DataFrame:
 
 def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict, world: dict, policy_cfg: dict,
                   inits: str, twin: str | None = None, trained_dir: str | None = None,
-                  transport: dict | None = None) -> pd.DataFrame:
+                  transport: dict | None = None, batch_episodes: int = 1, threads: int = 1) -> pd.DataFrame:
     """Roll out candidate ``policy`` from every init of ``inits`` (a parquet of rollout_inits)
     on ``arm``, in the world ``twin`` (world parameters; ``None``: nominal), into ``out``;
     returns the episode table.
@@ -102,44 +135,45 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
     ``policy_cfg``: what decides the candidate's rollouts; ``trained_dir``: its folder when
     trained here; ``transport``: where a checkpoint or server lies (kept out of the episodes'
-    identity: moving it changes no result).
+    identity: moving it changes no result); ``batch_episodes``: episodes stepped side by side;
+    ``threads``: worker threads for physics, rendering and video (model calls stay on one:
+    neither changes a result, so neither is part of the identity either).
     """
+    rollout = {k: v for k, v in rollout.items() if k not in UNTRACKED}
     cfg = {"arm": arm, "policy": policy, "policy_cfg": policy_cfg, "rollout": rollout, "seed": seed, "world": world}
     params = load_world_params(twin) if twin else None
     table = select_inits(pd.read_parquet(inits), arm, rollout.get("real_inits_per_task"))
     source = {**policy_cfg, **(transport or {})}
-    model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"))
-    runner = RecedingHorizon(model, rollout["chunk_size"], rollout["n_action_steps"],
-                             action_map(policy_cfg, ACTION_DIM), seed=seed)
-    store = episode_store(out, episodes_identity(cfg, policy_cfg, model, inits, twin, trained_dir))
-    # Render only what the policy looks at: the other cameras cost time and change nothing.
-    cameras = [k.removeprefix("observation.images.") for k in runner.image_keys]
-    envs = {}
-    planned = planned_episodes(table, arm, policy, seed)
+    model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"),
+                        call_batch=rollout["model_batch"])
     try:
-        for task, init_id, episode_seed, ep in tqdm(planned, desc=f"rollout {arm}/{policy}", mininterval=5):
-            if (store / ep / "row.json").is_file():
-                continue  # finished before the job was interrupted
-            if task not in envs:
-                envs[task] = make_env(task, world, params, cameras=cameras)
-            runner.reset(seed=episode_seed)
-            try:
-                result = run_episode(envs[task], runner, poses_of(table, task, init_id), episode_seed,
-                                     rollout["max_steps"], rollout["video_camera"],
-                                     video_size=rollout.get("video_size"))
-            except PolicyError as exc:
-                raise PolicyError(f"{exc} [{arm} rollout, task {task}, init {init_id}]") from exc
-            with atomic_dir(store / ep) as tmp:
-                write_video(tmp / f"{ep}.mp4", result.frames, rollout["video_fps"])
-                write_parquet(tmp / f"{ep}.parquet", result.trajectory)
-                write_json(tmp / "row.json", {
-                    "episode_id": ep, "policy": policy, "arm": arm, "task": task,
-                    "instruction": get_task(task).instruction, "init_id": int(init_id), "seed": episode_seed,
-                    "success": bool(result.success), "length": int(result.length),
-                    "video_path": f"videos/{ep}.mp4", "trajectory_path": f"trajectories/{ep}.parquet",
-                    "policy_stats": runner.stats,
-                })
-            log.info("%s init %d: %s in %d steps", task, init_id, "success" if result.success else "failure", result.length)
+        store = episode_store(out, episodes_identity(cfg, policy_cfg, model, inits, twin, trained_dir))
+        # Render only what the policy looks at: the other cameras cost time and change nothing.
+        cameras = [k.removeprefix("observation.images.") for k in model.spec.cameras]
+        planned = planned_episodes(table, arm, policy, seed)
+        todo = [p for p in planned if not (store / p.episode_id / "row.json").is_file()]  # the rest finished before
+        progress = tqdm(total=len(planned), initial=len(planned) - len(todo), desc=f"rollout {arm}/{policy}", mininterval=5)
+
+        def finished(p: PlannedEpisode, episode: EpisodeRecorder, stats: dict, folder: _EpisodeFolder) -> None:
+            ep = p.episode_id
+            folder.finish({
+                "episode_id": ep, "policy": policy, "arm": arm, "task": p.task,
+                "instruction": get_task(p.task).instruction, "init_id": p.init_id, "seed": p.seed,
+                "success": bool(episode.success), "length": len(episode.rows),
+                "video_path": f"videos/{ep}.mp4", "trajectory_path": f"trajectories/{ep}.parquet",
+                "policy_stats": stats,
+            }, episode.result().trajectory)
+            progress.update()
+
+        run_batched(
+            model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
+            arm=arm, chunk_size=rollout["chunk_size"], n_action_steps=rollout["n_action_steps"],
+            action_map=action_map(policy_cfg, ACTION_DIM), max_steps=rollout["max_steps"],
+            video_camera=rollout["video_camera"], video_size=rollout.get("video_size"),
+            open_episode=lambda p: _EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
+            batch_episodes=batch_episodes, threads=threads,
+        )
+        progress.close()
     finally:
         model.close()
     episodes = _collect(out, store, planned)

@@ -1,8 +1,15 @@
-"""One closed-loop episode: the policy acts, the world steps, everything is recorded."""
+"""One closed-loop episode: the policy acts, the world steps, everything is recorded.
+
+`EpisodeRecorder` is what an episode records, one control step at a time: the judge video's
+frames and the trajectory rows. `run_episode` drives one episode with a policy's `act`; the
+batched loop (`r2s_eval.rollout.batch`) drives many recorders side by side. Both record through
+the same recorder, so an episode's bytes do not depend on which loop ran it.
+"""
 
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -10,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim.env import add_image_noise
 
 
 class Policy(Protocol):
@@ -43,10 +51,74 @@ def _record(env: TabletopEnv, step: int, obs: dict, action: np.ndarray) -> dict:
         "progress": float(env.task_progress()),
         "success": bool(env.is_success()),
     }
-    for name, pose in env.object_poses().items():
+    for name in env.task.object_names:
+        pose = env.object_state(name)  # the body pose; no planar pose is recorded
         row[f"obj_pos.{name}"] = pose["pos_world_m"].tolist()
         row[f"obj_quat.{name}"] = pose["quat_wxyz"].tolist()
     return row
+
+
+class EpisodeRecorder:
+    """One episode in `env` from `object_poses`: reset, then `step(action)` until `done`.
+
+    Ends when the success check has held for `success_hold_steps` steps, or after `max_steps`.
+    Holding success for a few steps keeps a cup that is let go mid-air from counting.
+
+    Video: one frame per control step from `video_camera`, handed to `on_frame` (default: kept
+    in `frames`). With `video_size` (H, W) the frame is rendered at that size for the judges,
+    whatever the policy consumes; with None it is the policy's own image of that camera when
+    the policy watches it (else a render at the env's image size). A rendered frame carries the
+    world's image noise from its own generator (seeded by the episode), so recording it never
+    changes what the policy observes.
+    """
+
+    def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]], seed: int,
+                 max_steps: int, video_camera: str, video_size: tuple[int, int] | None = None,
+                 success_hold_steps: int = 3, on_frame: Callable[[np.ndarray], None] | None = None):
+        self.env = env
+        self.max_steps = int(max_steps)
+        self.success_hold_steps = int(success_hold_steps)
+        self.video_camera = video_camera
+        self._video_key = f"observation.images.{video_camera}"
+        self._size = None if video_size is None else (int(video_size[0]), int(video_size[1]))
+        self._video_rng = np.random.default_rng([seed, 0x71DE0])  # the judge video's own noise stream
+        self.frames: list[np.ndarray] = []
+        self._on_frame = on_frame or self.frames.append
+        self.rows: list[dict] = []
+        self.held = 0
+        self.instruction = env.task.instruction  # language-conditioned policies read it
+        self.obs = env.reset(object_poses, seed=seed)
+        self._on_frame(self._frame(self.obs))
+
+    def _frame(self, obs: dict) -> np.ndarray:
+        if self._video_key in obs and self._size is None:
+            return obs[self._video_key]
+        rgb = self.env.render(self.video_camera, size=self._size)  # clean: the observations' noise stream stays theirs
+        std = float(self.env.params.image_noise_std)
+        return add_image_noise(rgb, self._video_rng, std) if std > 0 else rgb
+
+    @property
+    def policy_obs(self) -> dict:
+        """What the policy observes now: the world's streams and the instruction."""
+        return {**self.obs, "task": self.instruction}
+
+    @property
+    def success(self) -> bool:
+        return self.held >= self.success_hold_steps
+
+    @property
+    def done(self) -> bool:
+        return self.success or len(self.rows) >= self.max_steps
+
+    def step(self, action: np.ndarray) -> None:
+        self.obs = self.env.step(action)
+        self.rows.append(_record(self.env, len(self.rows), self.obs, action))
+        self._on_frame(self._frame(self.obs))
+        self.held = self.held + 1 if self.rows[-1]["success"] else 0
+
+    def result(self) -> EpisodeResult:
+        return EpisodeResult(success=self.success, length=len(self.rows), frames=self.frames,
+                             trajectory=pd.DataFrame(self.rows))
 
 
 def run_episode(
@@ -59,41 +131,11 @@ def run_episode(
     video_size: tuple[int, int] | None = None,
     success_hold_steps: int = 3,
 ) -> EpisodeResult:
-    """Run until the success check has held for `success_hold_steps` steps, or `max_steps`.
+    """One episode, the policy called at every control step (see `EpisodeRecorder`).
 
     The caller resets the policy (with the episode's seed) before calling.
-
-    Holding success for a few steps keeps a cup that is let go mid-air from counting.
-
-    Video: one frame per control step from `video_camera`. With `video_size` (H, W) the frame is
-    rendered at that size for the judges, whatever the policy consumes; with None it is the
-    policy's own image of that camera when the policy watches it (else a render at the env's
-    image size). A rendered frame carries the world's image noise from its own generator
-    (seeded by the episode), so recording it never changes what the policy observes.
     """
-    video_key = f"observation.images.{video_camera}"
-    size = None if video_size is None else (int(video_size[0]), int(video_size[1]))
-    video_rng = np.random.default_rng([seed, 0x71DE0])  # the judge video's own noise stream
-
-    def frame(obs: dict) -> np.ndarray:
-        if video_key in obs and size is None:
-            return obs[video_key]
-        rgb = env.render(video_camera, size=size)  # clean: the observations' noise stream stays theirs
-        std = float(env.params.image_noise_std)
-        if std > 0:
-            rgb = np.clip(rgb + video_rng.normal(0.0, std, rgb.shape), 0, 255).astype(np.uint8)
-        return rgb
-
-    obs = env.reset(object_poses, seed=seed)
-    frames = [frame(obs)]
-    rows, held = [], 0
-    instruction = env.task.instruction  # language-conditioned policies read it
-    for step in range(max_steps):
-        action = policy.act({**obs, "task": instruction})
-        obs = env.step(action)
-        rows.append(_record(env, step, obs, action))
-        frames.append(frame(obs))
-        held = held + 1 if rows[-1]["success"] else 0
-        if held >= success_hold_steps:
-            break
-    return EpisodeResult(success=held >= success_hold_steps, length=len(rows), frames=frames, trajectory=pd.DataFrame(rows))
+    episode = EpisodeRecorder(env, object_poses, seed, max_steps, video_camera, video_size, success_hold_steps)
+    while not episode.done:
+        episode.step(policy.act(episode.policy_obs))
+    return episode.result()

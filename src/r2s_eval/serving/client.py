@@ -77,8 +77,10 @@ class ServerPolicy(ChunkPolicy):
     def __repr__(self) -> str:
         return f"ServerPolicy({self.name!r}, {self.where})"
 
-    def _error(self, what: str) -> PolicyError:
-        return PolicyError(f"policy {self.name!r} at {self.where}: {what}")
+    def _error(self, what: str, slot: int | None = None) -> PolicyError:
+        exc = PolicyError(f"policy {self.name!r} at {self.where}: {what}")
+        exc.slot = slot
+        return exc
 
     # -- spec and metadata ---------------------------------------------------------------------
     def _build_spec(self, announced: dict) -> PolicySpec:
@@ -191,7 +193,7 @@ class ServerPolicy(ChunkPolicy):
 
     def _conn(self, slot: int) -> ClientConnection:
         if slot in self._broken:
-            raise self._error(f"slot {slot}: {self._broken[slot]}; reset the slot to reconnect")
+            raise self._error(f"slot {slot}: {self._broken[slot]}; reset the slot to reconnect", slot)
         if slot not in self._conns:  # first use of the slot starts its episode
             self._conns[slot] = self._spare or self._open()
             self._spare = None
@@ -230,10 +232,14 @@ class ServerPolicy(ChunkPolicy):
                 try:
                     conn.send(payload)
                 except ConnectionClosed as exc:
-                    raise self._error(f"connection closed while sending the observation of slot {slot} ({exc})") from exc
+                    raise self._error(f"connection closed while sending the observation of slot {slot} ({exc})", slot) from exc
             chunks = []
             for slot, conn in zip(slots, conns):
-                chunks.append(self._actions(self._receive(conn, self.reply_timeout_s, f"the actions of slot {slot}")))
+                try:
+                    chunks.append(self._actions(self._receive(conn, self.reply_timeout_s, f"the actions of slot {slot}")))
+                except PolicyError as exc:
+                    exc.slot = slot  # the episode whose reply failed
+                    raise
                 pending.remove(slot)
         except PolicyError:
             # An unread or failed reply leaves the connection out of step: those episodes end here.
@@ -256,6 +262,13 @@ class ServerPolicy(ChunkPolicy):
         if not np.isfinite(actions).all():
             raise self._error("non-finite actions")
         return actions[: self.spec.max_chunk]
+
+    def release(self, slot: int) -> None:
+        """The slot's episode is over: its connection (one per episode) is closed."""
+        conn = self._conns.pop(slot, None)
+        if conn is not None:
+            conn.close()
+        self._broken.pop(slot, None)
 
     def close(self) -> None:
         for conn in [*self._conns.values(), *([self._spare] if self._spare else [])]:

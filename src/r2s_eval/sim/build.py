@@ -31,11 +31,14 @@ def configured_task(key: str, suite_cfg: dict | None) -> Task:
     return dataclasses.replace(task, init_regions=new)
 
 
-def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, cameras=None, suite_cfg: dict | None = None) -> TabletopEnv:
-    """The task's environment as the ``world`` config slice describes it (image size, cameras)."""
+def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, cameras=None, suite_cfg: dict | None = None,
+             **shared) -> TabletopEnv:
+    """The task's environment as the ``world`` config slice describes it (image size, cameras);
+    ``shared``: a compiled model and renderers to share (`TabletopEnv`)."""
     return TabletopEnv(
         configured_task(task, suite_cfg),
         params=params,
         image_size=image_size(world_cfg),
         cameras=tuple(world_cfg["cameras"] if cameras is None else cameras),
+        **shared,
     )

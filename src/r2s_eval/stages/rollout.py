@@ -19,13 +19,17 @@ PROVIDED = ("arm", "policy", "policy_cfg")  # keys the rule adds for this job
 
 
 def main(args) -> None:
-    deterministic_torch(1)  # the rule gives this job one core
+    # Model calls run on one thread whatever the job's threads (physics, rendering, video), so
+    # their rounding never depends on them.
+    deterministic_torch(1)
     cfg = args.cfg
-    # Where a server or checkpoint lies reaches the stage apart from its config slice: moving it
-    # changes no result, so it must not make Snakemake rerun the stage.
+    # Where a server or checkpoint lies, and how many episodes run side by side on how many
+    # threads, reach the stage apart from its config slice: they change no result, so they must
+    # not make Snakemake rerun the stage.
     run_candidate(Path(args.out), policy=cfg["policy"], arm=cfg["arm"], seed=cfg["seed"],
                   rollout=cfg["rollout"], world=cfg["world"], policy_cfg=cfg["policy_cfg"], inits=args.inits,
-                  twin=args.twin, trained_dir=args.policy, transport=json.loads(args.transport or "{}"))
+                  twin=args.twin, trained_dir=args.policy, transport=json.loads(args.transport or "{}"),
+                  batch_episodes=args.batch_episodes, threads=args.threads)
 
 
 if __name__ == "__main__":
@@ -34,5 +38,7 @@ if __name__ == "__main__":
     p.add_argument("--inits", required=True)
     p.add_argument("--twin", help="world parameters of the real side (the reality twin)")
     p.add_argument("--transport", help="JSON: where a checkpoint or server is (path, host, port, ...)")
+    p.add_argument("--batch-episodes", type=int, default=1, help="episodes stepped side by side")
+    p.add_argument("--threads", type=int, default=1, help="worker threads for physics, rendering and video")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

@@ -1,0 +1,176 @@
+"""Rollouts per CPU-second: the batched rollout loop against the one-at-a-time loop it replaced.
+
+Both run the same candidate, the CPU line-up's ACT architecture (ResNet18, 32x32 inputs, chunk
+25, execute 5), randomly initialised here (or a trained folder with ``--checkpoint``), reading
+``--cameras`` of the world's cameras (4: every camera the demo records, rendered at 128 px every
+control step), from the same seeded initial configurations, with the demo's rollout settings
+(judge video of ``head_left`` at 448 px every control step, 150 steps; a random policy never
+succeeds, so every episode runs them all). Each writes what the rollout stage writes: an mp4,
+a trajectory parquet and a row per episode.
+
+- one at a time: the loop as it was, ``run_episode`` with ``RecedingHorizon.act``, one model call
+  per query with a single observation, the video encoded once the episode is over;
+- batched: ``run_candidate`` (the rollout stage's code) with ``--batch`` episodes side by side,
+  one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads.
+
+CPU time is the process's (every thread, software GL's included), so running on more cores
+counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
+interleave the two loops so machine load hits both alike; the best repeat of each is reported.
+
+Run: ``python benchmarks/bench_rollout_batch.py [--episodes 16] [--batch 16] [--cameras 4] [--repeats 2]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from r2s_eval.config import compose_config
+from r2s_eval.policies import RecedingHorizon
+from r2s_eval.policies.config import candidate_config, make_lerobot_config
+from r2s_eval.policies.interface import ActionMap
+from r2s_eval.policies.lerobot_policy import load_lerobot_policy
+from r2s_eval.rollout import run_episode, sample_inits, write_video
+from r2s_eval.rollout.candidate import _collect, planned_episodes, run_candidate
+from r2s_eval.sim import ACTION_DIM, CAMERA_NAMES
+from r2s_eval.sim.build import configured_task, make_env
+from r2s_eval.utils.io import write_json, write_parquet
+from r2s_eval.utils.numerics import deterministic_torch
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+
+
+def save_random_act(folder: Path, cameras: list[str], image_hw: tuple[int, int]) -> Path:
+    """The CPU line-up's ACT (conf/policies/cpu.yaml) reading `cameras`, randomly initialised,
+    saved as a training output folder."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.act.modeling_act import ACTPolicy
+    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep
+
+    keys = [f"observation.images.{c}" for c in cameras]
+    cfg = candidate_config("act", "demo", image_keys=keys)
+    lr_cfg = make_lerobot_config(cfg)
+    lr_cfg.input_features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(ACTION_DIM,))}
+    lr_cfg.input_features.update({k: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for k in keys})
+    lr_cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    vector = {"mean": np.zeros(ACTION_DIM), "std": np.full(ACTION_DIM, 0.1),
+              "min": -np.ones(ACTION_DIM), "max": np.ones(ACTION_DIM)}
+    image = {k: np.full((3, 1, 1), v) for k, v in {"mean": 0.5, "std": 0.25, "min": 0.0, "max": 1.0}.items()}
+    stats = {"observation.state": vector, "action": vector, **{k: image for k in keys}}
+    torch.manual_seed(0)
+    policy = ACTPolicy(lr_cfg)
+    pre, post = make_pre_post_processors(lr_cfg, dataset_stats=stats)
+    at = next(i for i, s in enumerate(pre.steps) if isinstance(s, NormalizerProcessorStep))
+    pre.steps.insert(at, ImageCropResizeProcessorStep(resize_size=tuple(cfg["image_size"])))
+    ckpt = folder / "pretrained_model"
+    for part in (policy, pre, post):
+        part.save_pretrained(ckpt)
+    (ckpt / "runner_config.json").write_text(json.dumps({"chunk_size": cfg["chunk_size"], "image_keys": keys,
+                                                         "policy_type": "act"}))
+    return folder
+
+
+def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
+    """The rollout loop as it was: one episode after the other, one observation per model call."""
+    rollout, world = cfg["rollout"], cfg["world"]
+    model = load_lerobot_policy(trained)  # no fixed call shape: one row per call
+    runner = RecedingHorizon(model, rollout["chunk_size"], rollout["n_action_steps"], ActionMap(ACTION_DIM))
+    cameras = [k.removeprefix("observation.images.") for k in model.spec.cameras]
+    planned = planned_episodes(inits, "sim", "act", cfg["seed"])
+    store = out.with_name(f".{out.name}.episodes")
+    store.mkdir()
+    envs = {}
+    for p in planned:
+        if p.task not in envs:
+            envs[p.task] = make_env(p.task, world, None, cameras=cameras)
+        runner.reset(seed=p.seed)
+        result = run_episode(envs[p.task], runner, p.object_poses, p.seed, rollout["max_steps"],
+                             rollout["video_camera"], video_size=rollout["video_size"])
+        folder = store / p.episode_id
+        folder.mkdir()
+        write_video(folder / f"{p.episode_id}.mp4", result.frames, rollout["video_fps"])
+        write_parquet(folder / f"{p.episode_id}.parquet", result.trajectory)
+        write_json(folder / "row.json", {
+            "episode_id": p.episode_id, "task": p.task, "init_id": p.init_id, "seed": p.seed,
+            "success": bool(result.success), "length": int(result.length),
+            "video_path": f"videos/{p.episode_id}.mp4", "trajectory_path": f"trajectories/{p.episode_id}.parquet",
+            "policy_stats": runner.stats})
+    for env in envs.values():
+        env.close()
+    _collect(out, store, planned)
+
+
+def batched(out: Path, trained: Path, inits_path: Path, cfg: dict, batch: int, threads: int) -> None:
+    run_candidate(out, policy="act", arm="sim", seed=cfg["seed"], rollout=cfg["rollout"], world=cfg["world"],
+                  policy_cfg={"type": "act"}, inits=str(inits_path), trained_dir=str(trained),
+                  batch_episodes=batch, threads=threads)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--task", default="cup_on_plate")
+    parser.add_argument("--episodes", type=int, default=16, help="episodes per loop and repeat")
+    parser.add_argument("--batch", type=int, default=None,
+                        help="episodes side by side in the batched loop (default: rollout.batch_episodes)")
+    parser.add_argument("--threads", type=int, default=1, help="worker threads of the batched loop")
+    parser.add_argument("--model-batch", type=int, default=None, help="rows of a model call (default: the demo's)")
+    parser.add_argument("--cameras", type=int, default=4, choices=range(1, len(CAMERA_NAMES) + 1),
+                        help="cameras the policy reads (the first N of the world's)")
+    parser.add_argument("--max-steps", type=int, default=None, help="default: the demo's rollout.max_steps")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--checkpoint", type=Path, help="a trained ACT folder instead of a random one")
+    args = parser.parse_args()
+    deterministic_torch(1)  # as the rollout stage
+
+    cfg = compose_config(CONF, experiment="demo")
+    cfg["world"]["cameras"] = list(CAMERA_NAMES)
+    if args.max_steps:
+        cfg["rollout"]["max_steps"] = args.max_steps
+    if args.model_batch:
+        cfg["rollout"]["model_batch"] = args.model_batch
+    args.batch = args.batch or cfg["rollout"]["batch_episodes"]
+    image_hw = (int(cfg["world"]["image_height"]), int(cfg["world"]["image_width"]))
+    work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
+    try:
+        trained = args.checkpoint or save_random_act(work / "act", list(CAMERA_NAMES[: args.cameras]), image_hw)
+        inits = sample_inits([configured_task(args.task, cfg["suite"])], args.episodes, cfg["seed"])
+        inits_path = work / "inits.parquet"
+        inits.to_parquet(inits_path)
+        loops = {"one at a time": lambda out: one_at_a_time(out, trained, inits, cfg),
+                 "batched": lambda out: batched(out, trained, inits_path, cfg, args.batch, args.threads)}
+        best = {(name, clock): np.inf for name in loops for clock in ("cpu", "wall")}
+        steps = {}
+        for repeat in range(args.repeats):
+            for name, run in loops.items():
+                out = work / f"out{repeat}_{name.replace(' ', '_')}"
+                wall, cpu = time.perf_counter(), time.process_time()
+                run(out)
+                cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+                best[name, "cpu"], best[name, "wall"] = min(best[name, "cpu"], cpu), min(best[name, "wall"], wall)
+                steps[name] = int(pd.read_parquet(out / "episodes.parquet")["length"].sum())
+        model = load_lerobot_policy(trained)
+        print(f"ACT (ResNet18, {model.spec.cameras} at {image_hw[0]} px -> 32 px), task {args.task}, "
+              f"{args.episodes} episodes ({steps['batched']} control steps; one at a time: {steps['one at a time']}), "
+              f"judge video {cfg['rollout']['video_size'][0]} px, batch {args.batch} episodes, "
+              f"model call {cfg['rollout']['model_batch']} rows, {args.threads} worker thread(s), best of {args.repeats}")
+        rates = {}
+        for name in loops:
+            rates[name] = args.episodes / best[name, "cpu"]
+            print(f"  {name:14s} {rates[name]:7.4f} rollouts per CPU-second  ({best[name, 'cpu']:6.1f} CPU-s, "
+                  f"{best[name, 'wall']:6.1f} s wall, {1e3 * best[name, 'cpu'] / steps[name]:5.1f} CPU-ms per step)")
+        print(f"  batched / one at a time: {rates['batched'] / rates['one at a time']:.2f}x rollouts per CPU-second")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -42,6 +42,7 @@ from r2s_eval.rollout import run_episode, sample_inits, write_video
 from r2s_eval.rollout.candidate import _collect, planned_episodes, run_candidate
 from r2s_eval.sim import ACTION_DIM, CAMERA_NAMES
 from r2s_eval.sim.build import configured_task, make_env
+from r2s_eval.sim.world import CONTROL_DT_S
 from r2s_eval.utils.io import write_json, write_parquet
 from r2s_eval.utils.numerics import deterministic_torch
 
@@ -94,10 +95,10 @@ def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
             envs[p.task] = make_env(p.task, world, None, cameras=cameras)
         runner.reset(seed=p.seed)
         result = run_episode(envs[p.task], runner, p.object_poses, p.seed, rollout["max_steps"],
-                             rollout["video_camera"], video_size=rollout["video_size"])
+                             rollout["video_camera"], video_size=rollout["video_size"])  # a frame every step
         folder = store / p.episode_id
         folder.mkdir()
-        write_video(folder / f"{p.episode_id}.mp4", result.frames, rollout["video_fps"])
+        write_video(folder / f"{p.episode_id}.mp4", result.frames, round(1 / CONTROL_DT_S))
         write_parquet(folder / f"{p.episode_id}.parquet", result.trajectory)
         write_json(folder / "row.json", {
             "episode_id": p.episode_id, "task": p.task, "init_id": p.init_id, "seed": p.seed,

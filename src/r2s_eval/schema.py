@@ -121,6 +121,12 @@ def _tasks() -> Sequence[str]:
     return list(TASKS)
 
 
+def _control_dt_s() -> float:
+    from r2s_eval.sim.world import CONTROL_DT_S
+
+    return CONTROL_DT_S
+
+
 def _intervals() -> Sequence[str]:
     from r2s_eval.stats import INTERVALS
 
@@ -606,6 +612,10 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     for task, settings in cfg["suite"].items():
         problems += _region_problems(task, settings["init_regions"])
     rollout = cfg["rollout"]
+    control_hz = round(1 / _control_dt_s())
+    if control_hz % rollout["video_fps"]:
+        problems.append(Problem("rollout.video_fps", f"must divide the control rate ({control_hz} Hz): the video "
+                                                     f"keeps every k-th control step, got {rollout['video_fps']}"))
     if rollout["n_action_steps"] > rollout["chunk_size"]:
         problems.append(Problem("rollout.n_action_steps", f"must be <= rollout.chunk_size ({rollout['chunk_size']})"))
     trained = {name: p for name, entry in cfg["policies"].items()

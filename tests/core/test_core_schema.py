@@ -101,6 +101,11 @@ def test_open_entries_are_checked_by_their_owners():
         compose_config(CONF, "smoke", ["+suite.cup_on_plat.init_regions=null"])
 
 
+def test_judge_video_rate_must_divide_the_control_rate():
+    with pytest.raises(ConfigError, match=r"rollout\.video_fps .*must divide the control rate \(10 Hz\)"):
+        compose_config(CONF, "smoke", ["rollout.video_fps=3"])
+
+
 def test_the_receding_horizon_has_one_owner():
     """How many actions run before the next query is the evaluation's, never a policy's."""
     with pytest.raises(ConfigError, match=r"policies\.act\.n_action_steps .*receding horizon, rollout\.n_action_steps"):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import r2s_eval  # noqa: F401
-from r2s_eval.rollout import episode_id, read_video, run_episode, write_video
+from r2s_eval.rollout import episode_id, read_video, run_episode, video_frame_every, write_video
 from r2s_eval.sim import TabletopEnv
 from r2s_eval.twin.operator import make_operator
 
@@ -162,3 +162,44 @@ def test_judge_video_is_configured_size_and_shows_the_robot(env, tmp_path):
 def test_video_larger_than_the_default_offscreen_buffer(env):
     image = env.render("head_left", size=(720, 960))
     assert image.shape == (720, 960, 3) and image.std() > 1.0
+
+
+def test_judge_video_keeps_every_kth_control_step(env):
+    # 5 fps at 10 Hz control: steps 0, 2, 4, ...; the frames are those of a video at every step.
+    assert video_frame_every(5, 0.1) == 2 and video_frame_every(10, 0.1) == 1
+    with pytest.raises(ValueError, match="must divide the control rate"):
+        video_frame_every(3, 0.1)
+    poses = env.sample_initial_poses(np.random.default_rng(4))
+    runs = {}
+    for every in (1, 2):
+        policy = ScriptedPolicy()
+        policy.reset()
+        runs[every] = run_episode(env, policy, poses, seed=1, max_steps=9, video_camera="head_left",
+                                  video_size=(64, 64), frame_every=every)
+    assert len(runs[1].frames) == 10 and len(runs[2].frames) == 5
+    for k, frame in enumerate(runs[2].frames):
+        assert np.array_equal(frame, runs[1].frames[2 * k])
+    assert runs[1].trajectory.equals(runs[2].trajectory)
+
+
+def test_images_are_the_same_whether_or_not_the_steps_before_were_rendered():
+    # The noise of a camera at a step is keyed by the step: a loop that renders only at query
+    # steps shows the policy the very pixels a loop rendering every step does.
+    envs = [_noisy_env(("head_left", "wrist_right")) for _ in range(2)]
+    try:
+        poses = envs[0].sample_initial_poses(np.random.default_rng(2))
+        for e in envs:
+            e.reset(poses, seed=5)
+        action = envs[0].state().astype(float)
+        for step in range(1, 7):
+            every = envs[0].step(action)
+            lazy = envs[1].step(action, images=False)
+            assert set(lazy) == {"observation.state"}
+            if step % 3 == 0:
+                lazy.update(envs[1].images())
+                for key, image in every.items():
+                    assert np.array_equal(image, lazy[key]), (step, key)
+        assert not np.array_equal(every["observation.images.head_left"], envs[0].render("head_left"))  # noisy
+    finally:
+        for e in envs:
+            e.close()

@@ -70,8 +70,14 @@ class ChunkPolicy:
     def reset(self, slot: int, seed: int) -> None:
         """A new episode starts in `slot`."""
 
+    # Whether `observe` needs every control step's observation (a policy conditioned on a
+    # history of observations); otherwise a loop may show it only the observations it predicts
+    # from, and render nothing in between.
+    observes_every_step: bool = False
+
     def observe(self, slot: int, obs: dict) -> None:
-        """Every control step's observation (policies that condition on a history keep it)."""
+        """A control step's observation (policies that condition on a history keep it): every
+        step's when `observes_every_step`, else at least those it is asked to predict from."""
 
     def release(self, slot: int) -> None:
         """The slot's episode is over for good (a server's connection closed): drop its state."""

@@ -103,6 +103,10 @@ class LeRobotPolicy(ChunkPolicy):
         self._history.pop(slot, None)
         self._generators.pop(slot, None)
 
+    @property
+    def observes_every_step(self) -> bool:
+        return self.n_obs_steps > 1
+
     def observe(self, slot: int, obs: dict) -> None:
         if self.n_obs_steps > 1:  # Diffusion conditions on the last n_obs_steps observations
             history = self._history.setdefault(slot, deque(maxlen=self.n_obs_steps))

@@ -155,6 +155,7 @@ def run_batched(
     batch_episodes: int = 1,
     threads: int = 1,
     success_hold_steps: int = 3,
+    frame_every: int = 1,
 ) -> None:
     """Run every episode of `planned`, up to `batch_episodes` at a time.
 
@@ -182,7 +183,12 @@ def run_batched(
             p = lane.planned
             lane.sink = open_episode(p)
             lane.episode = EpisodeRecorder(envs.get(lane.index, p.task), p.object_poses, p.seed, max_steps,
-                                           video_camera, video_size, success_hold_steps, on_frame=lane.sink.add)
+                                           video_camera, video_size, success_hold_steps, on_frame=lane.sink.add,
+                                           frame_every=frame_every)
+
+    def observe(lane: _Lane) -> None:  # on the lane's worker
+        if policy_reads(lane):
+            lane.episode.render_observation()
 
     def advance(lane: _Lane) -> None:  # on the lane's worker
         lane.episode.step(lane.runner.pop_action())
@@ -217,6 +223,7 @@ def run_batched(
                     except BaseException as exc:
                         raise _named(exc, [lane.planned], arm)
             active = [lane for lane in lanes if lane.planned is not None]
+            on_workers(observe)  # renders belong to the lane's worker (its GL contexts)
             _query(policy, active, arm)
             on_workers(advance)
             for lane in active:
@@ -236,14 +243,23 @@ def run_batched(
         workers.close()
 
 
+def policy_reads(lane: _Lane) -> bool:
+    """Whether the policy reads the lane's observation at this step: to predict from it, or to
+    keep it in a history."""
+    return lane.runner.needs_chunk() or lane.runner.policy.observes_every_step
+
+
 def _query(policy: ChunkPolicy, active: list[_Lane], arm: str) -> None:
     """Every lane observes; the lanes out of actions get a chunk, in one call per group."""
     groups: dict[str | None, list[tuple[_Lane, dict]]] = defaultdict(list)
     for lane in active:
+        if not policy_reads(lane):
+            continue  # nothing reads this step's images: they were never rendered
+        needs_chunk = lane.runner.needs_chunk()
         obs = lane.episode.policy_obs
         try:
             policy.observe(lane.planned.slot, obs)
-            if lane.runner.needs_chunk():
+            if needs_chunk:
                 # A policy that reads the instruction is asked per instruction: its text's
                 # padding must not depend on the other episodes' texts.
                 groups[obs[TASK_KEY] if policy.spec.uses_task else None].append((lane, policy.select(obs)))

@@ -29,10 +29,11 @@ from tqdm import tqdm
 from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
-from r2s_eval.rollout.loop import EpisodeRecorder, episode_id
+from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
 from r2s_eval.rollout.video import VideoWriter
 from r2s_eval.sim import ACTION_DIM, get_task, load_world_params
 from r2s_eval.sim.build import make_env
+from r2s_eval.sim.world import CONTROL_DT_S
 from r2s_eval.utils.io import atomic_dir, config_hash, file_sha256, write_json, write_parquet
 
 log = logging.getLogger("r2s_eval.rollout")
@@ -172,6 +173,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
             video_camera=rollout["video_camera"], video_size=rollout.get("video_size"),
             open_episode=lambda p: _EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
             batch_episodes=batch_episodes, threads=threads,
+            frame_every=video_frame_every(rollout["video_fps"], CONTROL_DT_S),
         )
         progress.close()
     finally:

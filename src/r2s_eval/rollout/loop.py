@@ -64,8 +64,9 @@ class EpisodeRecorder:
     Ends when the success check has held for `success_hold_steps` steps, or after `max_steps`.
     Holding success for a few steps keeps a cup that is let go mid-air from counting.
 
-    Video: one frame per control step from `video_camera`, handed to `on_frame` (default: kept
-    in `frames`). With `video_size` (H, W) the frame is rendered at that size for the judges,
+    Video: one frame every `frame_every` control steps (step 0 included) from `video_camera`,
+    handed to `on_frame` (default: kept in `frames`); `video_frame_every` turns a video frame rate
+    into that stride. With `video_size` (H, W) the frame is rendered at that size for the judges,
     whatever the policy consumes; with None it is the policy's own image of that camera when
     the policy watches it (else a render at the env's image size). A rendered frame carries the
     world's image noise from its own generator (seeded by the episode), so recording it never
@@ -74,8 +75,10 @@ class EpisodeRecorder:
 
     def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]], seed: int,
                  max_steps: int, video_camera: str, video_size: tuple[int, int] | None = None,
-                 success_hold_steps: int = 3, on_frame: Callable[[np.ndarray], None] | None = None):
+                 success_hold_steps: int = 3, on_frame: Callable[[np.ndarray], None] | None = None,
+                 frame_every: int = 1):
         self.env = env
+        self.frame_every = int(frame_every)
         self.max_steps = int(max_steps)
         self.success_hold_steps = int(success_hold_steps)
         self.video_camera = video_camera
@@ -88,19 +91,33 @@ class EpisodeRecorder:
         self.held = 0
         self.instruction = env.task.instruction  # language-conditioned policies read it
         self.obs = env.reset(object_poses, seed=seed)
-        self._on_frame(self._frame(self.obs))
+        self._has_images = True
+        self._on_frame(self._frame())
 
-    def _frame(self, obs: dict) -> np.ndarray:
-        if self._video_key in obs and self._size is None:
-            return obs[self._video_key]
+    def render_observation(self) -> None:
+        """Render this step's camera images now (from the thread that owns the renderers)."""
+        self._images()
+
+    def _images(self) -> dict:
+        """The observation with the cameras' images of this step, rendered on first use."""
+        if not self._has_images:
+            self.obs.update(self.env.images())
+            self._has_images = True
+        return self.obs
+
+    def _frame(self) -> np.ndarray:
+        if self._size is None and self.video_camera in self.env.cameras:
+            return self._images()[self._video_key]
         rgb = self.env.render(self.video_camera, size=self._size)  # clean: the observations' noise stream stays theirs
         std = float(self.env.params.image_noise_std)
         return add_image_noise(rgb, self._video_rng, std) if std > 0 else rgb
 
     @property
     def policy_obs(self) -> dict:
-        """What the policy observes now: the world's streams and the instruction."""
-        return {**self.obs, "task": self.instruction}
+        """What the policy observes now: the world's streams and the instruction. The cameras
+        are rendered when this is first asked for in a step (a policy that reads only at its
+        query steps costs no render in between; the pixels do not depend on it)."""
+        return {**self._images(), "task": self.instruction}
 
     @property
     def success(self) -> bool:
@@ -111,14 +128,25 @@ class EpisodeRecorder:
         return self.success or len(self.rows) >= self.max_steps
 
     def step(self, action: np.ndarray) -> None:
-        self.obs = self.env.step(action)
+        self.obs = self.env.step(action, images=False)
+        self._has_images = False
         self.rows.append(_record(self.env, len(self.rows), self.obs, action))
-        self._on_frame(self._frame(self.obs))
+        if len(self.rows) % self.frame_every == 0:
+            self._on_frame(self._frame())
         self.held = self.held + 1 if self.rows[-1]["success"] else 0
 
     def result(self) -> EpisodeResult:
         return EpisodeResult(success=self.success, length=len(self.rows), frames=self.frames,
                              trajectory=pd.DataFrame(self.rows))
+
+
+def video_frame_every(video_fps: float, control_dt_s: float) -> int:
+    """Control steps between two judge-video frames at `video_fps`; the rate must divide the
+    control rate, so the video's clock is the simulation's."""
+    ratio = 1.0 / (float(video_fps) * float(control_dt_s))
+    if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
+        raise ValueError(f"video_fps {video_fps} must divide the control rate ({1 / control_dt_s:g} Hz)")
+    return int(round(ratio))
 
 
 def run_episode(
@@ -130,12 +158,14 @@ def run_episode(
     video_camera: str,
     video_size: tuple[int, int] | None = None,
     success_hold_steps: int = 3,
+    frame_every: int = 1,
 ) -> EpisodeResult:
     """One episode, the policy called at every control step (see `EpisodeRecorder`).
 
     The caller resets the policy (with the episode's seed) before calling.
     """
-    episode = EpisodeRecorder(env, object_poses, seed, max_steps, video_camera, video_size, success_hold_steps)
+    episode = EpisodeRecorder(env, object_poses, seed, max_steps, video_camera, video_size, success_hold_steps,
+                              frame_every=frame_every)
     while not episode.done:
         episode.step(policy.act(episode.policy_obs))
     return episode.result()

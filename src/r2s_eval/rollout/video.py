@@ -38,7 +38,7 @@ class VideoWriter:
             # Deterministic output: one thread, fixed settings, and no macroblock tree: with it,
             # libx264 reads memory it never wrote (the same frames gave different bytes from run
             # to run once the process's heap had been used; checked with MALLOC_PERTURB_).
-            self._stream.codec_context.options = {"crf": "20", "preset": "veryfast", "threads": "1", "mbtree": "0"}
+            self._stream.codec_context.options = {"crf": "20", "preset": "superfast", "threads": "1", "mbtree": "0"}
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
         for packet in self._stream.encode(frame):
             self._container.mux(packet)

@@ -24,7 +24,9 @@ Observation: ``{"observation.state": float32[14],
 "observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera
 (``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
 H = W = 128. Images carry the world's additive noise (twin), ``render()``
-returns clean images unless asked.
+returns clean images unless asked. A camera's noise at a control step is drawn from a generator
+keyed by (world noise seed, episode seed, step, camera), so an image is the same whether or
+not the steps before it were rendered: a loop renders only the steps a policy consumes.
 
 Frames: world x away from the robot across the table, y to the robot's
 left, z up; table top at z = 0.75 m. Object body poses refer to the centre of
@@ -94,7 +96,8 @@ class TabletopEnv:
         self.control_dt_s = world.CONTROL_DT_S
         self._owns_renderers = renderers is None
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {} if renderers is None else renderers
-        self._noise_rng = np.random.default_rng(self.params.noise_seed)
+        self._noise_key = (int(self.params.noise_seed), 0)
+        self.steps = 0  # control steps since reset
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
@@ -154,7 +157,7 @@ class TabletopEnv:
         """Robot at home, objects resting in their task placement at planar poses {name: (x_m, y_m, yaw_rad)}.
 
         Without ``object_poses`` the task's nominal sampler is used with ``seed``.
-        ``seed`` also reseeds the image-noise generator (reproducible episodes).
+        ``seed`` also keys the image noise (reproducible episodes).
         ``settle=False`` skips the 0.2 s of physics that lets objects come to rest (pure
         kinematics, for rendering a pose hypothesis); ``observe=False`` returns None
         instead of rendering the observation.
@@ -162,7 +165,8 @@ class TabletopEnv:
         m, d = self.model, self.data
         if object_poses is None:
             object_poses = self.sample_initial_poses(np.random.default_rng(seed))
-        self._noise_rng = np.random.default_rng([self.params.noise_seed, 0 if seed is None else seed])
+        self._noise_key = (int(self.params.noise_seed), 0 if seed is None else int(seed))
+        self.steps = 0
         mujoco.mj_resetData(m, d)
         for arm in world.ARMS:
             q_home = world.home_arm_q(arm)
@@ -196,12 +200,15 @@ class TabletopEnv:
             return None
         return self.observation()
 
-    def step(self, action: np.ndarray) -> dict:
-        """Hold ``action`` (14-D, see module table) for one control period."""
+    def step(self, action: np.ndarray, images: bool = True) -> dict:
+        """Hold ``action`` (14-D, see module table) for one control period; the observation
+        after it, without the camera images when ``images`` is false (``images()`` renders them
+        later in the same step, with the same pixels)."""
         self.apply_action(action)
         mujoco.mj_step(self.model, self.data, nstep=world.N_SUBSTEPS)
+        self.steps += 1
         self.max_task_progress = max(self.max_task_progress, self.task_progress())
-        return self.observation()
+        return self.observation(images=images)
 
     def apply_action(self, action: np.ndarray) -> None:
         action = np.asarray(action, dtype=float).reshape(ACTION_DIM)
@@ -235,11 +242,15 @@ class TabletopEnv:
             out[7 * i + 6] = -self.data.qvel[self._finger_dof_adr[arm]] / world.GRIPPER_OPEN_M
         return out
 
-    def observation(self) -> dict:
+    def observation(self, images: bool = True) -> dict:
         obs = {"observation.state": self.state()}
-        for cam in self.cameras:
-            obs[f"observation.images.{cam}"] = self.render(cam, add_noise=True)
+        if images:
+            obs.update(self.images())
         return obs
+
+    def images(self) -> dict:
+        """The cameras' images now, with the world's image noise."""
+        return {f"observation.images.{cam}": self.render(cam, add_noise=True) for cam in self.cameras}
 
     def _renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
         if size_hw not in self._renderers:
@@ -284,7 +295,8 @@ class TabletopEnv:
             return labels, dict(enumerate(self.segmentation_names))
         rgb = renderer.render()
         if add_noise and self.params.image_noise_std > 0:
-            rgb = add_image_noise(rgb, self._noise_rng, float(self.params.image_noise_std))
+            rng = np.random.default_rng([*self._noise_key, self.steps, CAMERA_NAMES.index(camera)])
+            rgb = add_image_noise(rgb, rng, float(self.params.image_noise_std))
         return rgb
 
     # ------------------------------------------------------------ cameras

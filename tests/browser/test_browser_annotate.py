@@ -180,13 +180,19 @@ def test_killing_the_server_while_answering_loses_no_submitted_answer(annotation
             store.close()
 
             # Unless the reply made it out before the kill, the page says the answer was not saved;
-            # once the server is back, pressing the key again saves it.
-            wait_until(page, "document.querySelector('#status').classList.contains('error')"
-                                   " || Number(document.body.dataset.answered) === 4")
+            # once the server is back, pressing the key again saves it. If the answer was saved but
+            # the next pair could not load, the page says so and N loads it.
+            wait_until(page, "['ready', 'stalled'].includes(document.body.dataset.state) && ("
+                             "document.querySelector('#status').classList.contains('error')"
+                             " || Number(document.body.dataset.answered) === 4)")
             server.start()
             if answered(page) < 4:
                 assert "Not saved" in page.text_content("#status")
                 answer_with_keyboard(page, "B")
+            elif page.get_attribute("body", "data-state") == "stalled":
+                assert "next pair did not load" in page.text_content("#status")
+                page.keyboard.press("n")
+                wait_until(page, "document.body.dataset.state === 'ready'")
             assert answered(page) == 4 and int(page.get_attribute("body", "data-position")) == 4
         store = AnswerStore(db, items)
         saved = store.answers("anna").set_index("item_id")["choice"]

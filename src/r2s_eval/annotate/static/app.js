@@ -126,11 +126,21 @@ async function answer(choice) {
     annotator: state.annotator, position: state.position, choice,
     seconds: (performance.now() - state.shownAt) / 1000, watched_full: state.watched.A && state.watched.B,
   };
+  let progress;
   try {
-    const progress = await api("/api/answer", {
+    progress = await api("/api/answer", {
       method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
     });
-    showProgress(progress.answered, progress.total);
+  } catch (err) {
+    $("status").textContent = `Not saved (${err.message}); press ${choice} again to retry.`;
+    $("status").className = "status error";
+    setState("ready");
+    state.busy = false;
+    return;
+  }
+  // The answer is on the server's disk from here on; only the next pair may still fail to load.
+  showProgress(progress.answered, progress.total);
+  try {
     if (progress.position >= progress.total) {
       pauseBoth();
       show("done");
@@ -140,9 +150,10 @@ async function answer(choice) {
       $("status").textContent = `Saved: ${choice} for pair ${body.position + 1}.`;
     }
   } catch (err) {
-    $("status").textContent = `Not saved (${err.message}); press ${choice} again to retry.`;
+    $("status").textContent = `Saved: ${choice} for pair ${body.position + 1}, but the next pair did not load `
+      + `(${err.message}); press N to load it.`;
     $("status").className = "status error";
-    setState("ready");
+    setState("stalled");
   } finally {
     state.busy = false;
   }

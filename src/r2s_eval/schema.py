@@ -293,7 +293,6 @@ class Rollout:
     max_steps: PositiveInt
     device: str
     batch_episodes: PositiveInt
-    threads: PositiveInt
     model_batch: PositiveInt
     video_camera: Camera
     video_size: tuple[PositiveInt, PositiveInt] | None

@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import pandas as pd
 import psutil
 import pytest
 
@@ -54,6 +55,37 @@ def planned_jobs(output: str) -> list[tuple[str, dict]]:
 
 def finished_rules(log_text: str) -> list[str]:
     return re.findall(r"Finished jobid: \d+ \(Rule: (\w+)\)", log_text)
+
+
+def _parquet_contents(results: Path) -> dict[str, pd.DataFrame]:
+    """Every parquet table under results/ (lerobot datasets included), timing columns aside."""
+    out = {}
+    for path in sorted(results.rglob("*.parquet")):
+        rel = path.relative_to(results)
+        if any(part.startswith(".") for part in rel.parts):
+            continue
+        df = pd.read_parquet(path)
+        out[str(rel)] = df.drop(columns=[c for c in df.columns if c == "wall_s" or c.endswith("_wall_s")])
+    return out
+
+
+def _report_files(reports: Path) -> list[Path]:
+    # What the pipeline writes (other tests add DVC pointer files beside them).
+    return sorted(p.relative_to(reports) for p in reports.rglob("*")
+                  if p.is_file() and p.suffix != ".dvc" and not p.name.startswith("."))
+
+
+def assert_same_outputs(reference: Path, other: Path) -> None:
+    """`other`'s run wrote the same bytes as `reference`'s: every report it has is identical, and
+    every parquet table under results/ has the same contents (timing columns aside)."""
+    reports = _report_files(other / "reports")
+    assert reports and set(reports) <= set(_report_files(reference / "reports"))
+    differ = [str(r) for r in reports if (reference / "reports" / r).read_bytes() != (other / "reports" / r).read_bytes()]
+    assert differ == [], f"reports differ between the two runs: {differ}"
+    first_tables, second_tables = _parquet_contents(reference / "results"), _parquet_contents(other / "results")
+    assert sorted(first_tables) == sorted(second_tables)
+    for name, df in first_tables.items():
+        pd.testing.assert_frame_equal(df, second_tables[name], check_exact=True, obj=name)
 
 
 @dataclass

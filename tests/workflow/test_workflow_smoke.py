@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from .conftest import finished_rules, planned_jobs, snakemake
+from .conftest import assert_same_outputs, finished_rules, planned_jobs, snakemake
 
 pytestmark = pytest.mark.slow
 
@@ -259,35 +259,9 @@ def test_shuffled_label_control_is_flat_where_the_real_ranking_is_not(smoke_run)
     assert 0.0 < control["permuted_flat_share"] <= 1.0
 
 
-def _parquet_contents(results: Path) -> dict[str, pd.DataFrame]:
-    """Every parquet table under results/ (lerobot datasets included), timing columns aside."""
-    out = {}
-    for path in sorted(results.rglob("*.parquet")):
-        rel = path.relative_to(results)
-        if any(part.startswith(".") for part in rel.parts):
-            continue
-        df = pd.read_parquet(path)
-        out[str(rel)] = df.drop(columns=[c for c in df.columns if c == "wall_s" or c.endswith("_wall_s")])
-    return out
-
-
-def _report_files(reports: Path) -> list[Path]:
-    # What the pipeline writes (other tests add DVC pointer files beside them).
-    return sorted(p.relative_to(reports) for p in reports.rglob("*")
-                  if p.is_file() and p.suffix != ".dvc" and not p.name.startswith("."))
-
-
 def test_a_second_run_in_a_fresh_directory_gives_the_same_bytes(smoke_run, tmp_path):
     # Same config, same machine kind: every report and every table is the same, though the
     # first run was killed twice and resumed and the second ran straight through.
     second = tmp_path / "second"
     snakemake(second, "-j", "2")
-    reports = _report_files(second / "reports")
-    assert reports and set(reports) <= set(_report_files(smoke_run.workdir / "reports"))
-    differ = [str(r) for r in reports
-              if (smoke_run.workdir / "reports" / r).read_bytes() != (second / "reports" / r).read_bytes()]
-    assert differ == [], f"reports differ between the two runs: {differ}"
-    first_tables, second_tables = _parquet_contents(smoke_run.workdir / "results"), _parquet_contents(second / "results")
-    assert sorted(first_tables) == sorted(second_tables)
-    for name, df in first_tables.items():
-        pd.testing.assert_frame_equal(df, second_tables[name], check_exact=True, obj=name)
+    assert_same_outputs(smoke_run.workdir, second)

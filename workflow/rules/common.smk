@@ -32,9 +32,10 @@ CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
 
 class _ResumingWorkflow(type(workflow)):
     """A killed run resumes with the plain command: a job cut off before Snakemake recorded its
-    end is redone (outputs deleted first), as `--rerun-incomplete` asks. Our stages publish by
-    rename, so such outputs can look whole; they are never trusted. Snakemake hands the DAG
-    settings over right after reading the Snakefile, so the switch is set at that moment."""
+    end is redone (outputs deleted first), as `--rerun-incomplete` asks (workflow/profiles/default
+    says so; resources.smk applies it). Our stages publish by rename, so such outputs can look
+    whole; they are never trusted. Snakemake hands the DAG settings over right after reading the
+    Snakefile, so the switch is set at that moment."""
 
     @property
     def dag_settings(self):
@@ -46,8 +47,6 @@ class _ResumingWorkflow(type(workflow)):
             settings.force_incomplete = True
         self.__dict__["_resuming_dag_settings"] = settings
 
-
-workflow.__class__ = _ResumingWorkflow
 
 POLICIES = sorted(CFG["policies"])
 # Candidates trained here; checkpoint and server candidates skip training.
@@ -125,6 +124,10 @@ def rollout_transport(wildcards):
 
 
 REAL_DATASET = "results/real/dataset" if TWIN else CFG["real"]["dataset_root"]
+
+# Threads, memory, run time and GPUs of every job (workflow/profiles/default and the config);
+# it also switches the resuming workflow above on, as that profile's rerun-incomplete asks.
+include: "resources.smk"
 
 
 onsuccess:

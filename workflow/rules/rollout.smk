@@ -20,9 +20,9 @@ def rollout_inputs(wildcards):
     return inputs
 
 
-# How many episodes run side by side, on how many threads, changes no result: passed apart
-# from --cfg, so a change reruns nothing.
-ROLLOUT_UNTRACKED = ("batch_episodes", "threads")
+# How many episodes run side by side changes no result: passed apart from --cfg, so a change
+# reruns nothing (nor does the job's thread count, set in the profile).
+ROLLOUT_UNTRACKED = ("batch_episodes",)
 
 
 def rollout_params(wildcards):
@@ -45,13 +45,13 @@ rule rollout:
         twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
         transport=rollout_transport,
         batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
-    # Model calls on one thread; physics, rendering (llvmpipe rasterises in the thread that
-    # renders: LP_NUM_THREADS=0) and video on `threads` workers.
-    threads: CFG["rollout"]["threads"]
+    # Model calls on one thread (the stage pins torch's); physics, rendering (llvmpipe
+    # rasterises in the thread that renders: LP_NUM_THREADS=0) and video on `threads` workers.
+    threads: 1
     log:
         "logs/rollout/{arm}/{policy}.log",
     shell:
-        "OMP_NUM_THREADS=1 LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
+        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
         " {params.trained} --inits {input.inits} {params.twin} --transport {params.transport:q}"
         " --batch-episodes {params.batch_episodes} --threads {threads} --out {output} --log {log}"
 

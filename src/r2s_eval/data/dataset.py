@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.utils.io import current_provenance, write_json
+from r2s_eval.utils.numerics import job_threads
 
 STATE_KEY = "observation.state"
 ACTION_KEY = "action"
@@ -64,6 +65,7 @@ class DatasetRecorder:
         if self.tmp_root.exists():
             shutil.rmtree(self.tmp_root)
         self.root.parent.mkdir(parents=True, exist_ok=True)
+        cameras = sum(1 for f in features.values() if f["dtype"] == "video")
         self._dataset = LeRobotDataset.create(
             repo_id,
             fps=fps,
@@ -73,6 +75,9 @@ class DatasetRecorder:
             use_videos=True,
             video_backend="pyav",
             streaming_encoding=True,  # encode while recording: no PNG round trip
+            # One encoder per camera, all within the job's threads (the encoder's default is every
+            # CPU of the node each); the bytes do not depend on it.
+            encoder_threads=max(1, job_threads() // max(1, cameras)),
         )
         self._image_keys = [k for k, f in features.items() if f["dtype"] == "video"]
         self.num_episodes = 0

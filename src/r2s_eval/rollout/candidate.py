@@ -38,7 +38,7 @@ from r2s_eval.utils.io import atomic_dir, config_hash, file_sha256, write_json, 
 
 log = logging.getLogger("r2s_eval.rollout")
 # Rollout settings that change no result (the workflow keeps them out of the rerun check too).
-UNTRACKED = ("batch_episodes", "threads")
+UNTRACKED = ("batch_episodes",)
 
 
 def select_inits(inits: pd.DataFrame, arm: str, real_inits_per_task: int | None) -> pd.DataFrame:

@@ -5,7 +5,8 @@ Every stage takes ``--log PATH`` (the workflow passes the rule's log file) and `
 the terminal gets only the error paragraph of a failed stage. An expected failure (an
 ``R2SError``: a damaged dataset, a wrong config, a server that will not answer) is shown as that
 paragraph and exits with status 1; its traceback is written to the log file, or to the terminal
-with ``--debug``. Anything else is a bug and keeps its traceback.
+with ``--debug``. Anything else is a bug and keeps its traceback. Every stage keeps its thread
+pools within the threads its job was given (``r2s_eval.utils.numerics.limit_threads``).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import TypeVar
 
 from r2s_eval.errors import R2SError
 from r2s_eval.utils.io import set_provenance
+from r2s_eval.utils.numerics import limit_threads
 
 T = TypeVar("T")
 EXIT_EXPECTED = 1
@@ -64,6 +66,7 @@ def error_paragraph(stage: str, err: BaseException) -> str:
 def run(main: Callable[[argparse.Namespace], None], p: argparse.ArgumentParser, argv=None) -> None:
     """Parse, set up logging, run `main`, and log the wall time; report failures as above."""
     args = p.parse_args(argv)
+    limit_threads()  # no more threads than the job was given (Snakemake sets OMP_NUM_THREADS)
     log_path = getattr(args, "log", None)
     terminal = _redirect_output(log_path) if log_path else None
     logging.basicConfig(

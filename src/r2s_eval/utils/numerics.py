@@ -1,4 +1,5 @@
-"""Pin what makes CPU numerics differ between machines of the same kind.
+"""Pin what makes CPU numerics differ between machines of the same kind, and keep every thread
+pool of a stage within the CPUs its job was given.
 
 torch, oneDNN, MKL and NumPy choose kernels by the processor's instruction set, and kernels of
 different vector widths add floats in different orders or use other approximations: the same
@@ -14,6 +15,7 @@ import the package first. A user who sets a variable keeps their value.
 from __future__ import annotations
 
 import os
+import sys
 
 CPU_NUMERICS_ENV = {
     "ATEN_CPU_CAPABILITY": "avx2",  # ATen's vectorised kernels
@@ -37,3 +39,39 @@ def deterministic_torch(threads: int) -> None:
 
     torch.set_num_threads(int(threads))
     torch.use_deterministic_algorithms(True, warn_only=True)
+
+
+# Thread pools sized by environment variables: OpenMP (torch, MKL, OpenBLAS, numexpr) and Mesa's
+# llvmpipe, which renders with one thread per CPU unless told (read when a GL context is made).
+THREAD_ENV = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMEXPR_NUM_THREADS", "LP_NUM_THREADS")
+
+
+def job_threads() -> int:
+    """The CPU threads this process may use: what the workflow gave its job (Snakemake sets
+    OMP_NUM_THREADS to the job's threads in every shell command, locally and on a cluster node),
+    else every CPU the process may run on."""
+    value = os.environ.get("OMP_NUM_THREADS", "")
+    if value.isdigit() and int(value) >= 1:
+        return int(value)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def limit_threads(threads: int | None = None) -> int:
+    """Hold the process's thread pools to ``threads`` (default: :func:`job_threads`): the
+    environment, for libraries that start later and for child processes, and the pools of
+    OpenCV (which otherwise takes every CPU of the node) and of torch where it is loaded already.
+    Rendering and the video encoder give the same bytes with any thread count; where torch's
+    count changes numbers, the stage sets it itself (train: its job's threads, rollout: one)."""
+    n = int(threads) if threads is not None else job_threads()
+    if n < 1:
+        raise ValueError(f"threads must be >= 1, got {n}")
+    for key in THREAD_ENV:
+        # LP_NUM_THREADS=0 makes llvmpipe rasterise in the rendering thread itself: no extra thread.
+        if not (key == "LP_NUM_THREADS" and os.environ.get(key) == "0"):
+            os.environ[key] = str(n)
+    import cv2  # a dependency, quick to load; its pool is set at run time only
+
+    cv2.setNumThreads(n)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(n)
+    return n

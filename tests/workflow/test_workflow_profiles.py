@@ -79,6 +79,9 @@ def test_slurm_profile_plans_the_paper_in_tens_of_jobs(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     jobs = job_requests(proc.stdout)
     assert len(jobs) == len(planned_jobs(proc.stdout)) < 200
+    # The README documents this count (the dry run's total counts `all` too).
+    readme = (REPO / "README.md").read_text()
+    assert f"| `paper` | {len(jobs)} |" in readme and f"total {len(jobs) + 1}: {len(jobs)} Slurm jobs" in readme
     policies = {wc["policy"] for rule, wc, _ in jobs if rule == "train"}
     assert len([1 for rule, _, _ in jobs if rule == "rollout"]) == 2 * len(policies) >= 8
     for rule, _, requests in jobs:

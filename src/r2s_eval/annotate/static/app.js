@@ -138,7 +138,7 @@ async function answer(choice) {
     state.busy = false;
     return;
   }
-  // The answer is on the server's disk from here on; only the next pair may still fail to load.
+  // The answer is on the server's disk from here on; only loading the next pair may still go wrong.
   showProgress(progress.answered, progress.total);
   try {
     if (progress.position >= progress.total) {

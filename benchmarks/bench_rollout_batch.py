@@ -2,16 +2,19 @@
 
 Both run the same candidate, the CPU line-up's ACT architecture (ResNet18, 32x32 inputs, chunk
 25, execute 5), randomly initialised here (or a trained folder with ``--checkpoint``), reading
-``--cameras`` of the world's cameras (4: every camera the demo records, rendered at 128 px every
-control step), from the same seeded initial configurations, with the demo's rollout settings
-(judge video of ``head_left`` at 448 px every control step, 150 steps; a random policy never
-succeeds, so every episode runs them all). Each writes what the rollout stage writes: an mp4,
-a trajectory parquet and a row per episode.
+``--cameras`` of the world's cameras (4: every camera the demo records, at 128 px), from the
+same seeded initial configurations, with the demo's rollout settings (judge video of
+``head_left`` at 448 px, 150 steps; a random policy never succeeds, so every episode runs them
+all). Each writes what the rollout stage writes: an mp4, a trajectory parquet and a row per
+episode.
 
 - one at a time: the loop as it was, ``run_episode`` with ``RecedingHorizon.act``, one model call
-  per query with a single observation, the video encoded once the episode is over;
+  per query with a single observation, the cameras rendered and a judge-video frame recorded at
+  every control step (10 fps), the video encoded once the episode is over with libx264 veryfast;
 - batched: ``run_candidate`` (the rollout stage's code) with ``--batch`` episodes side by side,
-  one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads.
+  one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads,
+  the cameras rendered at query steps only, the judge video at ``rollout.video_fps`` (5 fps),
+  encoded as the frames come with libx264 superfast.
 
 CPU time is the process's (every thread, software GL's included), so running on more cores
 counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
@@ -98,7 +101,8 @@ def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
                              rollout["video_camera"], video_size=rollout["video_size"])  # a frame every step
         folder = store / p.episode_id
         folder.mkdir()
-        write_video(folder / f"{p.episode_id}.mp4", result.frames, round(1 / CONTROL_DT_S))
+        # 10 fps, encoded with the preset the loop used then (libx264 veryfast)
+        write_video(folder / f"{p.episode_id}.mp4", result.frames, round(1 / CONTROL_DT_S), preset="veryfast")
         write_parquet(folder / f"{p.episode_id}.parquet", result.trajectory)
         write_json(folder / "row.json", {
             "episode_id": p.episode_id, "task": p.task, "init_id": p.init_id, "seed": p.seed,

@@ -17,11 +17,12 @@ class VideoWriter:
 
     Frames are encoded one by one, so an episode's video never has to be held in memory (a
     448 px video of 150 steps is 90 MB raw). The same frames give the same bytes however they
-    are fed in (one thread, fixed settings)."""
+    are fed in (one thread, fixed settings). `preset` is libx264's speed/size trade-off."""
 
-    def __init__(self, path: str | Path, fps: int):
+    def __init__(self, path: str | Path, fps: int, preset: str = "superfast"):
         self.path = Path(path)
         self.fps = int(fps)
+        self.preset = preset
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         os.close(fd)
@@ -38,7 +39,7 @@ class VideoWriter:
             # Deterministic output: one thread, fixed settings, and no macroblock tree: with it,
             # libx264 reads memory it never wrote (the same frames gave different bytes from run
             # to run once the process's heap had been used; checked with MALLOC_PERTURB_).
-            self._stream.codec_context.options = {"crf": "20", "preset": "superfast", "threads": "1", "mbtree": "0"}
+            self._stream.codec_context.options = {"crf": "20", "preset": self.preset, "threads": "1", "mbtree": "0"}
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="rgb24")
         for packet in self._stream.encode(frame):
             self._container.mux(packet)
@@ -65,11 +66,11 @@ class VideoWriter:
         self._tmp.unlink(missing_ok=True)
 
 
-def write_video(path: str | Path, frames: Sequence[np.ndarray], fps: int) -> None:
+def write_video(path: str | Path, frames: Sequence[np.ndarray], fps: int, preset: str = "superfast") -> None:
     """Encode RGB uint8 frames (all HxWx3, even sizes) to `path` atomically."""
     if not len(frames):
         raise ValueError(f"no frames to write to {path}")
-    writer = VideoWriter(path, fps)
+    writer = VideoWriter(path, fps, preset)
     try:
         for image in frames:
             writer.add(image)

@@ -40,8 +40,9 @@ def snakemake(workdir: Path, *args: str, overrides: list[str] | None = None, che
     return proc
 
 
-def planned_jobs(output: str) -> list[tuple[str, dict]]:
-    """(rule, wildcards) of every job a dry run plans (the `all` target excluded)."""
+def planned_job_blocks(output: str) -> list[tuple[str, dict, str]]:
+    """(rule, wildcards, the dry run's text of the job) of every job a dry run plans (the `all`
+    target excluded)."""
     jobs = []
     for block in re.split(r"\n(?=(?:local)?rule \w+:)", output):
         m = re.match(r"(?:local)?rule (\w+):", block.strip())
@@ -49,8 +50,13 @@ def planned_jobs(output: str) -> list[tuple[str, dict]]:
             continue
         wc = re.search(r"wildcards: (.*)", block)
         wildcards = dict(kv.split("=", 1) for kv in wc.group(1).split(", ")) if wc else {}
-        jobs.append((m.group(1), wildcards))
+        jobs.append((m.group(1), wildcards, block))
     return jobs
+
+
+def planned_jobs(output: str) -> list[tuple[str, dict]]:
+    """(rule, wildcards) of every job a dry run plans (the `all` target excluded)."""
+    return [(rule, wildcards) for rule, wildcards, _ in planned_job_blocks(output)]
 
 
 def finished_rules(log_text: str) -> list[str]:

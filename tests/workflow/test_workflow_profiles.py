@@ -10,7 +10,7 @@ import subprocess
 import pytest
 import yaml
 
-from .conftest import REPO, SNAKEMAKE, planned_jobs, snakemake
+from .conftest import REPO, SNAKEMAKE, planned_job_blocks, planned_jobs, snakemake
 
 DEFAULT = yaml.safe_load((REPO / "workflow" / "profiles" / "default" / "config.yaml").read_text())
 needs_plugin = pytest.mark.skipif(importlib.util.find_spec("snakemake_executor_plugin_slurm") is None,
@@ -20,16 +20,12 @@ needs_plugin = pytest.mark.skipif(importlib.util.find_spec("snakemake_executor_p
 def job_requests(output: str) -> list[tuple[str, dict, dict]]:
     """(rule, wildcards, {resource: value, 'threads': n}) of every job a dry run plans."""
     jobs = []
-    for block in re.split(r"\n(?=(?:local)?rule \w+:)", output):
-        m = re.match(r"(?:local)?rule (\w+):", block.strip())
-        if not m or m.group(1) == "all":
-            continue
-        wc = re.search(r"wildcards: (.*)", block)
+    for rule, wildcards, block in planned_job_blocks(output):
         res = re.search(r"resources: (.*)", block)
         threads = re.search(r"threads: (\d+)", block)
         requests = dict(kv.split("=", 1) for kv in res.group(1).split(", ")) if res else {}
         requests["threads"] = threads.group(1) if threads else "1"
-        jobs.append((m.group(1), dict(kv.split("=", 1) for kv in wc.group(1).split(", ")) if wc else {}, requests))
+        jobs.append((rule, wildcards, requests))
     return jobs
 
 

@@ -10,6 +10,8 @@ import pytest
 from r2s_eval.stages import world_report
 from r2s_eval.utils.io import write_parquet
 
+CFG = json.dumps({"stats.n_boot": 400, "stats.ci_level": 0.95, "seed": 3})
+
 
 def _artefacts(tmp_path):
     attempts = [{"task": "a", "attempt": i, "success": i != 3, "length": 70, "wall_s": 1.0} for i in range(10)]
@@ -32,7 +34,7 @@ def test_report_numbers_and_targets(tmp_path, capsys):
     _artefacts(tmp_path)
     out = tmp_path / "report.json"
     world_report.main(world_report.parser().parse_args([
-        "--truth", str(tmp_path / "truth.parquet"), "--errors", str(tmp_path / "errors.parquet"),
+        "--cfg", CFG, "--truth", str(tmp_path / "truth.parquet"), "--errors", str(tmp_path / "errors.parquet"),
         "--replay", str(tmp_path / "replay.parquet"), "--out", str(out)]))
     report = json.loads(out.read_text())
     a, b = report["tasks"]["a"], report["tasks"]["b"]
@@ -43,6 +45,10 @@ def test_report_numbers_and_targets(tmp_path, capsys):
     assert a["init_error"]["objects"]["cup"]["yaw_deg_median"] is None
     # Replay: the calibration episode (0) is not test data.
     assert a["replay"]["episodes"] == 4 and a["replay"]["attempts_histogram"] == {"1": 3, "2": 1}
+    # First attempt 3 of 4 (Wilson [0.301, 0.954]), all 4 after retries (Wilson [0.510, 1]).
+    assert a["replay"]["first_attempt_successes"] == 3 and a["replay"]["first_attempt_rate"] == 0.75
+    assert a["replay"]["first_attempt_ci"] == pytest.approx([0.3006, 0.9544], abs=1e-4)
+    assert a["replay"]["success_ci"] == pytest.approx([0.5101, 1.0], abs=1e-4)
     assert a["meets_targets"] is True
     assert b["replay"]["success_rate"] == 0.0 and b["meets_targets"] is False
     printed = capsys.readouterr().out
@@ -54,5 +60,43 @@ def test_missing_attempt_log_is_named(tmp_path):
     write_parquet(tmp_path / "truth.parquet", pd.DataFrame({"episode_index": [0]}))
     with pytest.raises(ValueError, match="truth.parquet: no teleop attempt log"):
         world_report.main(world_report.parser().parse_args([
-            "--truth", str(tmp_path / "truth.parquet"), "--errors", str(tmp_path / "errors.parquet"),
+            "--cfg", CFG, "--truth", str(tmp_path / "truth.parquet"), "--errors", str(tmp_path / "errors.parquet"),
             "--replay", str(tmp_path / "replay.parquet")]))
+
+
+def test_real_sim_gap_per_cell_and_over_cells(tmp_path, capsys):
+    _artefacts(tmp_path)
+    # Real (reference) and sim outcomes: policy p on task a, 1/6 real and 3/6 sim; q on a 6/6 on both.
+    pd.DataFrame([{"policy": "p", "task": "a", "trials": 6, "successes": 1},
+                  {"policy": "q", "task": "a", "trials": 6, "successes": 6}]).to_parquet(tmp_path / "reference.parquet")
+    rollouts = []
+    for policy, wins in (("p", 3), ("q", 6)):
+        folder = tmp_path / "sim" / policy
+        folder.mkdir(parents=True)
+        pd.DataFrame({"episode_id": [f"{policy}{k}" for k in range(6)], "policy": policy, "arm": "sim", "task": "a",
+                      "init_id": range(6), "seed": range(6), "success": [k < wins for k in range(6)],
+                      "length": 50, "instruction": "x", "video_path": "v", "trajectory_path": "t"}
+                     ).to_parquet(folder / "episodes.parquet")
+        rollouts.append(str(folder))
+    out = tmp_path / "report.json"
+    world_report.main(world_report.parser().parse_args([
+        "--cfg", CFG, "--truth", str(tmp_path / "truth.parquet"), "--errors", str(tmp_path / "errors.parquet"),
+        "--replay", str(tmp_path / "replay.parquet"), "--reference", str(tmp_path / "reference.parquet"),
+        "--rollouts", *rollouts, "--out", str(out)]))
+    report = json.loads(out.read_text())
+    cells = {c["policy"]: c for c in report["tasks"]["a"]["realsim_gap"]}
+    # Newcombe's hybrid score interval of 3/6 - 1/6, by hand from the two Wilson intervals.
+    assert cells["p"]["gap_pp"] == pytest.approx(100 / 3)
+    assert cells["p"]["gap_ci_pp"] == pytest.approx([-17.17, 67.43], abs=0.01)
+    assert cells["q"]["gap_pp"] == 0.0 and cells["q"]["gap_ci_pp"] == pytest.approx([-39.03, 39.03], abs=0.01)
+    assert report["tasks"]["b"]["realsim_gap"] == []
+    summary = report["realsim_gap"]
+    assert summary["cells"] == 2 and summary["real_trials_per_cell"] == [6] and summary["sim_trials_per_cell"] == [6]
+    assert summary["mean_abs_gap_pp"] == pytest.approx(50 / 3) and summary["max_abs_gap_pp"] == pytest.approx(100 / 3)
+    lo, hi = summary["mean_abs_gap_ci_pp"]
+    assert 0.0 <= lo < summary["mean_abs_gap_pp"] < hi <= 100.0
+    # The all-success cell never varies in the bootstrap: the signed mean's interval comes from p's alone.
+    slo, shi = summary["mean_gap_ci_pp"]
+    assert slo < summary["mean_gap_pp"] < shi and shi - slo < 100.0
+    printed = capsys.readouterr().out
+    assert "real-sim gap over 2 policy-task cells" in printed and "+33 [-17, +67]" in printed

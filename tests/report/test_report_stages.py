@@ -89,7 +89,8 @@ def test_tables_from_artefacts(run_dir, cfg):
     assert made_by.startswith("% config_sha256=") and "r2s_eval_version=" in made_by
     assert body.startswith(r"\begin{tabular}") and r"kin & 75.0 {\scriptsize [" in body
 
-    run_stage("realsim_table", cfg, "report.realsim_table", "--validation", "results/validate/kin.json",
+    run_stage("realsim_table", cfg, ("report.realsim_table", "report.judge_audit.planted_order"),
+              "--validation", "results/validate/kin.json",
               "--audits", "results/audit/kin.json", "--fits", "results/fit/kin.parquet", "--reference",
               "results/reference/success.parquet", "--table", "reports/realsim_table.tex",
               "--ranking", "reports/ranking.txt")

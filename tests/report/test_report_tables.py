@@ -198,6 +198,19 @@ def test_ranking_text_names_the_interval_and_the_reference_definition(make_fit):
         ranking_text({"j1": fit, "j2": fit_b}, {"a": 0.8, "b": 0.2})
 
 
+def test_ranking_says_whether_the_reference_recovers_the_planted_order(make_fit):
+    fit = unit_fit(make_fit, {10: {"a": (60.0, 50.0, 70.0), "b": (30.0, 20.0, 40.0), "c": (10.0, 0.0, 20.0)}})
+    rate = {"a": 0.8, "b": 0.5, "c": 0.1}
+    apart = ranking_text({"k": fit}, rate, {"a": (0.7, 0.9), "b": (0.4, 0.6), "c": (0.0, 0.2)}, planted_order=["a", "b", "c"])
+    assert apart.splitlines()[-1] == ("planted order a > b > c: real success 95% CIs: a > b: separated; "
+                                      "b > c: separated; point estimates follow it")
+    overlap = ranking_text({"k": fit}, rate, {"a": (0.45, 0.9), "b": (0.4, 0.6), "c": (0.0, 0.2)},
+                           planted_order=["b", "a", "c"])
+    assert overlap.splitlines()[-1] == ("planted order b > a > c: real success 95% CIs: b > a: NOT separated "
+                                        "(intervals overlap); a > c: separated; point estimates do NOT follow it")
+    assert "planted order" not in ranking_text({"k": fit}, rate, {"a": (0.7, 0.9)})
+
+
 def test_realsim_table_note_names_the_interval():
     v = validation(0.5, 0.6, 0.1, 6.0)
     v.update(interval="unit", ci_level=0.95)

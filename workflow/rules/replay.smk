@@ -22,17 +22,23 @@ rule replay:
 if TWIN:
 
     # The calibrated world's fidelity per task (teleop success, initial-pose error, replay
-    # success and attempts, per-episode costs), printed into the log and kept as JSON.
+    # success at the first attempt and after retries, per-episode costs, the real-sim success
+    # gap per policy), printed into the log and kept as JSON.
     rule world_report:
         input:
             truth="results/real/init_truth.parquet",
             errors="results/init/error.parquet",
             replay="results/replay/log.parquet",
             estimates="results/init/estimates.parquet",
+            reference="results/reference/success.parquet",
+            rollouts=expand("results/rollout/sim/{policy}", policy=POLICIES),
         output:
             "results/world/report.json",
+        params:
+            cfg=stage_params("world_report"),
         log:
             "logs/world_report.log",
         shell:
-            "{PY} -m r2s_eval.stages.world_report --truth {input.truth} --errors {input.errors}"
-            " --replay {input.replay} --estimates {input.estimates} --out {output} --log {log}"
+            "{PY} -m r2s_eval.stages.world_report --cfg {params.cfg:q} --truth {input.truth} --errors {input.errors}"
+            " --replay {input.replay} --estimates {input.estimates} --reference {input.reference}"
+            " --rollouts {input.rollouts} --out {output} --log {log}"

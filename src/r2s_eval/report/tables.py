@@ -223,11 +223,31 @@ def bt_scores_table(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[st
 # ---------------------------------------------------------------- console ranking
 
 
+def planted_order_line(reference_rate: Mapping[str, float], reference_ci: Mapping[str, tuple],
+                       planted_order: Sequence[str], level: float) -> str:
+    """Whether the reference recovers a line-up's planted order (best first): per neighbouring
+    pair, are the two intervals apart in that order, and do the point estimates follow it."""
+    order = [p for p in planted_order if p in reference_rate]
+    verdicts = []
+    for better, worse in zip(order, order[1:]):
+        lo, hi = reference_ci.get(better, (None, None))[0], reference_ci.get(worse, (None, None))[1]
+        if _missing(lo) or _missing(hi):
+            verdicts.append(f"{better} > {worse}: no interval")
+        elif lo > hi:
+            verdicts.append(f"{better} > {worse}: separated")
+        else:
+            verdicts.append(f"{better} > {worse}: NOT separated (intervals overlap)")
+    follows = all(reference_rate[a] > reference_rate[b] for a, b in zip(order, order[1:]))
+    return (f"planted order {' > '.join(order)}: real success {100 * level:g}% CIs: " + "; ".join(verdicts)
+            + f"; point estimates {'follow' if follows else 'do NOT follow'} it")
+
+
 def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float],
-                 reference_ci: Mapping[str, tuple] | None = None) -> str:
+                 reference_ci: Mapping[str, tuple] | None = None, planted_order: Sequence[str] | None = None) -> str:
     """Plain-text ranking at the last checkpoint, each judge beside the reference performance
     (the mean of the per-task success rates, with its interval where ``reference_ci`` gives
-    one). The title names the bootstrap behind the score intervals."""
+    one). The title names the bootstrap behind the score intervals. With a line-up's
+    ``planted_order`` (best first), a last line says whether the reference recovers it."""
     policies = sorted(reference_rate, key=lambda p: -reference_rate[p])
     reference_ci = reference_ci or {}
     width = 24 if reference_ci else 16
@@ -254,6 +274,8 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
     notes = [f"BT CI: {interval} bootstrap, {INTERVAL_TEXT.get(interval, 'bootstrap')}",
              "real success %: mean of the per-task success rates"
              + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
+    if planted_order and reference_ci:
+        notes.append(planted_order_line(reference_rate, reference_ci, planted_order, level))
     return "\n".join([title, header, *rows.values(), *notes]) + "\n"
 
 

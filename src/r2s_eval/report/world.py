@@ -2,17 +2,25 @@
 
 Per task: scripted-teleop success in the twin, initial-pose error against the twin's truth
 (median and 95th percentile, mm and degrees; yaw over objects whose yaw is observable, modulo
-their symmetry; test episodes only), replay success within the attempt budget and the
-attempts used (test episodes only), and what each costs per episode. :func:`build_report`
-returns::
+their symmetry; test episodes only), replay success at the first attempt and within the attempt
+budget with Wilson intervals, the attempts used (test episodes only), and what each costs per
+episode. Given the reference and the sim rollouts, also the real-sim success gap per policy and
+task (sim minus real, Newcombe's interval) and over the cells (``r2s_eval.stats.proportions``).
+:func:`build_report` returns::
 
     {"targets": {...},
      "tasks": {task: {"teleop": {"attempts", "successes", "success_rate", "s_per_attempt"},
                       "init_error": {"episodes", "xy_mm_median", "xy_mm_p95", "yaw_deg_median",
                                      "yaw_deg_p95", "objects": {object: {...}}},
-                      "replay": {"episodes", "successes", "success_rate", "attempts_mean",
-                                 "attempts_max", "attempts_histogram", "s_per_episode"},
+                      "replay": {"episodes", "successes", "success_rate", "success_ci",
+                                 "first_attempt_successes", "first_attempt_rate",
+                                 "first_attempt_ci", "attempts_mean", "attempts_max",
+                                 "attempts_histogram", "s_per_episode"},
+                      "realsim_gap": [{"policy", "real", "real_ci", "real_trials", "sim",
+                                       "sim_ci", "sim_trials", "gap_pp", "gap_ci_pp"}],
                       "meets_targets": bool}},
+     "realsim_gap": {"cells", "mean_abs_gap_pp", "mean_abs_gap_ci_pp", "mean_gap_pp",
+                     "mean_gap_ci_pp", "max_abs_gap_pp", "real_trials_per_cell", ...} | null,
      "init_s_per_episode": float | null}
 
 and :func:`format_table` lays it out as a text table.
@@ -21,6 +29,8 @@ and :func:`format_table` lays it out as a text table.
 from __future__ import annotations
 
 import pandas as pd
+
+from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
 
 TARGETS = {"teleop_success_min": 0.90, "xy_mm_median_max": 5.0, "yaw_deg_median_max": 5.0, "replay_success_min": 0.95}
 
@@ -60,15 +70,24 @@ def init_error_summary(errors: pd.DataFrame) -> dict:
     return out
 
 
-def replay_summary(log_table: pd.DataFrame) -> dict:
+def _ci(interval: tuple[float, float] | None) -> list[float] | None:
+    return None if interval is None else [interval[0], interval[1]]
+
+
+def replay_summary(log_table: pd.DataFrame, level: float = 0.95) -> dict:
     test = log_table[~log_table["calibration"]] if "calibration" in log_table else log_table
     out = {}
     for task, rows in test.groupby("task", sort=False):
         used = rows.loc[rows["success"], "attempts"]
+        first = int((rows["success"] & (rows["attempts"] == 1)).sum())
         out[task] = {
             "episodes": int(len(rows)),
             "successes": int(rows["success"].sum()),
             "success_rate": float(rows["success"].mean()),
+            "success_ci": _ci(wilson_interval(int(rows["success"].sum()), len(rows), level)),
+            "first_attempt_successes": first,
+            "first_attempt_rate": first / len(rows),
+            "first_attempt_ci": _ci(wilson_interval(first, len(rows), level)),
             "attempts_mean": float(used.mean()) if len(used) else None,
             "attempts_max": int(used.max()) if len(used) else None,
             "attempts_histogram": {int(k): int(v) for k, v in used.value_counts().sort_index().items()},
@@ -77,9 +96,28 @@ def replay_summary(log_table: pd.DataFrame) -> dict:
     return out
 
 
+def gap_by_task(cells: pd.DataFrame) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = {}
+    for c in cells.itertuples():
+        out.setdefault(c.task, []).append({
+            "policy": c.policy, "real": c.real, "real_ci": [c.real_ci_low, c.real_ci_high],
+            "real_trials": c.real_trials, "sim": c.sim, "sim_ci": [c.sim_ci_low, c.sim_ci_high],
+            "sim_trials": c.sim_trials, "gap_pp": 100 * c.gap,
+            "gap_ci_pp": [100 * c.gap_ci_low, 100 * c.gap_ci_high]})
+    return out
+
+
 def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.DataFrame,
-                 init_s_per_episode: float | None = None) -> dict:
-    teleop, init, replay = teleop_summary(attempts), init_error_summary(errors), replay_summary(replay_log)
+                 init_s_per_episode: float | None = None, reference: pd.DataFrame | None = None,
+                 sim_episodes: pd.DataFrame | None = None, level: float = 0.95, n_boot: int = 1000,
+                 seed=0) -> dict:
+    """The report above; the real-sim gap needs both ``reference`` and ``sim_episodes``."""
+    teleop, init = teleop_summary(attempts), init_error_summary(errors)
+    replay = replay_summary(replay_log, level)
+    cells = None
+    if reference is not None and sim_episodes is not None:
+        cells = success_gap_cells(reference, sim_episodes, level)
+    gaps = gap_by_task(cells) if cells is not None else {}
     tasks = {}
     for task in dict.fromkeys([*teleop, *init, *replay]):
         t, i, r = teleop.get(task), init.get(task), replay.get(task)
@@ -93,8 +131,10 @@ def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.Data
             t is not None and t["success_rate"] >= TARGETS["teleop_success_min"] and poses_ok
             and r is not None and r["success_rate"] >= TARGETS["replay_success_min"]
         )
-        tasks[task] = {"teleop": t, "init_error": i, "replay": r, "meets_targets": meets}
-    return {"targets": TARGETS, "tasks": tasks, "init_s_per_episode": init_s_per_episode}
+        tasks[task] = {"teleop": t, "init_error": i, "replay": r, "realsim_gap": gaps.get(task, []),
+                       "meets_targets": meets}
+    summary = gap_summary(cells, level, n_boot, seed) if cells is not None else None
+    return {"targets": TARGETS, "tasks": tasks, "realsim_gap": summary, "init_s_per_episode": init_s_per_episode}
 
 
 def _fmt(value, spec: str) -> str:
@@ -102,9 +142,15 @@ def _fmt(value, spec: str) -> str:
     return "-".rjust(width) if value is None else format(value, spec)
 
 
+def _pct_ci(value, ci) -> str:
+    if value is None:
+        return "-"
+    return f"{100 * value:.0f} [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]" if ci else f"{100 * value:.0f}"
+
+
 def format_table(report: dict) -> str:
     header = (f"{'task':16s} {'object':8s} {'teleop':>7s} {'xy med':>7s} {'xy p95':>7s} {'yaw med':>8s} "
-              f"{'yaw p95':>8s} {'replay':>7s} {'att.mean':>8s} {'att.max':>7s} {'ok':>3s}")
+              f"{'yaw p95':>8s} {'replay 1st %':>13s} {'replay %':>13s} {'att.mean':>8s} {'att.max':>7s} {'ok':>3s}")
     lines = [header, "-" * len(header)]
     for task, row in report["tasks"].items():
         t, i, r = row["teleop"] or {}, row["init_error"] or {}, row["replay"] or {}
@@ -115,11 +161,30 @@ def format_table(report: dict) -> str:
                 f"{task if first else '':16s} {obj:8s} {_fmt(t.get('success_rate') if first else None, '7.1%')} "
                 f"{_fmt(o.get('xy_mm_median'), '7.1f')} {_fmt(o.get('xy_mm_p95'), '7.1f')} "
                 f"{_fmt(o.get('yaw_deg_median'), '8.1f')} {_fmt(o.get('yaw_deg_p95'), '8.1f')} "
-                f"{_fmt(r.get('success_rate') if first else None, '7.1%')} "
+                f"{(_pct_ci(r.get('first_attempt_rate'), r.get('first_attempt_ci')) if first else ''):>13s} "
+                f"{(_pct_ci(r.get('success_rate'), r.get('success_ci')) if first else ''):>13s} "
                 f"{_fmt(r.get('attempts_mean') if first else None, '8.2f')} "
                 f"{_fmt(r.get('attempts_max') if first else None, '7d')} "
                 f"{('yes' if row['meets_targets'] else 'NO') if first else '':>3s}"
             )
     lines.append("xy in mm, yaw in degrees (objects with observable yaw, modulo symmetry); init and replay over "
-                 "test episodes; targets: teleop >= 90 %, medians <= 5 mm and <= 5 deg, replay >= 95 %")
+                 "test episodes, replay % with Wilson intervals; targets: teleop >= 90 %, medians <= 5 mm and "
+                 "<= 5 deg, replay >= 95 %")
+    summary = report.get("realsim_gap")
+    if summary and summary.get("cells"):
+        gap_header = f"{'task':16s} {'policy':16s} {'real %':>13s} {'sim %':>13s} {'sim - real (pp)':>17s}"
+        lines += ["", gap_header, "-" * len(gap_header)]
+        for task, row in report["tasks"].items():
+            for c in row.get("realsim_gap") or []:
+                gap = f"{c['gap_pp']:+.0f} [{c['gap_ci_pp'][0]:+.0f}, {c['gap_ci_pp'][1]:+.0f}]"
+                lines.append(f"{task:16s} {c['policy']:16s} {_pct_ci(c['real'], c['real_ci']):>13s} "
+                             f"{_pct_ci(c['sim'], c['sim_ci']):>13s} {gap:>17s}")
+        lo, hi = summary["mean_abs_gap_ci_pp"]
+        slo, shi = summary["mean_gap_ci_pp"]
+        lines.append(
+            f"real-sim gap over {summary['cells']} policy-task cells: mean |sim - real| {summary['mean_abs_gap_pp']:.1f} pp "
+            f"[{lo:.1f}, {hi:.1f}], mean sim - real {summary['mean_gap_pp']:+.1f} pp [{slo:+.1f}, {shi:+.1f}], "
+            f"largest {summary['max_abs_gap_pp']:.1f} pp; trials per cell: real {summary['real_trials_per_cell']}, "
+            f"sim {summary['sim_trials_per_cell']} ({100 * summary['ci_level']:g}% intervals: Wilson per rate, "
+            f"Newcombe per gap, {summary['interval']})")
     return "\n".join(lines)

@@ -13,7 +13,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats import reference_rates
 from r2s_eval.utils.io import read_json, write_text
 
-READS = ("report.realsim_table",)  # config paths the --cfg slice holds (see _reads.py)
+READS = ("report.realsim_table", "report.judge_audit.planted_order")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
@@ -24,7 +24,8 @@ def main(args) -> None:
     reference = reference_rates(pd.read_parquet(args.reference))
     table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
     write_text(args.table, table, comment="%")
-    text = ranking_text(fits, reference.to_dict(), reference_interval(validations))
+    text = ranking_text(fits, reference.to_dict(), reference_interval(validations),
+                        planted_order=args.cfg["report.judge_audit.planted_order"])
     write_text(args.ranking, text)  # printed at the end of a run: kept free of metadata lines
     print(text)
 

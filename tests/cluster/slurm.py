@@ -141,10 +141,11 @@ class LocalSlurm:
         return proc.stdout.split() if proc.returncode == 0 else []
 
     def accounting(self, *fields: str) -> list[dict[str, str]]:
-        """Every job (not its steps) Slurm's accounting recorded, as {field: value}."""
-        out = self.run("sacct", "-a", "-X", "-n", "-P", "-S", "2000-01-01",
-                       "-o", ",".join(fields)).stdout
-        return [dict(zip(fields, line.split("|"))) for line in out.splitlines() if line.strip()]
+        """Every job (not its steps) Slurm's accounting recorded, as {field: value}. The job's
+        own line, not `sacct -X`'s allocation line: only the former sums its steps' TotalCPU."""
+        out = self.run("sacct", "-a", "-n", "-P", "-S", "2000-01-01", "-o", ",".join(("JobID", *fields))).stdout
+        rows = [line.split("|") for line in out.splitlines() if line.strip()]
+        return [dict(zip(fields, row[1:])) for row in rows if "." not in row[0]]
 
     # -- daemons -----------------------------------------------------------------------------
     def _start(self, name: str, cmd: list, ready, timeout_s: float = 30, env: dict | None = None) -> None:

@@ -62,7 +62,8 @@ def test_cancelled_job_fails_the_run_and_the_rerun_submits_only_it_and_its_depen
     assert _jobs(slurm_smoke.plan_after_cancel) == dependants
     # And the rerun submitted exactly those jobs to Slurm, nothing the first run had finished.
     records = slurm.accounting("JobID", "Comment", "State")
-    rerun_ids = set(re.findall(r"submitted with SLURM jobid (\d+)", slurm_smoke.rerun.stdout))
+    # Snakemake logs the submissions on stderr (the first run's log file holds both streams).
+    rerun_ids = set(re.findall(r"submitted with SLURM jobid (\d+)", slurm_smoke.rerun.stdout + slurm_smoke.rerun.stderr))
     assert len(rerun_ids) == len(dependants)
     assert {r["Comment"] for r in records if r["JobID"] in rerun_ids} == dependants
     assert not rerun_ids & slurm_smoke.first_jobids
@@ -71,13 +72,18 @@ def test_cancelled_job_fails_the_run_and_the_rerun_submits_only_it_and_its_depen
 def test_jobs_use_no_more_cpu_than_they_were_given(slurm, slurm_smoke):
     # CPU time a job's processes used, against its allocation times its wall time (plus a second:
     # sacct rounds Elapsed to whole seconds). Slurm here schedules CPUs without confining them,
-    # so a stage whose thread pools ignored its job's threads would show up here.
-    over = []
+    # so a stage whose thread pools ignored its job's threads would show up here. The margin
+    # covers the job step's own Snakemake process beside the stage (measured: up to 1.01 of the
+    # budget on two cores); a pool sized by the machine's CPUs shows as a multiple of it.
+    used, over = {}, []
     for r in slurm.accounting("JobID", "Comment", "State", "AllocCPUS", "Elapsed", "TotalCPU"):
         if r["State"] == "COMPLETED" and r["JobID"] in slurm_smoke.first_jobids:
             budget = int(r["AllocCPUS"]) * (_seconds(r["Elapsed"]) + 1.0)
-            if _seconds(r["TotalCPU"]) > 1.05 * budget:
+            used[r["Comment"]] = _seconds(r["TotalCPU"])
+            if used[r["Comment"]] > 1.2 * budget:
                 over.append((r["Comment"], r["AllocCPUS"], r["Elapsed"], r["TotalCPU"]))
+    # Accounting did record the jobs' CPU time (training takes tens of CPU-seconds at least).
+    assert used and max(used.values()) > 10.0, used
     assert over == []
 
 

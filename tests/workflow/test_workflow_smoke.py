@@ -96,11 +96,12 @@ def test_second_invocation_plans_nothing(smoke_run):
 
 
 def test_statistics_change_reruns_only_fit_onward(smoke_run):
-    # The judge audit's share intervals use the same bootstrap settings, so it reruns too.
+    # The judge audit's share intervals and the world report's gap intervals use the same bootstrap
+    # settings, so both rerun too; nothing upstream of the fit does.
     proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
     assert rules == {"fit", "validate", "realsim_table", "judge_audit", "judge_card_table", "results_browser",
-                     *FIT_REPORTS}, rules
+                     "world_report", *FIT_REPORTS}, rules
 
 
 def test_judge_change_reruns_describe_onward(smoke_run):

@@ -4,14 +4,27 @@
 #   snakemake -j 2 reports/realsim_table.tex --config experiment=smoke
 #   snakemake -j 2 ... --config overrides='[stats.n_boot=500]'     (any Hydra override)
 #   snakemake -j 2 reports                                         (every table and figure)
+#   snakemake -j 2 reports/libero_table.tex --config experiment=libero_smoke   (the LIBERO setting)
 
 include: "workflow/rules/common.smk"
-include: "workflow/rules/real.smk"
-include: "workflow/rules/ingest.smk"
-include: "workflow/rules/init.smk"
-include: "workflow/rules/replay.smk"
-include: "workflow/rules/train.smk"
-include: "workflow/rules/rollout.smk"
+
+
+# The rollouts and their reference: LIBERO's (experiments that compose conf/libero), or the
+# real-to-sim chain (teleop data, calibration, replay, fine-tuning, sim and real rollouts).
+if LIBERO:
+
+    include: "workflow/rules/libero.smk"
+
+else:
+
+    include: "workflow/rules/real.smk"
+    include: "workflow/rules/ingest.smk"
+    include: "workflow/rules/init.smk"
+    include: "workflow/rules/replay.smk"
+    include: "workflow/rules/train.smk"
+    include: "workflow/rules/rollout.smk"
+
+
 include: "workflow/rules/judge.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/fit.smk"

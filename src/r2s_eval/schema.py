@@ -420,6 +420,36 @@ class Annotate:
     n_pairs: PositiveInt
 
 
+LiberoCamera = Literal["agentview", "robot0_eye_in_hand"]
+
+
+@dataclass
+class LiberoObservation:
+    # observation.images.<key> -> the LIBERO camera that feeds it (several keys may share one)
+    cameras: Annotated[dict[str, LiberoCamera], NonEmpty()]
+    image_size: tuple[PositiveInt, PositiveInt]
+    rotate_180: bool
+
+
+@dataclass
+class LiberoVideo:
+    camera: LiberoCamera
+    size: tuple[PositiveInt, PositiveInt]
+    fps: Literal[1, 2, 4, 5, 10, 20]  # divisors of LIBERO's 20 Hz control rate
+
+
+@dataclass
+class Libero:
+    env_dir: str | None
+    tasks: Annotated[list[str], NonEmpty()]  # suites (all their tasks) or tasks <suite>_<index>
+    max_steps: dict[str, PositiveInt]  # per suite
+    episodes_per_task: Annotated[int, Range(1, 50)]  # the first N official initial states
+    settle_steps: Count
+    observation: LiberoObservation
+    render: Literal["on_demand", "default"]
+    video: LiberoVideo
+
+
 @dataclass
 class Config:
     """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
@@ -440,6 +470,7 @@ class Config:
     stats: Stats
     report: Report
     annotate: Annotate
+    libero: Libero | None = optional("LIBERO experiments compose it (conf/libero); the real-to-sim setting has none")
 
 
 # ----------------------------------------------------------------------------- checking
@@ -630,12 +661,37 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         if rollout["chunk_size"] > trained[name]["chunk_size"]:
             problems.append(Problem("rollout.chunk_size", f"must be <= the chunk that policies.{name} predicts "
                                                           f"({trained[name]['chunk_size']})"))
+    if cfg.get("libero") is not None:
+        problems += _libero_problems(cfg)
     planted = cfg["report"]["judge_audit"]["planted_order"]
     strangers = sorted(set(planted or ()) - set(cfg["policies"]))
     if strangers:
         problems.append(Problem("report.judge_audit.planted_order",
                                 f"names {strangers}, not candidates of this line-up {sorted(cfg['policies'])}; "
                                 f"list the line-up's planted order (best first) or set it to null"))
+    return problems
+
+
+def _libero_problems(cfg: dict) -> list[Problem]:
+    from r2s_eval.libero import selected_tasks
+
+    problems = []
+    from r2s_eval.libero import SUITES
+
+    try:
+        selected_tasks(cfg["libero"]["tasks"], cfg["libero"]["max_steps"])
+    except R2SError as exc:
+        problems.append(Problem("libero.tasks", str(exc), owner=True))
+    strangers = sorted(set(cfg["libero"]["max_steps"]) - set(SUITES))
+    if strangers:
+        problems.append(Problem("libero.max_steps", f"names {strangers}; LIBERO's suites are {sorted(SUITES)}"))
+    for name, entry in cfg["policies"].items():
+        if entry.get("type") not in ("checkpoint", "server"):
+            problems.append(Problem(f"policies.{name}.type", "a LIBERO candidate is a `checkpoint` or `server` "
+                                                             f"entry (nothing is trained here), got {entry.get('type')!r}"))
+        elif entry.get("action_map") is not None:
+            problems.append(Problem(f"policies.{name}.action_map", "LIBERO takes the policy's 7-D actions as they "
+                                                                   "are; a LIBERO candidate has no action map"))
     return problems
 
 

@@ -140,4 +140,4 @@ def test_a_missing_group_option_is_a_config_error():
 def test_every_group_has_a_schema():
     top = {p for p in known_paths() if "." not in p}
     assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
-            "compare", "stats", "report", "annotate", "tasks", "seed"} == top
+            "compare", "stats", "report", "annotate", "tasks", "seed", "libero"} == top

@@ -43,6 +43,16 @@ from unittest import mock
 
 import torch
 
+from r2s_eval.policies.tiny import (  # the SmolVLA builders live in the package (smoke runs use them)
+    SMOLVLM_HUB_NAME,
+    SmolDims,
+    build_bpe_tokenizer,
+    build_tiny_smolvla,
+    build_tiny_smolvlm,
+    policy_features,
+    tiny_smolvla_config,
+)
+
 PALIGEMMA_TOKENIZER = "google/paligemma-3b-pt-224"
 # Any fixed 40-hex string works: the hub cache resolves `refs/main` to this snapshot folder.
 _SNAPSHOT = "7e1e5e7e00000000000000000000000000000000"
@@ -334,19 +344,6 @@ def synthetic_batch(
     return batch
 
 
-def policy_features(cameras: Sequence[str], image_hw: tuple[int, int], state_dim: int, action_dim: int) -> dict:
-    """`input_features` / `output_features` of a policy config: the cameras, the state, the action."""
-    from lerobot.configs import FeatureType, PolicyFeature
-
-    return {
-        "input_features": {
-            **{cam: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for cam in cameras},
-            STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
-        },
-        "output_features": {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,))},
-    }
-
-
 def tiny_pi_config(
     policy_type: str,
     *,
@@ -481,7 +478,7 @@ def parameter_count(policy) -> int:
 
 
 # ----------------------------------------------------------------------------------------------
-# SmolVLA and X-VLA: tiny backbones described by config files in local folders
+# SmolVLA (r2s_eval.policies.tiny) and X-VLA: tiny backbones described by config files in local folders
 # ----------------------------------------------------------------------------------------------
 #
 # Neither family needs a size substitution: SmolVLA builds its VLM from ``AutoConfig`` /
@@ -490,183 +487,7 @@ def parameter_count(policy) -> int:
 # config and processor is therefore enough, and the saved checkpoints can name the stock hub ids
 # (as the LeRobot base checkpoints do) while training and reloading are pointed at the folders.
 
-SMOLVLM_HUB_NAME = "HuggingFaceTB/SmolVLM2-500M-Video-Instruct"
 XVLA_TOKENIZER_HUB_NAME = "facebook/bart-large"
-
-_BPE_CORPUS = _TOKENIZER_CORPUS[:4] + (
-    "pick the cube",
-    "put the cup on the plate",
-    "stack the two blocks",
-    "cover the ball with the cup",
-)
-
-
-@dataclass(frozen=True)
-class SmolDims:
-    """A SmolVLM with a 2-layer llama text model (width 64) and a 1-layer SigLIP-like vision tower on
-    64x64 images (16x16 patches, pixel-shuffle factor 2: 4 image tokens)."""
-
-    text_width: int = 64
-    text_mlp: int = 128
-    text_depth: int = 2
-    text_heads: int = 4
-    text_kv_heads: int = 2
-    text_head_dim: int = 16
-    vocab_size: int = 320
-    vision_width: int = 32
-    vision_mlp: int = 64
-    vision_depth: int = 1
-    vision_heads: int = 2
-    image_size: int = 64
-    patch_size: int = 16
-    scale_factor: int = 2
-
-
-def build_bpe_tokenizer(
-    vocab_size: int,
-    special_tokens: Sequence[str],
-    *,
-    wrap_with: tuple[str, str] | None = None,
-    **named_tokens: Any,
-):
-    """A byte-level BPE tokenizer (~``vocab_size`` tokens) trained on a few sentences, as a
-    ``PreTrainedTokenizerFast``. ``wrap_with=(bos, eos)`` adds them around every sequence (BART
-    style); ``named_tokens`` are the tokenizer's named special tokens (``bos_token=...``,
-    ``extra_special_tokens={...}``)."""
-    from tokenizers import Tokenizer, decoders, models, pre_tokenizers, processors, trainers
-    from transformers import PreTrainedTokenizerFast
-
-    bpe = Tokenizer(models.BPE(unk_token="<unk>"))
-    bpe.pre_tokenizer = pre_tokenizers.ByteLevel(add_prefix_space=False)
-    bpe.decoder = decoders.ByteLevel()
-    trainer = trainers.BpeTrainer(
-        vocab_size=vocab_size,
-        special_tokens=list(special_tokens),
-        show_progress=False,
-        initial_alphabet=pre_tokenizers.ByteLevel.alphabet(),
-    )
-    bpe.train_from_iterator(list(_BPE_CORPUS) * 4, trainer)
-    if wrap_with is not None:
-        bos, eos = wrap_with
-        bpe.post_processor = processors.TemplateProcessing(
-            single=f"{bos} $A {eos}",
-            special_tokens=[(bos, bpe.token_to_id(bos)), (eos, bpe.token_to_id(eos))],
-        )
-    return PreTrainedTokenizerFast(tokenizer_object=bpe, **named_tokens)
-
-
-def build_tiny_smolvlm(folder: Path, dims: SmolDims = SmolDims()) -> Path:
-    """A folder that ``AutoConfig`` and ``AutoProcessor`` read as a tiny SmolVLM (no weights file):
-    what SmolVLA's ``vlm_model_name`` must point at when ``load_vlm_weights=False``."""
-    from transformers import SmolVLMConfig, SmolVLMImageProcessor, SmolVLMProcessor, SmolVLMVideoProcessor
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    image_tokens = {
-        "fake_image_token": "<fake_token_around_image>",
-        "global_image_token": "<global-img>",
-        "image_token": "<image>",
-        "end_of_utterance_token": "<end_of_utterance>",
-        "video_token": "<video>",
-    }
-    tokenizer = build_bpe_tokenizer(
-        dims.vocab_size - 20,
-        ["<|endoftext|>", "<unk>", "<pad>", *image_tokens.values()],
-        bos_token="<|endoftext|>",
-        eos_token="<end_of_utterance>",
-        unk_token="<unk>",
-        pad_token="<pad>",
-        # SmolVLA reads `tokenizer.fake_image_token_id` / `global_image_token_id`.
-        extra_special_tokens=image_tokens,
-    )
-    if len(tokenizer) > dims.vocab_size:
-        raise AssertionError(f"tokenizer has {len(tokenizer)} tokens > vocab_size {dims.vocab_size}")
-    config = SmolVLMConfig(
-        text_config={
-            "model_type": "llama",
-            "hidden_size": dims.text_width,
-            "intermediate_size": dims.text_mlp,
-            "num_hidden_layers": dims.text_depth,
-            "num_attention_heads": dims.text_heads,
-            "num_key_value_heads": dims.text_kv_heads,
-            "head_dim": dims.text_head_dim,
-            "vocab_size": dims.vocab_size,
-            "max_position_embeddings": 512,
-            "pad_token_id": tokenizer.pad_token_id,
-        },
-        vision_config={
-            "hidden_size": dims.vision_width,
-            "intermediate_size": dims.vision_mlp,
-            "num_hidden_layers": dims.vision_depth,
-            "num_attention_heads": dims.vision_heads,
-            "image_size": dims.image_size,
-            "patch_size": dims.patch_size,
-        },
-        scale_factor=dims.scale_factor,
-        image_token_id=tokenizer.convert_tokens_to_ids("<image>"),
-        pad_token_id=tokenizer.pad_token_id,
-    )
-    config.save_pretrained(folder)
-    size = {"longest_edge": dims.image_size}
-    processor = SmolVLMProcessor(
-        image_processor=SmolVLMImageProcessor(size=size, max_image_size=size, do_image_splitting=False),
-        tokenizer=tokenizer,
-        video_processor=SmolVLMVideoProcessor(size=size, max_image_size=size),
-        image_seq_len=((dims.image_size // dims.patch_size) // dims.scale_factor) ** 2,
-    )
-    processor.save_pretrained(folder)
-    return folder
-
-
-def tiny_smolvla_config(
-    vlm_dir: Path,
-    *,
-    state_dim: int = 14,
-    action_dim: int = 14,
-    cameras: Sequence[str] = CAMERAS,
-    image_hw: tuple[int, int] = (64, 64),
-    **overrides: Any,
-):
-    from lerobot.policies.smolvla import SmolVLAConfig
-
-    kwargs: dict[str, Any] = dict(
-        vlm_model_name=str(vlm_dir),
-        load_vlm_weights=False,
-        num_vlm_layers=2,
-        resize_imgs_with_padding=(image_hw[1], image_hw[0]),  # SmolVLA stores (width, height)
-        tokenizer_max_length=16,
-        num_steps=2,
-        chunk_size=10,
-        n_action_steps=5,
-        max_state_dim=max(32, state_dim),
-        max_action_dim=max(32, action_dim),
-        device="cpu",
-        push_to_hub=False,
-        **policy_features(cameras, image_hw, state_dim, action_dim),
-    )
-    kwargs.update(overrides)
-    return SmolVLAConfig(**kwargs)
-
-
-def build_tiny_smolvla(
-    folder: Path,
-    vlm_dir: Path,
-    *,
-    seed: int = 0,
-    hub_name: str | None = SMOLVLM_HUB_NAME,
-    **config_kwargs: Any,
-) -> Path:
-    """Save a freshly initialised tiny SmolVLA (config.json + model.safetensors) into ``folder``.
-
-    The VLM is built from ``vlm_dir`` (see ``build_tiny_smolvlm``); the saved config names
-    ``hub_name`` instead, like ``lerobot/smolvla_base``, unless ``hub_name`` is None."""
-    config = tiny_smolvla_config(vlm_dir, **config_kwargs)
-    torch.manual_seed(seed)
-    policy = policy_class("smolvla")(config)
-    if hub_name is not None:
-        policy.config.vlm_model_name = hub_name
-    policy.save_pretrained(Path(folder))
-    return Path(folder)
 
 
 def build_xvla_tokenizer(folder: Path, vocab_size: int = 300) -> Path:

@@ -17,6 +17,7 @@ from r2s_eval.policies.sources import (
     validate_source_cfg,
 )
 from r2s_eval.judge.base import transport_keys
+from r2s_eval.libero import ACTION_DIM as LIBERO_ACTION_DIM
 from r2s_eval.sim.env import ACTION_DIM
 from r2s_eval.stages._reads import declaration as stage_declaration
 
@@ -48,17 +49,29 @@ class _ResumingWorkflow(type(workflow)):
         self.__dict__["_resuming_dag_settings"] = settings
 
 
+# The setting: LIBERO experiments compose conf/libero (workflow/rules/libero.smk); the others
+# are real-to-sim.
+LIBERO = CFG.get("libero") is not None
 POLICIES = sorted(CFG["policies"])
 # Candidates trained here; checkpoint and server candidates skip training.
 TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p])]
 EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if p not in TRAINED}
+ARMS = ["sim"] if LIBERO else ["real", "sim"]
+
+
+def workflow_made(path):
+    """A checkpoint this workflow builds (under results/): checked when it is loaded, and its
+    rule's outputs, not its bytes at planning time, decide what reruns."""
+    return Path(str(path)).parts[:1] == ("results",)
+
+
 for _name, _source in EXTERNAL.items():
     if _source["type"] == "checkpoint":  # a wrong folder fails now, before any rollout
-        for _arm in ("real", "sim"):
-            check_checkpoint(for_arm(_source, _arm), _name, ACTION_DIM)
+        for _arm in ARMS:
+            if not workflow_made(for_arm(_source, _arm)["path"]):
+                check_checkpoint(for_arm(_source, _arm), _name, LIBERO_ACTION_DIM if LIBERO else ACTION_DIM)
 JUDGES = sorted(CFG["judges"])
-ARMS = ["real", "sim"]
-TWIN = CFG["real"]["source"] == "twin"
+TWIN = not LIBERO and CFG["real"]["source"] == "twin"
 PY = sys.executable
 # Scheduling: ingest -> init_offsets -> init_estimate -> replay ahead of trains (train.smk ranks those).
 SIM_CHAIN_PRIORITY = 1_000_000
@@ -104,23 +117,31 @@ class Untracked:
 CHECKPOINT_HASH_MEMO = "results/.cache/checkpoint_hashes.json"
 
 
-def rollout_policy_cfg(wildcards):
+def candidate_identity(policy, arm):
     """What decides a candidate's rollouts: its type, or a checkpoint's content, or a server's
     config without its address."""
-    if wildcards.policy in TRAINED:
-        return {"type": CFG["policies"][wildcards.policy]["type"]}
-    source = for_arm(EXTERNAL[wildcards.policy], wildcards.arm)
+    if policy in TRAINED:
+        return {"type": CFG["policies"][policy]["type"]}
+    source = for_arm(EXTERNAL[policy], arm)
     identity = result_identity(source)
-    if source["type"] == "checkpoint":
+    if source["type"] == "checkpoint" and not workflow_made(source["path"]):
         identity["content_sha256"] = checkpoint_hash(source["path"], CHECKPOINT_HASH_MEMO)
     return identity
 
 
-def rollout_transport(wildcards):
-    if wildcards.policy in TRAINED:
+def candidate_transport(policy, arm):
+    if policy in TRAINED:
         return Untracked({})
-    source = for_arm(EXTERNAL[wildcards.policy], wildcards.arm)
+    source = for_arm(EXTERNAL[policy], arm)
     return Untracked({k: v for k, v in source.items() if k not in result_identity(source)})
+
+
+def rollout_policy_cfg(wildcards):
+    return candidate_identity(wildcards.policy, wildcards.arm)
+
+
+def rollout_transport(wildcards):
+    return candidate_transport(wildcards.policy, wildcards.arm)
 
 
 REAL_DATASET = "results/real/dataset" if TWIN else CFG["real"]["dataset_root"]

@@ -5,19 +5,26 @@ SIM_ROLLOUTS = expand("results/rollout/sim/{policy}", policy=POLICIES)
 FIGURE_EXTS = ["pdf", "png"]
 HUMAN_ANNOTATIONS = CFG["report"]["judge_audit"]["human_annotations"]
 
-REPORTS = [
-    "reports/tasks_table.tex",
-    "reports/realsim_success_table.tex",
-    "reports/realsim_table.tex",
+# Tables and figures of either setting; then each setting's own.
+SHARED_REPORTS = [
     "reports/bt_scores_table.tex",
     "reports/judge_card_table.tex",
     *expand("reports/win_rate_matrix_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
     *expand("reports/bt_convergence.{ext}", ext=FIGURE_EXTS),
     *expand("reports/overall_ranking.{ext}", ext=FIGURE_EXTS),
-    *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
     *expand("reports/case_study_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
     "reports/index.html",
 ]
+if LIBERO:
+    REPORTS = ["reports/libero_table.tex", *SHARED_REPORTS]
+else:
+    REPORTS = [
+        "reports/tasks_table.tex",
+        "reports/realsim_success_table.tex",
+        "reports/realsim_table.tex",
+        *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
+        *SHARED_REPORTS,
+    ]
 
 
 rule reports:
@@ -86,23 +93,46 @@ rule judge_card_table:
         "{PY} -m r2s_eval.stages.judge_card_table --cfg {params.cfg:q} --audits {input} --out {output} --log {log}"
 
 
-rule realsim_table:
-    input:
-        validation=expand("results/validate/{judge}.json", judge=JUDGES),
-        audits=expand("results/audit/{judge}.json", judge=JUDGES),
-        fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
-        reference="results/reference/success.parquet",
-    output:
-        table="reports/realsim_table.tex",
-        ranking="reports/ranking.txt",
-    params:
-        cfg=stage_params("realsim_table"),
-    log:
-        "logs/realsim_table.log",
-    shell:
-        "{PY} -m r2s_eval.stages.realsim_table --cfg {params.cfg:q} --validation {input.validation}"
-        " --audits {input.audits} --fits {input.fits} --reference {input.reference} --table {output.table}"
-        " --ranking {output.ranking} --log {log}"
+if LIBERO:
+
+    # LIBERO: the same judge rows, validated against LIBERO's success rate, and that rate per suite.
+    rule libero_table:
+        input:
+            validation=expand("results/validate/{judge}.json", judge=JUDGES),
+            audits=expand("results/audit/{judge}.json", judge=JUDGES),
+            fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
+            reference="results/reference/success.parquet",
+        output:
+            table="reports/libero_table.tex",
+            ranking="reports/ranking.txt",
+        params:
+            cfg=stage_params("libero_table"),
+        log:
+            "logs/libero_table.log",
+        shell:
+            "{PY} -m r2s_eval.stages.libero_table --cfg {params.cfg:q} --validation {input.validation}"
+            " --audits {input.audits} --fits {input.fits} --reference {input.reference} --table {output.table}"
+            " --ranking {output.ranking} --log {log}"
+
+else:
+
+    rule realsim_table:
+        input:
+            validation=expand("results/validate/{judge}.json", judge=JUDGES),
+            audits=expand("results/audit/{judge}.json", judge=JUDGES),
+            fits=expand("results/fit/{judge}.parquet", judge=JUDGES),
+            reference="results/reference/success.parquet",
+        output:
+            table="reports/realsim_table.tex",
+            ranking="reports/ranking.txt",
+        params:
+            cfg=stage_params("realsim_table"),
+        log:
+            "logs/realsim_table.log",
+        shell:
+            "{PY} -m r2s_eval.stages.realsim_table --cfg {params.cfg:q} --validation {input.validation}"
+            " --audits {input.audits} --fits {input.fits} --reference {input.reference} --table {output.table}"
+            " --ranking {output.ranking} --log {log}"
 
 
 rule bt_scores_table:

@@ -47,6 +47,12 @@ def _gpu_jobs():
             and _on_gpu(for_arm(EXTERNAL[p], arm).get("device") or CFG["rollout"]["device"])
         ]),
     }
+    # A LIBERO checkpoint candidate runs where rollout.device (or its own device) says.
+    jobs["libero_rollout"] = (("policy",), [
+        (p,) for p in POLICIES
+        if LIBERO and p in EXTERNAL and EXTERNAL[p]["type"] == "checkpoint"
+        and _on_gpu(for_arm(EXTERNAL[p], "sim").get("device") or CFG["rollout"]["device"])
+    ])
     local_judges = [(j,) for j in JUDGES
                     if CFG["judges"][j].get("backend") == "transformers" and _on_gpu(CFG["judges"][j].get("device"))]
     jobs["describe"] = jobs["judge_pairs"] = (("judge",), local_judges)

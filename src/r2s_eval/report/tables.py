@@ -128,6 +128,25 @@ def realsim_success_table(success: pd.DataFrame, decimals: int = 1) -> str:
     return _tabular("l" + "rr" * len(tasks), header, body, footer)
 
 
+def libero_success_table(reference: pd.DataFrame, suite_of, decimals: int = 1) -> str:
+    """LIBERO's own success rate per policy (rows) and suite (columns), then overall: each the
+    mean of the per-task rates in it (every task weighs the same, as LIBERO reports), in %.
+    ``reference``: the reference table (policy, task, trials, successes); ``suite_of`` maps a
+    task name to its suite. A note says how many episodes each task rests on."""
+    table = reference.assign(suite=reference["task"].map(suite_of),
+                             rate=reference["successes"] / reference["trials"])
+    suites = sorted(table["suite"].unique())
+    by_suite = table.groupby(["policy", "suite"])["rate"].mean()
+    overall = table.groupby("policy")["rate"].mean()
+    header = [_row(["Policy", *(latex_escape(s) for s in suites), "Overall"])]
+    body = [_row([latex_escape(p), *(_pct(by_suite.get((p, s)), decimals) for s in suites), _pct(overall[p], decimals)])
+            for p in overall.sort_values(ascending=False).index]
+    trials = sorted(set(table["trials"].astype(int)))
+    per_task = f"{trials[0]}" if len(trials) == 1 else f"{trials[0]}--{trials[-1]}"
+    notes = [f"Success \\% (mean of per-task rates); {table['task'].nunique()} tasks, {per_task} episodes per task and policy."]
+    return _tabular("l" + "r" * (len(suites) + 1), header, body, notes=notes)
+
+
 # -------------------------------------------------------------------- real-to-sim
 
 # (column title, where the value lives, key): the paper's five columns, then the judge audit.
@@ -243,15 +262,17 @@ def planted_order_line(reference_rate: Mapping[str, float], reference_ci: Mappin
 
 
 def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float],
-                 reference_ci: Mapping[str, tuple] | None = None, planted_order: Sequence[str] | None = None) -> str:
+                 reference_ci: Mapping[str, tuple] | None = None, planted_order: Sequence[str] | None = None,
+                 reference_name: str = "real success") -> str:
     """Plain-text ranking at the last checkpoint, each judge beside the reference performance
     (the mean of the per-task success rates, with its interval where ``reference_ci`` gives
-    one). The title names the bootstrap behind the score intervals. With a line-up's
-    ``planted_order`` (best first), a last line says whether the reference recovers it."""
+    one; ``reference_name`` says what it is). The title names the bootstrap behind the score
+    intervals. With a line-up's ``planted_order`` (best first), a last line says whether the
+    reference recovers it."""
     policies = sorted(reference_rate, key=lambda p: -reference_rate[p])
     reference_ci = reference_ci or {}
     width = 24 if reference_ci else 16
-    header = f"{'policy':<16}{'real success %':>{width}}"
+    header = f"{'policy':<16}{reference_name + ' %':>{width}}"
     rows = {}
     for p in policies:
         cell = f"{100 * reference_rate[p]:.1f}"
@@ -272,7 +293,7 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
     title = (f"Ranking at the last checkpoint ({n} comparisons per policy pair): "
              f"BT score [{interval_label(interval, level)}] #rank")
     notes = [f"BT CI: {interval} bootstrap, {INTERVAL_TEXT.get(interval, 'bootstrap')}",
-             "real success %: mean of the per-task success rates"
+             f"{reference_name} %: mean of the per-task success rates"
              + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
     if planted_order and reference_ci:
         notes.append(planted_order_line(reference_rate, reference_ci, planted_order, level))

@@ -87,3 +87,39 @@ def test_a_killed_libero_process_keeps_finished_episodes(libero_python, tiny_che
     episodes = _run(tmp_path, "tiny_a", tiny_checkpoints["tiny_a"], libero_python)
     assert kept == [0, 1]  # the rerun ran the unfinished episode only
     assert episodes["init_id"].tolist() == [0, 1] and len(started) == 2
+
+
+def test_a_policy_server_candidate_acts_as_its_checkpoint(libero_python, tiny_checkpoints, tmp_path):
+    # The same checkpoint served by `python -m r2s_eval.serve` (a lab's GPU box, here on
+    # loopback) and entered as `type: server`: the same episodes, the same actions.
+    import socket
+    import sys
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    log = tmp_path / "server.log"
+    server = subprocess.Popen([sys.executable, "-m", "r2s_eval.serve", str(tiny_checkpoints["tiny_b"]), "--port", str(port)],
+                              stdout=open(log, "w"), stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 120
+        while "serving" not in log.read_text():
+            assert server.poll() is None and time.monotonic() < deadline, log.read_text()[-2000:]
+            time.sleep(0.2)
+        served = run_libero_candidate(tmp_path / "served", policy="tiny_b", seed=0, libero=LIBERO, rollout=ROLLOUT,
+                                      policy_cfg={"type": "server", "port": port, "host": "127.0.0.1",
+                                                  "connect_timeout_s": 10.0, "reply_timeout_s": 60.0,
+                                                  "connect_retries": 3},
+                                      python=libero_python)
+    finally:
+        server.kill()
+        server.wait()
+    local = _run(tmp_path, "tiny_b", tiny_checkpoints["tiny_b"], libero_python)
+    for a, b in zip(served.itertuples(), local.itertuples()):
+        assert a.init_state_sha256 == b.init_state_sha256
+        actions_a = pd.read_parquet(tmp_path / "served" / a.trajectory_path)["action"]
+        actions_b = pd.read_parquet(tmp_path / "tiny_b" / b.trajectory_path)["action"]
+        assert len(actions_a) == len(actions_b)
+        for x, y in zip(actions_a, actions_b):
+            assert list(x) == pytest.approx(list(y), abs=1e-5)

@@ -4,6 +4,9 @@
 SIM_ROLLOUTS = expand("results/rollout/sim/{policy}", policy=POLICIES)
 FIGURE_EXTS = ["pdf", "png"]
 HUMAN_ANNOTATIONS = CFG["report"]["judge_audit"]["human_annotations"]
+# What the reference is, in the figures' and the tables' words.
+REFERENCE_NAME = "LIBERO success" if LIBERO else "real success"
+REFERENCE_COLUMN = "LIBERO" if LIBERO else "Real"
 
 # Tables and figures of either setting; then each setting's own.
 SHARED_REPORTS = [
@@ -144,11 +147,13 @@ rule bt_scores_table:
         "reports/bt_scores_table.tex",
     params:
         cfg=stage_params("bt_scores_table"),
+        reference_name=REFERENCE_COLUMN,
     log:
         "logs/report/bt_scores_table.log",
     shell:
         "{PY} -m r2s_eval.stages.bt_scores_table --cfg {params.cfg:q} --fits {input.fits}"
-        " --reference {input.reference} --validation {input.validation} --out {output} --log {log}"
+        " --reference {input.reference} --validation {input.validation} --out {output}"
+        " --reference-name {params.reference_name:q} --log {log}"
 
 
 rule win_rate_matrix:
@@ -191,12 +196,13 @@ rule overall_ranking:
         png="reports/overall_ranking.png",
     params:
         cfg=stage_params("overall_ranking_figure"),
+        reference_name=REFERENCE_NAME,
     log:
         "logs/report/overall_ranking.log",
     shell:
         "{PY} -m r2s_eval.stages.overall_ranking_figure --cfg {params.cfg:q} --fits {input.fits}"
         " --reference {input.reference} --validation {input.validation} --pdf {output.pdf} --png {output.png}"
-        " --log {log}"
+        " --reference-name {params.reference_name:q} --log {log}"
 
 
 rule hardware_effort:

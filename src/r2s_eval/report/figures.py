@@ -125,7 +125,7 @@ def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figur
 
 
 def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], opts: Mapping,
-                   reference_ci: Mapping[str, tuple] | None = None) -> Figure:
+                   reference_ci: Mapping[str, tuple] | None = None, reference_name: str = "real success") -> Figure:
     """Two panels sharing the policy axis, ordered by reference success: the judge-averaged
     BT score at the last checkpoint (bars, judge-averaged bootstrap interval as error bars,
     each judge as a dot) and the reference performance, the mean of the per-task success
@@ -157,7 +157,7 @@ def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], 
             ref_err = np.nan_to_num(np.vstack([ref - bounds[0], bounds[1] - ref]).clip(min=0))
         ax_r.barh(y, ref, xerr=ref_err, color=opts["reference_color"],
                   capsize=3 if ref_err is not None else 0)
-        ax_r.set_xlabel("real success (%, mean over tasks)")
+        ax_r.set_xlabel(f"{reference_name} (%, mean over tasks)")
         ax_r.set_xlim(0, 100)
         ax_r.set_title("Reference")
         rho = spearman(avg["score"].to_numpy(), ref) if len(policies) > 1 else float("nan")

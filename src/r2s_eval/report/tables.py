@@ -205,12 +205,14 @@ def _with_ci(value, ci, decimals: int, scale: float = 1.0) -> str:
 
 
 def bt_scores_table(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float], decimals: int = 1,
-                    show_ci: bool = True, reference_ci: Mapping[str, tuple] | None = None) -> str:
+                    show_ci: bool = True, reference_ci: Mapping[str, tuple] | None = None,
+                    reference_name: str = "Real") -> str:
     """Per policy (rows, by reference success) and judge (columns): the Bradley-Terry score
     s = 100 b at the judge's last checkpoint, with its bootstrap interval; the first column is
     the reference performance, the mean of the per-task real success rates, with its
-    interval where ``reference_ci`` ({policy: (low, high)} as fractions) is given. A note
-    under the table names the bootstrap behind the score intervals."""
+    interval where ``reference_ci`` ({policy: (low, high)} as fractions) is given
+    (``reference_name`` heads it). A note under the table names the bootstrap behind the
+    score intervals."""
     last = {j: last_checkpoint(fits[j]) for j in sorted(fits)}
     policies = sorted(set(reference_rate) | set().union(*(set(t.index) for t in last.values())),
                       key=lambda p: (-reference_rate.get(p, -1.0), p))
@@ -227,9 +229,9 @@ def bt_scores_table(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[st
             row.append(_with_ci(table.loc[p, "score"], ci, decimals))
         body.append(_row(row))
     checkpoints = ", ".join(f"{latex_escape(j)}: {int(t['checkpoint'].max())}" for j, t in fits.items())
-    header = [_row(["Policy", r"Real (\%)"] + [latex_escape(j) for j in last])]
+    header = [_row(["Policy", rf"{latex_escape(reference_name)} (\%)"] + [latex_escape(j) for j in last])]
     interval, level = fit_interval(dict(fits))
-    note = "Real: mean over tasks."
+    note = f"{latex_escape(reference_name)}: mean over tasks."
     if show_ci:
         note += f" Brackets: {100 * level:g}% CIs; BT: {interval} bootstrap."
     # The checkpoint each column stands at and the interval in full, as a comment so the

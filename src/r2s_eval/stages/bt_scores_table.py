@@ -22,7 +22,7 @@ def main(args) -> None:
     reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
     reference_ci = reference_interval(_cli.by_judge(args.validation, read_json))
     table = bt_scores_table(fits, reference, decimals=int(opts["decimals"]), show_ci=bool(opts["show_ci"]),
-                            reference_ci=reference_ci)
+                            reference_ci=reference_ci, reference_name=args.reference_name)
     write_text(args.out, table, comment="%")
 
 
@@ -31,5 +31,6 @@ if __name__ == "__main__":
     p.add_argument("--fits", nargs="+", required=True, help="fit table per judge (results/fit/<judge>.parquet)")
     p.add_argument("--reference", required=True)
     p.add_argument("--validation", nargs="*", default=[], help="validate's JSON per judge (the reference's interval)")
+    p.add_argument("--reference-name", default="Real", help="what the reference is (its column's title)")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

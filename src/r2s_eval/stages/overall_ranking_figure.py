@@ -18,7 +18,8 @@ def main(args) -> None:
     averaged = judge_averaged_scores(_cli.by_judge(args.fits, pd.read_parquet))
     reference = reference_rates(pd.read_parquet(args.reference)).to_dict()
     reference_ci = reference_interval(_cli.by_judge(args.validation, read_json))
-    save_figure(ranking_figure(averaged, reference, opts, reference_ci), args.pdf, args.png, dpi=opts["dpi"])
+    figure = ranking_figure(averaged, reference, opts, reference_ci, reference_name=args.reference_name)
+    save_figure(figure, args.pdf, args.png, dpi=opts["dpi"])
     print(averaged.round(2).to_string())
 
 
@@ -27,6 +28,7 @@ if __name__ == "__main__":
     p.add_argument("--fits", nargs="+", required=True, help="fit table per judge (results/fit/<judge>.parquet)")
     p.add_argument("--reference", required=True)
     p.add_argument("--validation", nargs="*", default=[], help="validate's JSON per judge (the reference's interval)")
+    p.add_argument("--reference-name", default="real success", help="what the reference is (its axis label)")
     p.add_argument("--pdf", required=True)
     p.add_argument("--png", required=True)
     _cli.run(main, p)

@@ -847,11 +847,28 @@ def suggest(path: str, known: Sequence[str]) -> str | None:
 # ----------------------------------------------------------------------------- entry point
 
 
+# What the LIBERO setting never reads: its protocol is libero.* (the receding horizon and the
+# model's device, rollout.chunk_size / n_action_steps / device, are shared with real-to-sim).
+LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "rollout.inits_per_task",
+                 "rollout.real_inits_per_task", "rollout.max_steps", "rollout.batch_episodes", "rollout.model_batch",
+                 "rollout.video_camera", "rollout.video_size", "rollout.video_fps")
+
+
+def _unread_in_libero(sources: Sequence[Source]) -> list[Problem]:
+    """Keys an experiment file or an override sets that a LIBERO run would ignore."""
+    return [Problem(path, "is not read in the LIBERO setting (its protocol is libero.*: tasks, max_steps, "
+                          "episodes_per_task, observation, video)")
+            for path in LIBERO_UNREAD
+            if any(src.sets(path) for src in sources if src.override_key is not None or src.group == "experiment")]
+
+
 def validate_config(cfg: dict, sources: Sequence[Source] = ()) -> None:
     """Raise one ConfigError listing every problem of the composed `cfg`; return when it is sound."""
     problems = _check(cfg, Config, "")
     if not problems:
         problems = _cross_problems(cfg)
+    if not problems and cfg.get("libero") is not None:
+        problems = _unread_in_libero(sources)
     if not problems:
         return
     known = known_paths()

@@ -162,8 +162,8 @@ def run_episode(env, client, job: dict, ep: dict, instruction: str, init_state: 
     cams = Cameras(env, render, obs)
     frames.append(cams.image(video, video_hw))
     success = False
+    state = robot_state(obs)
     for step in range(int(ep["max_steps"])):
-        state = robot_state(obs)
         if not queue:
             t0 = time.perf_counter()
             reply = client.infer(policy_observation(cams, job, state, instruction))
@@ -178,6 +178,7 @@ def run_episode(env, client, job: dict, ep: dict, instruction: str, init_state: 
         obs, _, _, _ = env.step(action.tolist())
         cams = Cameras(env, render, obs)
         success = bool(env.check_success())
+        state = robot_state(obs)  # recorded after the step, as our own trajectories are
         rows["state"].append(state)
         rows["action"].append(action)
         rows["eef_pos"].append(np.asarray(obs["robot0_eef_pos"], dtype=np.float32))

@@ -44,7 +44,12 @@ from unittest import mock
 import torch
 
 from r2s_eval.policies.tiny import (  # the SmolVLA builders live in the package (smoke runs use them)
+    _TOKENIZER_CORPUS,
+    ACTION_KEY,
+    CAMERAS,
     SMOLVLM_HUB_NAME,
+    STATE_KEY,
+    TASK,
     SmolDims,
     build_bpe_tokenizer,
     build_tiny_smolvla,
@@ -57,19 +62,6 @@ PALIGEMMA_TOKENIZER = "google/paligemma-3b-pt-224"
 # Any fixed 40-hex string works: the hub cache resolves `refs/main` to this snapshot folder.
 _SNAPSHOT = "7e1e5e7e00000000000000000000000000000000"
 
-CAMERAS = ("observation.images.head_left", "observation.images.wrist_left")
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
-TASK = "pick up the red cube and put it in the bowl"
-
-_TOKENIZER_CORPUS = (
-    TASK,
-    "fold the towel and place it on the table",
-    "open the drawer then close it again",
-    "Task: stack the blocks, State: 0 12 127 128 200 255;\nAction: ",
-    # pi0.5 spells the state as bin numbers 0..255.
-    " ".join(str(i) for i in range(256)),
-)
 
 
 @dataclass(frozen=True)

@@ -44,12 +44,18 @@ class LiberoTask:
         return f"{self.suite}_{self.index}"
 
 
+def _split(task_name: str) -> tuple[str, int] | None:
+    """(suite, index) of a task name of a known suite, else None (the index is not range-checked)."""
+    suite, _, index = str(task_name).rpartition("_")
+    return (suite, int(index)) if suite in SUITES and index.isdigit() else None
+
+
 def suite_of(task_name: str) -> str:
     """The suite a task name belongs to (``libero_10_4`` -> ``libero_10``)."""
-    suite, _, index = task_name.rpartition("_")
-    if suite not in SUITES or not index.isdigit():
+    parts = _split(task_name)
+    if parts is None:
         raise ConfigError(f"{task_name!r} is not a LIBERO task name (<suite>_<index>; suites: {sorted(SUITES)})")
-    return suite
+    return parts[0]
 
 
 def selected_tasks(names: Sequence[str], max_steps: Mapping[str, int] | None = None) -> list[LiberoTask]:
@@ -61,14 +67,15 @@ def selected_tasks(names: Sequence[str], max_steps: Mapping[str, int] | None = N
         if name in SUITES:
             suite, indices = name, range(SUITES[name][0])
         else:
-            suite, _, index = str(name).rpartition("_")
-            if suite not in SUITES or not index.isdigit():
+            parts = _split(name)
+            if parts is None:
                 raise ConfigError(f"libero.tasks: LIBERO has no suite or task {name!r}; suites: {sorted(SUITES)} "
                                   f"(all their tasks), or one task as <suite>_<index>")
-            if not int(index) < SUITES[suite][0]:
+            suite, index = parts
+            if not index < SUITES[suite][0]:
                 raise ConfigError(f"libero.tasks: {name!r} does not exist; {suite} has tasks "
                                   f"{suite}_0..{suite}_{SUITES[suite][0] - 1}")
-            indices = [int(index)]
+            indices = [index]
         steps = int((max_steps or {}).get(suite) or SUITES[suite][1])
         tasks += [LiberoTask(suite, i, steps) for i in indices]
     names_seen = [t.name for t in tasks]

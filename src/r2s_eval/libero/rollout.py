@@ -32,7 +32,7 @@ from r2s_eval.policies.interface import IMAGE_PREFIX, ChunkPolicy, PolicyError, 
 from r2s_eval.policies.sources import checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import PlannedEpisode
 from r2s_eval.rollout.candidate import _collect, _EpisodeFolder, episode_store
-from r2s_eval.rollout.loop import episode_id
+from r2s_eval.rollout.loop import episode_id, video_frame_every
 from r2s_eval.utils.io import config_hash
 
 log = logging.getLogger("r2s_eval.libero")
@@ -83,13 +83,6 @@ def shards(todo: list[PlannedEpisode], workers: int) -> list[list[PlannedEpisode
     return [s for s in out if s]
 
 
-def _frame_every(video_fps: int) -> int:
-    ratio = CONTROL_HZ / int(video_fps)
-    if ratio != int(ratio):
-        raise PolicyError(f"libero.video.fps {video_fps} must divide LIBERO's control rate ({CONTROL_HZ} Hz)")
-    return int(ratio)
-
-
 def world_job(libero: dict, rollout: dict, cameras: dict[str, str], episodes: list[PlannedEpisode],
               tasks: dict[str, LiberoTask], port: int, out: Path) -> dict:
     video = libero["video"]
@@ -98,7 +91,7 @@ def world_job(libero: dict, rollout: dict, cameras: dict[str, str], episodes: li
         "cameras": cameras,
         "image_size": list(libero["observation"]["image_size"]),
         "rotate_180": bool(libero["observation"]["rotate_180"]),
-        "video": {"camera": video["camera"], "size": list(video["size"]), "every": _frame_every(video["fps"])},
+        "video": {"camera": video["camera"], "size": list(video["size"]), "every": video_frame_every(video["fps"], 1 / CONTROL_HZ)},
         "settle_steps": int(libero["settle_steps"]),
         "n_action_steps": int(rollout["n_action_steps"]),
         "render": libero["render"],
@@ -206,7 +199,6 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
     tasks = selected_tasks(libero["tasks"], libero["max_steps"])
     by_name = {t.name: t for t in tasks}
     planned = planned_episodes(tasks, int(libero["episodes_per_task"]), seed, policy)
-    _frame_every(libero["video"]["fps"])
     source = {**policy_cfg, **(transport or {})}
     model: ChunkPolicy = open_policy(source, policy, device=rollout.get("device", "cpu"), call_batch=1)
     server = None

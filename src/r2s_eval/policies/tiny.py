@@ -23,7 +23,8 @@ from typing import Any
 
 import torch
 
-STATE_KEY = "observation.state"
+from r2s_eval.policies.interface import STATE_KEY
+
 ACTION_KEY = "action"
 CAMERAS = ("observation.images.head_left", "observation.images.wrist_left")
 TASK = "pick up the red cube and put it in the bowl"

@@ -106,6 +106,16 @@ def _stage_name(main: Callable) -> str:
     return module.rsplit(".", 1)[-1]
 
 
+def add_validation_table_inputs(p: argparse.ArgumentParser) -> None:
+    """The arguments of the stages that write a validation table and the printed ranking."""
+    p.add_argument("--validation", nargs="+", required=True)
+    p.add_argument("--audits", nargs="*", default=[], help="judge-audit JSON per judge")
+    p.add_argument("--fits", nargs="+", required=True)
+    p.add_argument("--reference", required=True)
+    p.add_argument("--table", required=True)
+    p.add_argument("--ranking", required=True)
+
+
 def by_judge(paths: Iterable[str], read: Callable[[str], T]) -> dict[str, T]:
     """Per-judge artefacts (`.../<judge>.parquet`, `.../<judge>.json`) read into {judge: content}."""
     return {Path(p).stem: read(p) for p in paths}

@@ -35,10 +35,5 @@ def main(args) -> None:
 
 if __name__ == "__main__":
     p = _cli.parser(__doc__)
-    p.add_argument("--validation", nargs="+", required=True)
-    p.add_argument("--audits", nargs="*", default=[], help="judge-audit JSON per judge")
-    p.add_argument("--fits", nargs="+", required=True)
-    p.add_argument("--reference", required=True)
-    p.add_argument("--table", required=True)
-    p.add_argument("--ranking", required=True)
+    _cli.add_validation_table_inputs(p)
     _cli.run(main, p)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from r2s_eval.errors import DataError
 from r2s_eval.data import DatasetRecorder, DatasetValidationError, IngestSpec, ingest_dataset, lerobot_features
 
 INSTRUCTION = "Pick the Cup and Place it on the Plate"
@@ -115,3 +117,49 @@ def test_corrupt_video_names_camera_and_episode(dataset_copy, tmp_path):
     video.write_bytes(blob[: len(blob) // 3])
     with pytest.raises(DatasetValidationError, match=r"episode \d+: camera head_left: only \d+ of 12 frames decode"):
         ingest_dataset(dataset_copy, "local/test", spec(), tmp_path / "frames")
+
+
+def _frames(length: int) -> list[tuple[dict, np.ndarray]]:
+    image = np.full((32, 32, 3), 40, np.uint8)
+    return [({"observation.state": np.zeros(14), "observation.images.head_left": image}, np.zeros(14))
+            for _ in range(length)]
+
+
+def test_recorder_waits_for_a_slow_encoder(tmp_path, monkeypatch):
+    """LeRobot's streaming encoder drops frames when its queue stays full (live capture); an
+    offline recording must wait for it instead, so every frame reaches the video."""
+    from lerobot.datasets import video_utils
+
+    run = video_utils._CameraEncoderThread.run
+
+    def slow_start(self):
+        time.sleep(0.5)  # the first frames pile up in the queue meanwhile
+        run(self)
+
+    monkeypatch.setattr(video_utils._CameraEncoderThread, "run", slow_start)
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    with DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot") as rec:
+        rec.add_episode(_frames(60), INSTRUCTION)  # twice the encoder's default queue
+    index, _ = ingest_dataset(tmp_path / "ds", "local/test", spec(), tmp_path / "frames")
+    assert index["length"].tolist() == [60]
+
+
+def test_recorder_refuses_a_video_missing_frames(tmp_path, monkeypatch):
+    """A frame lost by the encoder would shift the video against the episode's rows: the recording
+    stops naming the episode and camera, and no dataset appears."""
+    from lerobot.datasets import video_utils
+
+    feed = video_utils.StreamingVideoEncoder.feed_frame
+    fed = {"n": 0}
+
+    def drop_third(self, video_key, image):
+        fed["n"] += 1
+        if fed["n"] != 3:
+            feed(self, video_key, image)
+
+    monkeypatch.setattr(video_utils.StreamingVideoEncoder, "feed_frame", drop_third)
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    with pytest.raises(DataError, match=r"episode 0, camera observation.images.head_left: .* wrote 9 frames of 10"):
+        with DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot") as rec:
+            rec.add_episode(_frames(10), INSTRUCTION)
+    assert not (tmp_path / "ds").exists()

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import DataError
 from r2s_eval.utils.io import current_provenance, write_json
 from r2s_eval.utils.numerics import job_threads
 
@@ -75,11 +76,16 @@ class DatasetRecorder:
             use_videos=True,
             video_backend="pyav",
             streaming_encoding=True,  # encode while recording: no PNG round trip
+            # LeRobot's streaming encoder drops a frame when its queue stays full for 0.1 s (right
+            # for a live camera); a recording here is offline and must wait instead. Unbounded:
+            # save_episode drains the queue, so it never holds more than one episode.
+            encoder_queue_maxsize=0,
             # One encoder per camera, all within the job's threads (the encoder's default is every
             # CPU of the node each); the bytes do not depend on it.
             encoder_threads=max(1, job_threads() // max(1, cameras)),
         )
         self._image_keys = [k for k, f in features.items() if f["dtype"] == "video"]
+        self.fps = int(fps)
         self.num_episodes = 0
 
     def add_episode(self, frames: Iterable[tuple[dict, np.ndarray]], task: str) -> int:
@@ -98,8 +104,21 @@ class DatasetRecorder:
         if n == 0:
             raise ValueError(f"episode {self.num_episodes} of {self.root} has no frames")
         self._dataset.save_episode()
+        self._check_videos(n)
         self.num_episodes += 1
         return self.num_episodes - 1
+
+    def _check_videos(self, frames: int) -> None:
+        """Every camera's video of the episode just saved holds all its frames: a frame lost by the
+        encoder would shift the video against the episode's rows, silently."""
+        episode = self._dataset.meta.latest_episode
+        for key in self._image_keys:
+            span = episode[f"videos/{key}/to_timestamp"][0] - episode[f"videos/{key}/from_timestamp"][0]
+            if abs(span * self.fps - frames) > 0.5:
+                raise DataError(
+                    f"{self.root}: episode {self.num_episodes}, camera {key}: the video encoder wrote "
+                    f"{span * self.fps:.0f} frames of {frames}"
+                )
 
     def close(self) -> None:
         self._dataset.finalize()

@@ -14,7 +14,7 @@ episode.
 - batched: ``run_candidate`` (the rollout stage's code) with ``--batch`` episodes side by side,
   one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads,
   the cameras rendered at query steps only, the judge video at ``rollout.video_fps`` (5 fps),
-  encoded as the frames come with libx264 superfast.
+  encoded as the frames come with libx264 ultrafast (the rollout stage's encoder).
 
 CPU time is the process's (every thread, software GL's included), so running on more cores
 counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
@@ -24,6 +24,11 @@ Run: ``python benchmarks/bench_rollout_batch.py [--episodes 16] [--batch 16] [--
 """
 
 from __future__ import annotations
+
+import os
+
+# As the rollout rule runs the stage: llvmpipe rasterises in the thread that renders.
+os.environ.setdefault("LP_NUM_THREADS", "0")
 
 import argparse
 import json

@@ -296,6 +296,7 @@ class Rollout:
     model_batch: PositiveInt
     video_camera: Camera
     video_size: tuple[PositiveInt, PositiveInt] | None
+    real_video_size: tuple[PositiveInt, PositiveInt] | None
     video_fps: PositiveInt
 
 
@@ -851,7 +852,7 @@ def suggest(path: str, known: Sequence[str]) -> str | None:
 # model's device, rollout.chunk_size / n_action_steps / device, are shared with real-to-sim).
 LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "rollout.inits_per_task",
                  "rollout.real_inits_per_task", "rollout.max_steps", "rollout.batch_episodes", "rollout.model_batch",
-                 "rollout.video_camera", "rollout.video_size", "rollout.video_fps")
+                 "rollout.video_camera", "rollout.video_size", "rollout.real_video_size", "rollout.video_fps")
 
 
 def _unread_in_libero(sources: Sequence[Source]) -> list[Problem]:

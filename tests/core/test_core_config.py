@@ -19,6 +19,10 @@ def test_experiments_compose():
     demo = compose_config(CONF, "demo")
     assert smoke["teleop"]["episodes_per_task"] < demo["teleop"]["episodes_per_task"]
     assert set(smoke["policies"]) == {"act", "act_subset", "act_weak"}
+    # The demo's middle policy has a cut step budget; each line-up's planted order names its own.
+    assert set(demo["policies"]) == {"act", "act_short", "act_weak"}
+    assert demo["report"]["judge_audit"]["planted_order"] == ["act", "act_short", "act_weak"]
+    assert demo["policies"]["act_weak"]["steps"] < demo["policies"]["act_short"]["steps"] < demo["policies"]["act"]["steps"]
     assert set(compose_config(CONF, "paper")["policies"]) == {"pi0", "pi05", "smolvla", "xvla"}
     assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
     assert "experiment" not in smoke

@@ -129,7 +129,9 @@ def test_cross_group_contradictions():
     with pytest.raises(ConfigError, match=r"policies\.act\.image_keys .* \['wrist_left'\]"):
         compose_config(CONF, "smoke", ["policies.act.image_keys=[observation.images.wrist_left]"])
     with pytest.raises(ConfigError, match=r"report\.judge_audit\.planted_order .* names \['act_subset'\]"):
-        compose_config(CONF, "demo", ["~policies.act_subset"])
+        compose_config(CONF, "smoke", ["~policies.act_subset"])
+    with pytest.raises(ConfigError, match=r"report\.judge_audit\.planted_order .* names \['act_short'\]"):
+        compose_config(CONF, "demo", ["~policies.act_short"])
 
 
 def test_a_missing_group_option_is_a_config_error():

@@ -73,7 +73,8 @@ def test_judge_video_operator_beats_frozen_policy_in_both_orders(sim_episodes):
     sp, sf = judge.scores(op), judge.scores(frozen)
     assert sp["task_progress"] > sf["task_progress"]
     assert op.criteria["task_progress"].evidence["max_move"] > 1.0
-    assert frozen.criteria["task_progress"].evidence["max_move"] == 0.0
+    # A still scene: the cup's mask moves by no more than the encoder's quantisation jitter.
+    assert frozen.criteria["task_progress"].evidence["max_move"] < 0.02
     assert frozen.criteria["action_continuity"].evidence["robot_moved"] is False
     instruction = df["instruction"].iloc[0]
     assert judge.compare(op, frozen, instruction).letter == "A"

@@ -27,7 +27,8 @@ from r2s_eval.utils.numerics import deterministic_torch
 TASKS = ["cup_on_plate", "stack_blocks"]
 WORLD = {"image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
 ROLLOUT = {"chunk_size": 10, "n_action_steps": 5, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
-           "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "video_fps": 10}
+           "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "real_video_size": [64, 64],
+           "video_fps": 10}
 SEED = 3
 
 
@@ -147,10 +148,28 @@ class ImagePolicy(ChunkPolicy):
         return np.stack(chunks).astype(np.float32)
 
 
-def _run_image_policy(monkeypatch, out: Path, inits: Path, policy: ImagePolicy, **batching) -> pd.DataFrame:
+def _run_image_policy(monkeypatch, out: Path, inits: Path, policy: ImagePolicy, arm: str = "sim",
+                      rollout: dict = ROLLOUT, twin: Path | None = None, **batching) -> pd.DataFrame:
     monkeypatch.setattr(candidate, "open_policy", lambda *args, **kwargs: policy)
-    return run_candidate(out, policy="image", arm="sim", seed=SEED, rollout=ROLLOUT, world=WORLD,
-                         policy_cfg={"type": "server"}, inits=str(inits), **batching)
+    return run_candidate(out, policy="image", arm=arm, seed=SEED, rollout=rollout, world=WORLD,
+                         policy_cfg={"type": "server"}, inits=str(inits), twin=str(twin) if twin else None,
+                         **batching)
+
+
+def test_real_side_videos_are_the_policy_image_unless_sized(tmp_path, monkeypatch, inits, twin):
+    """No judge sees the real side's videos: by default they are the policy's own (noisy) image of
+    the video camera; real_video_size renders them like the judges' videos. Sim videos keep
+    video_size either way."""
+    from r2s_eval.rollout.video import read_video
+
+    rollout = {**ROLLOUT, "real_video_size": None}
+    sizes = {}
+    for arm, cfg in (("real", rollout), ("sim", rollout), ("real_sized", ROLLOUT)):
+        out = tmp_path / arm
+        episodes = _run_image_policy(monkeypatch, out, inits, ImagePolicy(), arm=arm.split("_")[0], rollout=cfg,
+                                     twin=twin if arm.startswith("real") else None, batch_episodes=3)
+        sizes[arm] = {read_video(out / v).shape[1:3] for v in episodes["video_path"]}
+    assert sizes == {"real": {(48, 48)}, "sim": {(64, 64)}, "real_sized": {(64, 64)}}
 
 
 def test_a_run_killed_mid_batch_resumes_with_the_episodes_it_had_not_finished(tmp_path, monkeypatch, inits):

@@ -1,5 +1,10 @@
 """Reality twin: perturbations are seeded and really applied to the world."""
 
+import dataclasses
+import json
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -95,4 +100,47 @@ def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
     for _ in range(10):
         env.step(env.state())
     assert env.is_success() and centre_m(env, "ball")[2] > 0.75
+    env.close()
+
+
+def test_joint_offsets_hold_each_joint_off_its_command(twin_params):
+    """The twin's kinematic calibration error: every arm joint settles at its command plus its
+    offset, and the offsets survive the JSON round trip the twin stage writes."""
+    from r2s_eval.sim import world
+    from r2s_eval.sim.params import load_world_params
+
+    m = TwinMagnitudes()
+    offsets = {arm: twin_params.joint_offsets(arm) for arm in world.ARMS}
+    assert all(0 < np.abs(o).max() <= m.joint_offset_rad for o in offsets.values())
+    env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
+    env.reset(POSES)
+    command = np.r_[world.home_arm_q("left"), 0.0, world.home_arm_q("right"), 0.0]
+    for _ in range(30):
+        env.step(command, images=False)
+    state = env.state()
+    np.testing.assert_allclose(state[0:6] - command[0:6], offsets["left"], atol=2e-4)
+    np.testing.assert_allclose(state[7:13] - command[7:13], offsets["right"], atol=2e-4)
+    env.close()
+    path = Path(tempfile.mkdtemp()) / "twin_params.json"
+    path.write_text(json.dumps({"params": dataclasses.asdict(twin_params)}))
+    assert load_world_params(path).joint_offset_rad == twin_params.joint_offset_rad
+
+
+def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_params):
+    """The operator makes up for the joint offsets (as a person watching the gripper would): the
+    twin's demonstration still succeeds, and its recorded joint targets differ from the joint
+    angles the arm reached by the offsets, which is what replay in the nominal sim inherits."""
+    from r2s_eval.sim import world
+    from r2s_eval.twin.operator import make_operator, run_episode
+
+    env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
+    rng = np.random.default_rng(3)
+    obs = env.reset(env.sample_initial_poses(rng), seed=3)
+    operator = make_operator("cup_on_plate", env, rng)
+    steps = run_episode(env, operator, 150, obs)
+    assert env.is_success()
+    arm = operator.arm
+    i = 7 * world.ARMS.index(arm)
+    last_command = np.asarray(steps[-1][1])[i : i + 6]
+    np.testing.assert_allclose(env.state()[i : i + 6] - last_command, twin_params.joint_offsets(arm), atol=5e-3)
     env.close()

@@ -125,9 +125,11 @@ def test_policy_change_reruns_only_that_policy(smoke_run):
     assert not {rule for rule, _ in jobs} & {"twin", "teleop", "ingest", "init_estimate", "replay", "rollout_inits"}
 
 
-def test_real_inits_change_reruns_only_real_rollouts_onward(smoke_run):
-    # Only the real arm reads rollout.real_inits_per_task: sim rollouts and judging stay.
-    proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.real_inits_per_task=3"])
+@pytest.mark.parametrize("override", ["rollout.real_inits_per_task=3", "rollout.real_video_size=[64,64]"])
+def test_real_side_change_reruns_only_real_rollouts_onward(smoke_run, override):
+    # Only the real arm reads rollout.real_inits_per_task and real_video_size: sim rollouts and
+    # judging stay.
+    proc = snakemake(smoke_run.workdir, "-n", overrides=[override])
     jobs = planned_jobs(proc.stdout)
     assert {wc.get("arm") for rule, wc in jobs if rule == "rollout"} == {"real"}, jobs
     assert not {rule for rule, _ in jobs} & {"train", "rollout_inits", "compare_pairs", "describe", "judge_pairs", "fit"}

@@ -27,8 +27,10 @@ ROLLOUT_UNTRACKED = ("batch_episodes",)
 
 def rollout_params(wildcards):
     cfg = stage_cfg("rollout", arm=wildcards.arm, policy=wildcards.policy, policy_cfg=rollout_policy_cfg(wildcards))
-    untracked = ROLLOUT_UNTRACKED + (("real_inits_per_task",) if wildcards.arm == "sim" else ())
-    # real_inits_per_task is read by the real arm only: a change must not rerun sim rollouts.
+    # real_inits_per_task and real_video_size are read by the real arm only, video_size by the
+    # sim arm only: a change must not rerun the other arm's rollouts.
+    by_arm = {"sim": ("real_inits_per_task", "real_video_size"), "real": ("video_size",)}
+    untracked = ROLLOUT_UNTRACKED + by_arm[wildcards.arm]
     cfg["rollout"] = {k: v for k, v in cfg["rollout"].items() if k not in untracked}
     return to_json(cfg)
 

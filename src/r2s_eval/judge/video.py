@@ -234,9 +234,15 @@ def _speeds(c: np.ndarray, r: float) -> np.ndarray:
     return v[~np.isnan(v)]
 
 
+def task_objects(task_key: str) -> tuple[str, ...]:
+    """The objects the judge follows in a task's video: the one moved and the reference."""
+    _, mover, target = RELATIONS[task_key]
+    return tuple(n for n in (mover, target) if n)
+
+
 def progress_force(frames: np.ndarray, task_key: str, segmenter: Any, c: Mapping[str, Any]):
     rel, mover, target = RELATIONS[task_key]
-    names = tuple(n for n in (mover, target) if n)
+    names = task_objects(task_key)
     tr = object_tracks(frames, segmenter, names, c["min_visible_share"])
     k = int(c["end_frames"])
     m = tr[mover]
@@ -314,16 +320,19 @@ class VideoJudge(Judge):
             raise ValueError(f"video judge: blur_px must be odd or 0, got {self.cfg['blur_px']}")
         if not int(self.cfg["end_frames"]) >= 1:
             raise ValueError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
-        self._segmenter = None
+        self._segmenters: dict[str, Any] = {}
 
-    def segmenter(self):
-        if self._segmenter is None:
+    def segmenter(self, task_key: str):
+        """A segmenter of the objects the judge follows in ``task_key`` only: each object's mask
+        is the same whichever others are segmented beside it, and the rest would cost time."""
+        if task_key not in self._segmenters:
             from r2s_eval.calib.segment import make_segmenter
             from r2s_eval.sim.tasks import TASKS
 
             colours = {o.name: o.rgba for t in TASKS.values() for o in t.objects}
-            self._segmenter = make_segmenter(self.cfg["segmenter"], colours)
-        return self._segmenter
+            self._segmenters[task_key] = make_segmenter(self.cfg["segmenter"],
+                                                        {n: colours[n] for n in task_objects(task_key)})
+        return self._segmenters[task_key]
 
     # ---------------------------------------------------------------- describe
     def describe(self, rollout: RolloutInput) -> Description:
@@ -336,7 +345,7 @@ class VideoJudge(Judge):
         task_key = task_from_instruction(rollout.instruction)
         e = motion_energy(frames, int(c["blur_px"]), float(c["diff_threshold"]))
         smooth, cont = smoothness_continuity(e, c)
-        prog, label, force = progress_force(frames, task_key, self.segmenter(), c)
+        prog, label, force = progress_force(frames, task_key, self.segmenter(task_key), c)
 
         w = {k: self._word(k, ev) for k, ev in
              (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}

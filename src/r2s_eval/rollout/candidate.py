@@ -126,6 +126,12 @@ def _collect(out: Path, store: Path, planned: list[PlannedEpisode]) -> pd.DataFr
     return episodes
 
 
+def video_size(rollout: dict, arm: str) -> tuple[int, int] | None:
+    """The size of an arm's rollout videos: the judges' ``video_size`` for sim rollouts,
+    ``real_video_size`` for the real side, which no judge sees (None: the policy's own image)."""
+    return rollout.get("real_video_size") if arm == "real" else rollout.get("video_size")
+
+
 def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict, world: dict, policy_cfg: dict,
                   inits: str, twin: str | None = None, trained_dir: str | None = None,
                   transport: dict | None = None, batch_episodes: int = 1, threads: int = 1) -> pd.DataFrame:
@@ -170,7 +176,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
             model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
             arm=arm, chunk_size=rollout["chunk_size"], n_action_steps=rollout["n_action_steps"],
             action_map=action_map(policy_cfg, ACTION_DIM), max_steps=rollout["max_steps"],
-            video_camera=rollout["video_camera"], video_size=rollout.get("video_size"),
+            video_camera=rollout["video_camera"], video_size=video_size(rollout, arm),
             open_episode=lambda p: _EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
             batch_episodes=batch_episodes, threads=threads,
             frame_every=video_frame_every(rollout["video_fps"], CONTROL_DT_S),

@@ -11,6 +11,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
 
 
@@ -21,6 +23,9 @@ class WorldParams:
     friction_scale: float = 1.0
     object_mass_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
     actuator_kp_scale: float = 1.0
+    # Per arm, the 6 joints' zero offsets (rad): each servo holds its joint this far from the
+    # commanded angle (a robot's kinematic calibration error); missing -> 0.
+    joint_offset_rad: dict[str, tuple[float, ...]] = field(default_factory=dict)
     object_size_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
     camera_pos_offset_m: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     camera_rot_offset_rad: dict[str, tuple[float, float, float]] = field(default_factory=dict)
@@ -37,9 +42,15 @@ class WorldParams:
     def size_scale(self, obj: str) -> float:
         return float(self.object_size_scale.get(obj, 1.0))
 
+    def joint_offsets(self, arm: str) -> np.ndarray:
+        return np.asarray(self.joint_offset_rad.get(arm, (0.0,) * 6), dtype=float)
+
 
 def load_world_params(path: str | Path) -> WorldParams:
     """The ``params`` of a world-parameter JSON file (as the twin stage writes it)."""
     raw = json.loads(Path(path).read_text())["params"]
     tuples = {"light_dir_offset", "table_rgb_offset"}
-    return WorldParams(**{k: tuple(v) if k in tuples else v for k, v in raw.items()})
+    params = {k: tuple(v) if k in tuples else v for k, v in raw.items()}
+    if "joint_offset_rad" in params:
+        params["joint_offset_rad"] = {arm: tuple(v) for arm, v in params["joint_offset_rad"].items()}
+    return WorldParams(**params)

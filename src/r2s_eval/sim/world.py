@@ -79,6 +79,12 @@ def _apply_physics_params(model: mujoco.MjModel, params: WorldParams, objects) -
     model.geom_friction[:, 0] *= params.friction_scale
     model.actuator_gainprm[:, 0] *= params.actuator_kp_scale
     model.actuator_biasprm[:, 1] *= params.actuator_kp_scale
+    for arm, offsets in params.joint_offset_rad.items():
+        for joint, offset in zip(ARM_JOINTS, offsets, strict=True):
+            # A position servo's force is kp * (ctrl - q) + bias0: bias0 = kp * offset holds the
+            # joint at ctrl + offset.
+            act = model.actuator(f"{arm}_{joint}").id
+            model.actuator_biasprm[act, 0] = model.actuator_gainprm[act, 0] * float(offset)
     for obj in objects:
         body_id = model.body(obj.name).id
         model.body_mass[body_id] *= params.mass_scale(obj.name)

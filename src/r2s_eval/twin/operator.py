@@ -259,6 +259,11 @@ class ScriptedOperator:
             self._action[7 * i + 6] = 0.0
         self._arm_slice = slice(7 * world.ARMS.index(self.arm), 7 * world.ARMS.index(self.arm) + 6)
         self._grip_index = 7 * world.ARMS.index(self.arm) + 6
+        # A person at the controls sees where the gripper really is and aims accordingly: the
+        # commands make up for the arm's joint offsets, so the recorded joint targets are off
+        # by them (what action replay in a nominal simulation then has to absorb).
+        self._joint_offsets = self.env.params.joint_offsets(self.arm)
+        self._action[self._arm_slice] -= self._joint_offsets
 
     def _next_segment(self) -> bool:
         while not self._queue:
@@ -297,7 +302,8 @@ class ScriptedOperator:
             self._R_cmd = Rotation.from_rotvec(rotvec).as_matrix() @ self._R_cmd
         rate = self.cfg.gripper_rate_per_step
         self._gripper_cmd += float(np.clip(seg.gripper - self._gripper_cmd, -rate, rate))
-        self._action[self._arm_slice] = self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
+        self._action[self._arm_slice] = (self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
+                                         - self._joint_offsets)
         self._action[self._grip_index] = self._gripper_cmd
         arrived = dist <= max_step and turned and abs(seg.gripper - self._gripper_cmd) < 1e-9
         if arrived and seg.settle_m is not None:  # the arm lags its command: wait until it is there

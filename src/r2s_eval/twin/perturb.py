@@ -21,6 +21,7 @@ light_dir_offset            added to light directions    +-0.2 per axis
 object_rgb_offset[obj]      added to object RGB          +-0.06
 table_rgb_offset            added to table RGB           +-0.05
 image_noise_std             additive Gaussian, 0-255     U(0, 3)
+joint_offset_rad[arm]       servo zero offset per joint  +-2 deg
 ==========================  ===========================  ==================
 """
 
@@ -33,6 +34,7 @@ import numpy as np
 
 from r2s_eval.sim import get_task
 from r2s_eval.sim.params import CAMERA_NAMES, WorldParams
+from r2s_eval.sim.world import ARM_JOINTS, ARMS
 
 # Every object of the bundled suite (the twin perturbs each physical object once, whichever
 # task it appears in).
@@ -54,6 +56,9 @@ class TwinMagnitudes:
     object_rgb: float = 0.06
     table_rgb: float = 0.05
     image_noise_std_max: float = 3.0
+    # The arm's kinematic calibration error: each joint is held this far from its command, so
+    # recorded joint targets replayed in the nominal sim put the gripper millimetres off.
+    joint_offset_rad: float = float(np.deg2rad(2.0))
 
     def scaled(self, factor: float) -> "TwinMagnitudes":
         """All magnitudes multiplied by ``factor`` (0 gives the nominal world)."""
@@ -88,6 +93,8 @@ def sample_twin_params(
         table_rgb_offset=vec3(m.table_rgb),
         image_noise_std=float(rng.uniform(0.0, m.image_noise_std_max)),
         noise_seed=int(rng.integers(0, 2**31 - 1)),
+        # Drawn last, so the draws above are what they were before this parameter existed.
+        joint_offset_rad={arm: tuple(float(x) for x in u(m.joint_offset_rad, len(ARM_JOINTS))) for arm in ARMS},
     )
 
 

@@ -123,7 +123,7 @@ def test_joint_offsets_hold_each_joint_off_its_command(twin_params):
     env.close()
     path = Path(tempfile.mkdtemp()) / "twin_params.json"
     path.write_text(json.dumps({"params": dataclasses.asdict(twin_params)}))
-    assert load_world_params(path).joint_offset_rad == twin_params.joint_offset_rad
+    assert load_world_params(path) == twin_params
 
 
 def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_params):

@@ -49,8 +49,14 @@ class WorldParams:
 def load_world_params(path: str | Path) -> WorldParams:
     """The ``params`` of a world-parameter JSON file (as the twin stage writes it)."""
     raw = json.loads(Path(path).read_text())["params"]
-    tuples = {"light_dir_offset", "table_rgb_offset"}
-    params = {k: tuple(v) if k in tuples else v for k, v in raw.items()}
-    if "joint_offset_rad" in params:
-        params["joint_offset_rad"] = {arm: tuple(v) for arm, v in params["joint_offset_rad"].items()}
-    return WorldParams(**params)
+    return WorldParams(**{k: _tuples(v) for k, v in raw.items()})
+
+
+def _tuples(value):
+    """JSON arrays back to the tuples ``WorldParams`` holds, inside dicts too (per-camera,
+    per-object and per-arm vectors), so a round trip gives an equal ``WorldParams``."""
+    if isinstance(value, list):
+        return tuple(value)
+    if isinstance(value, dict):
+        return {k: _tuples(v) for k, v in value.items()}
+    return value

@@ -208,12 +208,26 @@ class Real:
 
 
 @dataclass
+class DatasetVideo:
+    """Camera-video encoder settings of a recorded dataset: fields of LeRobot's RGBEncoderConfig,
+    which checks the codec and its options when the recording starts (importing LeRobot here would
+    slow every plan by seconds)."""
+
+    vcodec: str
+    preset: int | str | None = optional("lerobot.configs.video.RGBEncoderConfig")
+    crf: float | None = optional("lerobot.configs.video.RGBEncoderConfig")
+    g: PositiveInt | None = optional("lerobot.configs.video.RGBEncoderConfig")
+    pix_fmt: str = optional("lerobot.configs.video.RGBEncoderConfig")
+
+
+@dataclass
 class Teleop:
     episodes_per_task: PositiveInt
     max_steps: PositiveInt
     keep_failed: bool
     max_attempts_factor: PositiveInt
     operator: Annotated[dict, FieldsOf(_operator_config)]
+    video: DatasetVideo
 
 
 @dataclass
@@ -282,6 +296,7 @@ class Replay:
     max_attempts: PositiveInt
     perturb_xy_m: NonNegative
     perturb_yaw_rad: NonNegative
+    video: DatasetVideo
 
 
 @dataclass

@@ -101,6 +101,15 @@ def test_open_entries_are_checked_by_their_owners():
         compose_config(CONF, "smoke", ["+suite.cup_on_plat.init_regions=null"])
 
 
+def test_recording_video_settings_are_checked():
+    with pytest.raises(ConfigError, match=r"teleop\.video\.codec .*did you mean teleop\.video\.vcodec\?"):
+        compose_config(CONF, "smoke", ["+teleop.video.codec=h264"])
+    with pytest.raises(ConfigError, match=r"replay\.video\.crf .*must be a number"):
+        compose_config(CONF, "smoke", ["replay.video.crf=high"])
+    assert compose_config(CONF, "smoke", ["replay.video.vcodec=libsvtav1", "replay.video.preset=12"])["replay"]["video"] \
+        == {"vcodec": "libsvtav1", "preset": 12, "crf": 18}
+
+
 def test_judge_video_rate_must_divide_the_control_rate():
     with pytest.raises(ConfigError, match=r"rollout\.video_fps .*must divide the control rate \(10 Hz\)"):
         compose_config(CONF, "smoke", ["rollout.video_fps=3"])

@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 
 from r2s_eval.errors import DataError
-from r2s_eval.data import DatasetRecorder, DatasetValidationError, IngestSpec, ingest_dataset, lerobot_features
+from r2s_eval.data import (DatasetRecorder, DatasetValidationError, IngestSpec, episode_frames, ingest_dataset,
+                           lerobot_features, open_metadata)
 
 INSTRUCTION = "Pick the Cup and Place it on the Plate"
 NAMES = [f"j{i}" for i in range(14)]
@@ -162,4 +163,68 @@ def test_recorder_refuses_a_video_missing_frames(tmp_path, monkeypatch):
     with pytest.raises(DataError, match=r"episode 0, camera observation.images.head_left: .* wrote 9 frames of 10"):
         with DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot") as rec:
             rec.add_episode(_frames(10), INSTRUCTION)
+    assert not (tmp_path / "ds").exists()
+
+
+def _moving_frames(length: int, seed: int) -> list[tuple[dict, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    frames = []
+    for t in range(length):
+        image = np.full((32, 32, 3), 40, np.uint8)
+        image[8:16, t : 8 + t] = (200, 30, 30)
+        frames.append(({"observation.state": rng.normal(size=14), "observation.images.head_left": image}, rng.normal(size=14)))
+    return frames
+
+
+def _record(root: Path, threads: str, monkeypatch, submit: bool, video: dict | None = None) -> list[int]:
+    monkeypatch.setenv("OMP_NUM_THREADS", threads)
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    with DatasetRecorder(root, "local/test", 10, features, "test_robot", video=video) as rec:
+        add = rec.submit_episode if submit else rec.add_episode
+        return [add(_moving_frames(8 + e, e), INSTRUCTION) for e in range(3)]
+
+
+def test_episodes_encoded_beside_the_next_make_the_same_dataset(tmp_path, monkeypatch):
+    """With two job threads an episode is encoded on the recorder's thread while the caller makes
+    the next one; the dataset is the one add_episode records, indices included."""
+    assert _record(tmp_path / "inline", "1", monkeypatch, submit=False) == [0, 1, 2]
+    assert _record(tmp_path / "beside", "2", monkeypatch, submit=True) == [0, 1, 2]
+    inline, beside = (open_metadata(tmp_path / name, "local/test") for name in ("inline", "beside"))
+    for e in range(3):
+        pd.testing.assert_frame_equal(episode_frames(tmp_path / "inline", inline, e),
+                                      episode_frames(tmp_path / "beside", beside, e))
+    index, _ = ingest_dataset(tmp_path / "beside", "local/test", spec(min_length=5), tmp_path / "frames")
+    assert index["length"].tolist() == [8, 9, 10]
+
+
+def test_an_episode_that_fails_on_the_recorder_thread_stops_the_recording(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    bad = _moving_frames(8, 0)
+    bad[3][0]["observation.images.head_left"] = np.zeros((16, 16, 3), np.uint8)  # wrong camera size
+    with pytest.raises(Exception, match="head_left"):
+        with DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot") as rec:
+            rec.submit_episode(bad, INSTRUCTION)
+            rec.submit_episode(_moving_frames(8, 1), INSTRUCTION)  # raises the first episode's error
+    assert not (tmp_path / "ds").exists() and not any(tmp_path.iterdir())
+
+
+def test_recorder_encodes_with_the_configured_codec(tmp_path, monkeypatch):
+    import av
+
+    _record(tmp_path / "ds", "1", monkeypatch, submit=False, video={"vcodec": "h264", "preset": "ultrafast", "crf": 18})
+    info = open_metadata(tmp_path / "ds", "local/test").features["observation.images.head_left"]["info"]
+    assert info["video.codec"] == "h264"
+    video = next((tmp_path / "ds" / "videos").rglob("*.mp4"))
+    with av.open(str(video)) as f:
+        assert f.streams.video[0].codec_context.name == "h264"
+        assert sum(1 for _ in f.decode(video=0)) == 8 + 9 + 10
+
+
+def test_recorder_refuses_a_codec_lerobot_does_not_know(tmp_path):
+    from r2s_eval.errors import ConfigError
+
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    with pytest.raises(ConfigError, match=r"ds: video encoder settings \{'vcodec': 'divx'\} are not LeRobot's: .*divx"):
+        DatasetRecorder(tmp_path / "ds", "local/test", 10, features, "test_robot", video={"vcodec": "divx"})
     assert not (tmp_path / "ds").exists()

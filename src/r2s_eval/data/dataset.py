@@ -9,12 +9,13 @@ from __future__ import annotations
 import logging
 import shutil
 from collections.abc import Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from r2s_eval.errors import DataError
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.utils.io import current_provenance, write_json
 from r2s_eval.utils.numerics import job_threads
 
@@ -58,7 +59,11 @@ class DatasetRecorder:
     killed recording never leaves a dataset that looks whole.
     """
 
-    def __init__(self, root: str | Path, repo_id: str, fps: int, features: dict, robot_type: str):
+    def __init__(self, root: str | Path, repo_id: str, fps: int, features: dict, robot_type: str,
+                 video: dict | None = None):
+        """``video``: LeRobot's camera-video encoder settings (``RGBEncoderConfig`` fields such as
+        vcodec, preset, crf); None: LeRobot's defaults (AV1)."""
+        from lerobot.configs.video import RGBEncoderConfig
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
         self.root = Path(root)
@@ -67,6 +72,10 @@ class DatasetRecorder:
             shutil.rmtree(self.tmp_root)
         self.root.parent.mkdir(parents=True, exist_ok=True)
         cameras = sum(1 for f in features.values() if f["dtype"] == "video")
+        try:
+            rgb_encoder = RGBEncoderConfig(**video) if video else None
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{self.root}: video encoder settings {video} are not LeRobot's: {exc}") from exc
         self._dataset = LeRobotDataset.create(
             repo_id,
             fps=fps,
@@ -83,10 +92,14 @@ class DatasetRecorder:
             # One encoder per camera, all within the job's threads (the encoder's default is every
             # CPU of the node each); the bytes do not depend on it.
             encoder_threads=max(1, job_threads() // max(1, cameras)),
+            rgb_encoder=rgb_encoder,
         )
         self._image_keys = [k for k, f in features.items() if f["dtype"] == "video"]
         self.fps = int(fps)
         self.num_episodes = 0
+        # submit_episode's own thread, when the job has a second one to give it.
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="recorder") if job_threads() > 1 else None
+        self._pending: Future | None = None
 
     def add_episode(self, frames: Iterable[tuple[dict, np.ndarray]], task: str) -> int:
         """Append one episode of (observation, action) pairs; returns its episode index."""
@@ -108,6 +121,22 @@ class DatasetRecorder:
         self.num_episodes += 1
         return self.num_episodes - 1
 
+    def submit_episode(self, frames: Sequence[tuple[dict, np.ndarray]], task: str) -> int:
+        """`add_episode`, on the recorder's own thread when the job has two or more, so the caller
+        makes its next episode while this one is encoded; returns the episode's index. One episode
+        waits at most: the next call first finishes it (and raises its error)."""
+        self.wait()
+        if self._worker is None:
+            return self.add_episode(frames, task)
+        self._pending = self._worker.submit(self.add_episode, frames, task)
+        return self.num_episodes
+
+    def wait(self) -> None:
+        """Finish the episode handed to `submit_episode` (raising its error)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.result()
+
     def _check_videos(self, frames: int) -> None:
         """Every camera's video of the episode just saved holds all its frames: a frame lost by the
         encoder would shift the video against the episode's rows, silently."""
@@ -121,6 +150,8 @@ class DatasetRecorder:
                 )
 
     def close(self) -> None:
+        self.wait()
+        self._shutdown()
         self._dataset.finalize()
         if self.num_episodes == 0:
             raise ValueError(f"no episode was recorded into {self.root}")
@@ -137,7 +168,21 @@ class DatasetRecorder:
             shutil.rmtree(images)
 
     def abort(self) -> None:
+        try:
+            self.wait()
+        except Exception:  # the episode being encoded is discarded with the rest
+            pass
+        self._shutdown()
+        try:  # stop an unfinished episode's encoder threads before their folder goes
+            self._dataset.clear_episode_buffer()
+        except Exception:
+            pass
         shutil.rmtree(self.tmp_root, ignore_errors=True)
+
+    def _shutdown(self) -> None:
+        if self._worker is not None:
+            self._worker.shutdown()
+            self._worker = None
 
     def __enter__(self) -> DatasetRecorder:
         return self

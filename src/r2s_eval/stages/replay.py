@@ -34,7 +34,8 @@ def main(args) -> None:
         (world["image_height"], world["image_width"]),
     )
     envs, rows = {}, []
-    with DatasetRecorder(args.out_dataset, "local/replay", round(1 / CONTROL_DT_S), features, "r2s_dual_arm_sim") as rec:
+    with DatasetRecorder(args.out_dataset, "local/replay", round(1 / CONTROL_DT_S), features, "r2s_dual_arm_sim",
+                         video=replay["video"]) as rec:
         for ep in tqdm(index.itertuples(), total=len(index), desc="replay", mininterval=5):
             if ep.task not in envs:
                 envs[ep.task] = make_env(ep.task, world)
@@ -53,7 +54,7 @@ def main(args) -> None:
                 env, actions, poses, rng, replay["max_attempts"], replay["perturb_xy_m"], replay["perturb_yaw_rad"],
                 seed=int(ep.episode_index), yaw_symmetry=symmetry,
             )
-            sim_index = rec.add_episode(result.frames, ep.instruction) if result.success else -1
+            sim_index = rec.submit_episode(result.frames, ep.instruction) if result.success else -1
             row = {"episode_index": int(ep.episode_index), "task": ep.task, "success": result.success,
                    "attempts": result.attempts, "sim_episode_index": sim_index,
                    "calibration": bool(est["calibration"].iloc[0]) if "calibration" in est else False,

@@ -49,7 +49,8 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
     operator_cfg = OperatorConfig(**(teleop.get("operator") or {}))
     features = lerobot_features(JOINT_NAMES, JOINT_NAMES, world["cameras"], image_size(world))
     truth, attempts = [], []
-    with DatasetRecorder(dataset, "local/teleop", round(1 / CONTROL_DT_S), features, "r2s_dual_arm") as rec:
+    with DatasetRecorder(dataset, "local/teleop", round(1 / CONTROL_DT_S), features, "r2s_dual_arm",
+                         video=teleop["video"]) as rec:
         for task_index, task in enumerate(tasks):
             env = make_env(task, world, params, suite_cfg=suite)
             rng = np.random.default_rng([seed, task_index, 11])
@@ -69,7 +70,8 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                                  "wall_s": time.perf_counter() - started})
                 if not success and not teleop["keep_failed"]:
                     continue
-                index = rec.add_episode(steps, get_task(task).instruction)
+                # Encoded while the operator records the next take (when the job has two threads).
+                index = rec.submit_episode(steps, get_task(task).instruction)
                 kept += 1
                 progress.update()
                 truth += truth_rows(index, task, env, initial)

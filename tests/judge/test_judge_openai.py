@@ -202,7 +202,7 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     with ChatServer() as server:
         judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
         desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
-        _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out"]),
+        _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out", "--stats"]),
                  ["--cfg", json.dumps(judge), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
         _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),
                  ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
@@ -236,6 +236,8 @@ def _add(stage, flags: list[str]):
     for f in flags:
         if f == "--transport":
             p.add_argument(f, default="{}", help="JSON: the judge's transport keys")
+        elif f == "--stats":
+            p.add_argument(f, default=None)
         else:
             p.add_argument(f, nargs="+" if f == "--rollouts" else None, required=f != "--descriptions")
     return p

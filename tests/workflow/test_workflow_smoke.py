@@ -107,7 +107,7 @@ def test_statistics_change_reruns_only_fit_onward(smoke_run):
 def test_judge_change_reruns_describe_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
-    expected = {"describe", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table",
+    expected = {"describe", "descriptions", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table",
                 "results_browser", *FIT_REPORTS, *VERDICT_REPORTS}
     assert rules == expected, rules
 
@@ -121,7 +121,8 @@ def test_policy_change_reruns_only_that_policy(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["policies.act_weak.lr=0.0002"])
     jobs = planned_jobs(proc.stdout)
     per_policy = {(rule, wc.get("policy")) for rule, wc in jobs if "policy" in wc}
-    assert per_policy == {("train", "act_weak"), ("rollout", "act_weak")}, per_policy
+    # Its rollouts are described again, the other policies' descriptions are kept.
+    assert per_policy == {("train", "act_weak"), ("rollout", "act_weak"), ("describe", "act_weak")}, per_policy
     assert not {rule for rule, _ in jobs} & {"twin", "teleop", "ingest", "init_estimate", "replay", "rollout_inits"}
 
 

@@ -36,20 +36,37 @@ def judge_pair_inputs(wildcards):
     return inputs
 
 
+# One describe job per judge and policy, started as soon as that policy's sim rollouts exist, so
+# judging overlaps the rollouts still running (and spreads over a cluster); `descriptions`
+# gathers a judge's parts into one table.
 rule describe:
     input:
-        expand("results/rollout/sim/{policy}", policy=POLICIES),
+        "results/rollout/sim/{policy}",
     output:
-        "results/judge/{judge}/descriptions.parquet",
-        "results/judge/{judge}/describe_stats.json",
+        "results/judge/{judge}/describe/{policy}.parquet",
+        "results/judge/{judge}/describe/{policy}.stats.json",
+    # Before the real side's rollouts: only the reference waits on those.
+    priority: 1
     params:
         cfg=judge_params("describe"),
         transport=judge_transport,
     log:
-        "logs/describe/{judge}.log",
+        "logs/describe/{judge}/{policy}.log",
     shell:
         "{PY} -m r2s_eval.stages.describe --cfg {params.cfg:q} --rollouts {input}"
-        " --cache {JUDGE_CACHE} --transport {params.transport:q} --out {output[0]} --log {log}"
+        " --cache {JUDGE_CACHE} --transport {params.transport:q} --out {output[0]} --stats {output[1]} --log {log}"
+
+
+rule descriptions:
+    input:
+        expand("results/judge/{{judge}}/describe/{policy}.parquet", policy=POLICIES),
+    output:
+        "results/judge/{judge}/descriptions.parquet",
+        "results/judge/{judge}/describe_stats.json",
+    log:
+        "logs/descriptions/{judge}.log",
+    shell:
+        "{PY} -m r2s_eval.stages.descriptions --parts {input} --out {output[0]} --log {log}"
 
 
 rule judge_pairs:

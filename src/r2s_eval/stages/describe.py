@@ -1,4 +1,4 @@
-"""Stage: the judge describes every sim rollout once (cached by content)."""
+"""Stage: the judge describes sim rollouts (the workflow: one policy's), each once (cached by content)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,8 @@ def main(args) -> None:
     judge = make_judge({**args.cfg["judge"], **json.loads(args.transport)})
     episodes = load_episodes(args.rollouts)
     out = Path(args.out)
-    descriptions = describe_rollouts(episodes, Path("."), judge, args.cache, stats_path=out.with_name("describe_stats.json"))
+    stats = Path(args.stats) if args.stats else out.with_name("describe_stats.json")
+    descriptions = describe_rollouts(episodes, Path("."), judge, args.cache, stats_path=stats)
     write_parquet(out, descriptions, metadata={"stage": "describe", "judge": args.cfg["name"],
                                                "stats": descriptions.attrs["stats"]})
 
@@ -30,4 +31,5 @@ if __name__ == "__main__":
     p.add_argument("--cache", required=True)
     p.add_argument("--transport", default="{}", help="JSON: the judge's transport keys")
     p.add_argument("--out", required=True)
+    p.add_argument("--stats", default=None, help="the judge's costs as JSON (default: describe_stats.json beside --out)")
     _cli.run(main, p)

@@ -166,29 +166,35 @@ def test_recorder_refuses_a_video_missing_frames(tmp_path, monkeypatch):
     assert not (tmp_path / "ds").exists()
 
 
-def _moving_frames(length: int, seed: int) -> list[tuple[dict, np.ndarray]]:
+def _moving_frames(length: int, seed: int, size: int = 32) -> list[tuple[dict, np.ndarray]]:
     rng = np.random.default_rng(seed)
+    texture = rng.integers(0, 60, (size, size, 3), dtype=np.uint8)  # something for the encoder to work at
     frames = []
     for t in range(length):
-        image = np.full((32, 32, 3), 40, np.uint8)
+        image = texture + 40
         image[8:16, t : 8 + t] = (200, 30, 30)
         frames.append(({"observation.state": rng.normal(size=14), "observation.images.head_left": image}, rng.normal(size=14)))
     return frames
 
 
-def _record(root: Path, threads: str, monkeypatch, submit: bool, video: dict | None = None) -> list[int]:
+def _record(root: Path, threads: str, monkeypatch, submit: bool, video: dict | None = None, size: int = 32) -> list[int]:
     monkeypatch.setenv("OMP_NUM_THREADS", threads)
-    features = lerobot_features(NAMES, NAMES, ["head_left"], (32, 32))
+    features = lerobot_features(NAMES, NAMES, ["head_left"], (size, size))
     with DatasetRecorder(root, "local/test", 10, features, "test_robot", video=video) as rec:
         add = rec.submit_episode if submit else rec.add_episode
-        return [add(_moving_frames(8 + e, e), INSTRUCTION) for e in range(3)]
+        return [add(_moving_frames(8 + e, e, size), INSTRUCTION) for e in range(3)]
 
 
 def test_episodes_encoded_beside_the_next_make_the_same_dataset(tmp_path, monkeypatch):
     """With two job threads an episode is encoded on the recorder's thread while the caller makes
-    the next one; the dataset is the one add_episode records, indices included."""
-    assert _record(tmp_path / "inline", "1", monkeypatch, submit=False) == [0, 1, 2]
-    assert _record(tmp_path / "beside", "2", monkeypatch, submit=True) == [0, 1, 2]
+    the next one; the dataset is the one add_episode records on one thread, indices and video
+    bytes included (a Slurm job and a local one get different thread counts)."""
+    video = {"vcodec": "h264", "preset": "ultrafast", "crf": 18}
+    assert _record(tmp_path / "inline", "1", monkeypatch, submit=False, video=video, size=128) == [0, 1, 2]
+    assert _record(tmp_path / "beside", "4", monkeypatch, submit=True, video=video, size=128) == [0, 1, 2]
+    videos = {name: sorted((tmp_path / name / "videos").rglob("*.mp4")) for name in ("inline", "beside")}
+    assert len(videos["inline"]) == len(videos["beside"]) >= 1
+    assert [v.read_bytes() for v in videos["inline"]] == [v.read_bytes() for v in videos["beside"]]
     inline, beside = (open_metadata(tmp_path / name, "local/test") for name in ("inline", "beside"))
     for e in range(3):
         pd.testing.assert_frame_equal(episode_frames(tmp_path / "inline", inline, e),

@@ -89,9 +89,10 @@ class DatasetRecorder:
             # for a live camera); a recording here is offline and must wait instead. Unbounded:
             # save_episode drains the queue, so it never holds more than one episode.
             encoder_queue_maxsize=0,
-            # One encoder per camera, all within the job's threads (the encoder's default is every
-            # CPU of the node each); the bytes do not depend on it.
-            encoder_threads=max(1, job_threads() // max(1, cameras)),
+            # One thread per camera's encoder (the cameras encode side by side): x264's output
+            # depends on its thread count, and a recording must be the same bytes whatever
+            # threads its job was given (a cluster node and a laptop give different ones).
+            encoder_threads=1,
             rgb_encoder=rgb_encoder,
         )
         self._image_keys = [k for k, f in features.items() if f["dtype"] == "video"]

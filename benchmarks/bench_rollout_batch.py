@@ -9,8 +9,13 @@ all). Each writes what the rollout stage writes: an mp4, a trajectory parquet an
 episode.
 
 - one at a time: the loop as it was, ``run_episode`` with ``RecedingHorizon.act``, one model call
-  per query with a single observation, the cameras rendered and a judge-video frame recorded at
-  every control step (10 fps), the video encoded once the episode is over with libx264 veryfast;
+  per query with a single observation (ACT's ResNet run once per camera), the cameras rendered
+  and a judge-video frame recorded at every control step (10 fps), every image drawn in the
+  model's offscreen buffer (640x480), the video encoded once the episode is over with libx264
+  veryfast;
+- one at a time, today's model call and renderers: the same loop with the model call the batched
+  loop makes (one ResNet pass over every camera's images) and its renderers (a buffer of each
+  image's size), so that the gain of running episodes side by side is seen apart from those;
 - batched: ``run_candidate`` (the rollout stage's code) with ``--batch`` episodes side by side,
   one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads,
   the cameras rendered at query steps only, the judge video at ``rollout.video_fps`` (5 fps),
@@ -20,7 +25,7 @@ CPU time is the process's (every thread, software GL's included), so running on 
 counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
 interleave the two loops so machine load hits both alike; the best repeat of each is reported.
 
-Run: ``python benchmarks/bench_rollout_batch.py [--episodes 16] [--batch 16] [--cameras 4] [--repeats 2]``
+Run: ``python benchmarks/bench_rollout_batch.py [--episodes 32] [--batch 32] [--cameras 4] [--repeats 2]``
 """
 
 from __future__ import annotations
@@ -31,18 +36,20 @@ import os
 os.environ.setdefault("LP_NUM_THREADS", "0")
 
 import argparse
+import contextlib
 import json
 import shutil
 import tempfile
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pandas as pd
 import torch
 
 from r2s_eval.config import compose_config
-from r2s_eval.policies import RecedingHorizon
+from r2s_eval.policies import RecedingHorizon, lerobot_policy
 from r2s_eval.policies.config import candidate_config, make_lerobot_config
 from r2s_eval.policies.interface import ActionMap
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
@@ -88,8 +95,25 @@ def save_random_act(folder: Path, cameras: list[str], image_hw: tuple[int, int])
     return folder
 
 
-def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
-    """The rollout loop as it was: one episode after the other, one observation per model call."""
+@contextlib.contextmanager
+def per_camera_backbone():
+    """ACT's model call as the one-at-a-time loop made it: its ResNet once per camera."""
+    one_pass = lerobot_policy._one_backbone_pass
+    lerobot_policy._one_backbone_pass = lambda model, images: contextlib.nullcontext()
+    try:
+        yield
+    finally:
+        lerobot_policy._one_backbone_pass = one_pass
+
+
+def one_at_a_time(out: Path, trained: Path, inits, cfg: dict, as_it_was: bool = True) -> None:
+    """The rollout loop as it was: one episode after the other, one observation per model call
+    (with `as_it_was`, its model call and renderers as they were too)."""
+    with per_camera_backbone() if as_it_was else contextlib.nullcontext():
+        _one_at_a_time(out, trained, inits, cfg, as_it_was)
+
+
+def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: bool) -> None:
     rollout, world = cfg["rollout"], cfg["world"]
     model = load_lerobot_policy(trained)  # no fixed call shape: one row per call
     runner = RecedingHorizon(model, rollout["chunk_size"], rollout["n_action_steps"], ActionMap(ACTION_DIM))
@@ -97,10 +121,16 @@ def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
     planned = planned_episodes(inits, "sim", "act", cfg["seed"])
     store = out.with_name(f".{out.name}.episodes")
     store.mkdir()
-    envs = {}
+    envs, renderers = {}, {}
     for p in planned:
         if p.task not in envs:
-            envs[p.task] = make_env(p.task, world, None, cameras=cameras)
+            if model_buffer:  # renderers made as they were: in the model's own offscreen buffer
+                renderers[p.task] = {}
+                envs[p.task] = make_env(p.task, world, None, cameras=cameras, renderers=renderers[p.task])
+                for size in (envs[p.task].image_size, tuple(rollout["video_size"])):
+                    renderers[p.task][tuple(size)] = mujoco.Renderer(envs[p.task].model, *size)
+            else:
+                envs[p.task] = make_env(p.task, world, None, cameras=cameras)
         runner.reset(seed=p.seed)
         result = run_episode(envs[p.task], runner, p.object_poses, p.seed, rollout["max_steps"],
                              rollout["video_camera"], video_size=rollout["video_size"])  # a frame every step
@@ -116,6 +146,9 @@ def one_at_a_time(out: Path, trained: Path, inits, cfg: dict) -> None:
             "policy_stats": runner.stats})
     for env in envs.values():
         env.close()
+    for task_renderers in renderers.values():
+        for renderer in task_renderers.values():
+            renderer.close()
     _collect(out, store, planned)
 
 
@@ -128,7 +161,8 @@ def batched(out: Path, trained: Path, inits_path: Path, cfg: dict, batch: int, t
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--task", default="cup_on_plate")
-    parser.add_argument("--episodes", type=int, default=16, help="episodes per loop and repeat")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="episodes per loop and repeat (default: as many as the batched loop runs side by side)")
     parser.add_argument("--batch", type=int, default=None,
                         help="episodes side by side in the batched loop (default: rollout.batch_episodes)")
     parser.add_argument("--threads", type=int, default=1, help="worker threads of the batched loop")
@@ -148,6 +182,7 @@ def main() -> None:
     if args.model_batch:
         cfg["rollout"]["model_batch"] = args.model_batch
     args.batch = args.batch or cfg["rollout"]["batch_episodes"]
+    args.episodes = args.episodes or args.batch
     image_hw = (int(cfg["world"]["image_height"]), int(cfg["world"]["image_width"]))
     work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
     try:
@@ -156,12 +191,13 @@ def main() -> None:
         inits_path = work / "inits.parquet"
         inits.to_parquet(inits_path)
         loops = {"one at a time": lambda out: one_at_a_time(out, trained, inits, cfg),
+                 "one at a time, today's model call and renderers": lambda out: one_at_a_time(out, trained, inits, cfg, False),
                  "batched": lambda out: batched(out, trained, inits_path, cfg, args.batch, args.threads)}
         best = {(name, clock): np.inf for name in loops for clock in ("cpu", "wall")}
         steps = {}
         for repeat in range(args.repeats):
-            for name, run in loops.items():
-                out = work / f"out{repeat}_{name.replace(' ', '_')}"
+            for i, (name, run) in enumerate(loops.items()):
+                out = work / f"out{repeat}_{i}"
                 wall, cpu = time.perf_counter(), time.process_time()
                 run(out)
                 cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -175,9 +211,10 @@ def main() -> None:
         rates = {}
         for name in loops:
             rates[name] = args.episodes / best[name, "cpu"]
-            print(f"  {name:14s} {rates[name]:7.4f} rollouts per CPU-second  ({best[name, 'cpu']:6.1f} CPU-s, "
+            print(f"  {name:48s} {rates[name]:7.4f} rollouts per CPU-second  ({best[name, 'cpu']:6.1f} CPU-s, "
                   f"{best[name, 'wall']:6.1f} s wall, {1e3 * best[name, 'cpu'] / steps[name]:5.1f} CPU-ms per step)")
-        print(f"  batched / one at a time: {rates['batched'] / rates['one at a time']:.2f}x rollouts per CPU-second")
+        for baseline in list(loops)[:2]:
+            print(f"  batched / {baseline}: {rates['batched'] / rates[baseline]:.2f}x rollouts per CPU-second")
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -84,3 +84,32 @@ def test_slots_sharing_a_row_are_called_apart_and_get_their_own_chunks(folder):
     for a, b in zip(alone, together):
         assert np.array_equal(a, b)
     assert together.shape[0] == 3 and not np.array_equal(together[0], together[1])
+
+
+def test_act_batched_calls_give_lerobots_own_chunks_from_one_backbone_pass(tmp_path):
+    """In a fixed-shape call, ACT's ResNet (its batch norms folded into its convolutions) runs once
+    over every camera's images, not once per camera as lerobot's forward does; the chunks are
+    lerobot's own up to rounding."""
+    import torch
+
+    deterministic_torch(1)
+    folder = _random_policies().save_random_policy(tmp_path, CAMERAS, HW, "act")
+    policy = load_lerobot_policy(folder, call_batch=3)
+    observations = _observations(3, seed=7)
+    passes = []
+    first_conv = policy.policy.model.backbone.conv1  # runs once per real pass of the ResNet
+    hook = first_conv.register_forward_hook(lambda module, args, out: passes.append(args[0].shape[0]))
+    try:
+        for s in range(3):
+            policy.reset(s, s)
+        chunks = policy.predict_chunks([0, 1, 2], observations)
+    finally:
+        hook.remove()
+    assert passes == [3 * len(CAMERAS)]  # one pass, every camera's rows
+
+    lerobots = load_lerobot_policy(folder)  # the model as lerobot built it
+    with torch.no_grad():
+        batch = lerobots._preprocess(observations)
+        expected = lerobots.postprocessor(lerobots.policy.predict_action_chunk(batch)).numpy()
+    assert not np.array_equal(chunks, expected)  # other kernels ran ...
+    np.testing.assert_allclose(chunks, expected, rtol=1e-4, atol=1e-5)  # ... to the same actions

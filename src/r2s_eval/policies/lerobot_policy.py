@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,10 @@ class LeRobotPolicy(ChunkPolicy):
         self.call_batch = None if call_batch is None else int(call_batch)
         if self.call_batch is not None and self.call_batch < 1:
             raise PolicyError(f"policy {name!r}: call_batch must be >= 1, got {call_batch}")
+        if self.call_batch is not None and policy.config.type == "act":
+            # Batch norms folded into the convolutions before them: one pass over the activations
+            # less per layer (ResNet18 at 32 px, 128 images on one CPU thread: 80 against 93 ms).
+            policy.model.backbone = _batch_norms_folded(policy.model.backbone)
         if self.call_batch is not None and torch.device(device).type == "cpu":
             # Channels-last weights: oneDNN's convolutions then take them as they are instead of
             # reordering every weight at every call (half the time of a batched ResNet18 call).
@@ -177,6 +182,10 @@ class LeRobotPolicy(ChunkPolicy):
             with torch.random.fork_rng(devices=devices):
                 torch.manual_seed(seed)
                 actions = self.policy.predict_action_chunk(self._preprocess(observations))
+        elif self.policy_type == "act":
+            batch = self._preprocess(observations)
+            with _one_backbone_pass(self.policy.model, [batch[k] for k in self.policy.config.image_features]):
+                actions = self.policy.predict_action_chunk(batch)
         else:
             actions = self.policy.predict_action_chunk(self._preprocess(observations))
         actions = self.postprocessor(actions)
@@ -210,6 +219,64 @@ class LeRobotPolicy(ChunkPolicy):
                                            noise=noise.to(self.device))
         start = self.n_obs_steps - 1
         return actions[:, start : start + cfg.n_action_steps]
+
+
+@contextmanager
+def _one_backbone_pass(model, images: list[torch.Tensor]) -> Iterator[None]:
+    """Within it, ACT's per-camera backbone calls (one ResNet pass per camera, in
+    `image_features` order) return slices of one pass over every camera's images: a convolution
+    over cameras x rows images costs less per image than one per camera (ResNet18 at 32 px on one
+    CPU thread: 0.65 against 0.92 ms an image at 128 against 32 images). An image sits at the same
+    row of the pass whatever the other rows hold, so a slot's features still do not depend on them."""
+    if len(images) < 2:
+        yield
+        return
+    backbone = model.backbone
+    features = backbone(torch.cat(images))["feature_map"].split([len(i) for i in images])
+    pending = list(zip(images, features, strict=True))
+
+    def forward(image: torch.Tensor) -> dict:
+        source, feature = pending.pop(0)
+        if image is not source:  # lerobot changed how ACT walks its cameras
+            raise PolicyError("ACT called its backbone on other images than the cameras' in order")
+        return {"feature_map": feature}
+
+    backbone.forward = forward  # an instance attribute: nn.Module.__call__ looks it up first
+    try:
+        yield
+    finally:
+        del backbone.forward
+    if pending:
+        raise PolicyError(f"ACT used {len(images) - len(pending)} of its {len(images)} cameras' features")
+
+
+def _batch_norms_folded(backbone: torch.nn.Module) -> torch.nn.Module:
+    """A copy of a torchvision ResNet `backbone` with each frozen batch norm folded into the
+    convolution registered just before it (ResNet's conv1/bn1, conv2/bn2, downsample pairs),
+    or `backbone` itself when the copy does not compute what it does (another architecture)."""
+    import copy
+
+    from torchvision.ops.misc import FrozenBatchNorm2d
+
+    folded = copy.deepcopy(backbone)
+    for module in folded.modules():
+        children = list(module.named_children())
+        for (conv_name, conv), (norm_name, norm) in zip(children, children[1:]):
+            if not (isinstance(conv, torch.nn.Conv2d) and isinstance(norm, FrozenBatchNorm2d)
+                    and conv.bias is None and conv.out_channels == norm.weight.numel()):
+                continue
+            scale = norm.weight * (norm.running_var + norm.eps).rsqrt()
+            conv.weight = torch.nn.Parameter(conv.weight.detach() * scale[:, None, None, None], requires_grad=False)
+            conv.bias = torch.nn.Parameter((norm.bias - norm.running_mean * scale).detach(), requires_grad=False)
+            setattr(module, norm_name, torch.nn.Identity())
+    device = next(backbone.parameters()).device
+    probe = torch.rand(2, 3, 64, 64, generator=torch.Generator().manual_seed(0)).to(device)
+    with torch.no_grad():
+        before, after = backbone(probe), folded(probe)
+    if before.keys() != after.keys() or not all(
+            torch.allclose(before[k], after[k], rtol=1e-4, atol=1e-4 * float(before[k].abs().max())) for k in before):
+        return backbone
+    return folded
 
 
 def resolve_checkpoint(checkpoint_dir: str | Path) -> Path:

@@ -17,13 +17,14 @@ episode.
   loop makes (one ResNet pass over every camera's images) and its renderers (a buffer of each
   image's size), so that the gain of running episodes side by side is seen apart from those;
 - batched: ``run_candidate`` (the rollout stage's code) with ``--batch`` episodes side by side,
-  one model call of ``rollout.model_batch`` rows per query step, ``--threads`` worker threads,
+  one model call of ``rollout.model_batch`` rows per query step (one ResNet pass over every
+  camera's images, batch norms folded into the convolutions), ``--threads`` worker threads,
   the cameras rendered at query steps only, the judge video at ``rollout.video_fps`` (5 fps),
   encoded as the frames come with libx264 ultrafast (the rollout stage's encoder).
 
 CPU time is the process's (every thread, software GL's included), so running on more cores
 counts for nothing: the gain comes from batched model calls and work no longer done. Repeats
-interleave the two loops so machine load hits both alike; the best repeat of each is reported.
+interleave the loops so machine load hits them alike; the best repeat of each is reported.
 
 Run: ``python benchmarks/bench_rollout_batch.py [--episodes 32] [--batch 32] [--cameras 4] [--repeats 2]``
 """

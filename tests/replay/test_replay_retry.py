@@ -24,7 +24,8 @@ def demo():
 
 def test_replay_from_true_poses_succeeds_first_time(demo):
     env, poses, actions = demo
-    result = replay_episode(env, actions, poses, np.random.default_rng(0))
+    result = replay_episode(env, actions, poses, np.random.default_rng(0), max_attempts=8, perturb_xy_m=0.01,
+                            perturb_yaw_rad=0.1)
     assert result.success and result.attempts == 1
     assert len(result.frames) == len(actions)
     obs, action = result.frames[0]
@@ -36,7 +37,8 @@ def test_replay_gives_up_after_max_attempts(demo):
     env, poses, actions = demo
     x, y, yaw = poses["cup"]
     wrong = dict(poses, cup=(x + 0.08, y, yaw))  # 8 cm off: +-1 cm retries cannot reach it
-    result = replay_episode(env, actions, wrong, np.random.default_rng(0), max_attempts=3)
+    result = replay_episode(env, actions, wrong, np.random.default_rng(0), max_attempts=3, perturb_xy_m=0.01,
+                            perturb_yaw_rad=np.pi)
     assert not result.success and result.attempts == 3
 
 

@@ -76,13 +76,15 @@ def replay_episode(
     actions: np.ndarray,
     estimate: Poses,
     rng: np.random.Generator,
-    max_attempts: int = 8,
-    perturb_xy_m: float = 0.01,
-    perturb_yaw_rad: float = np.pi,
+    *,
+    max_attempts: int,
+    perturb_xy_m: float,
+    perturb_yaw_rad: float,
     seed: int = 0,
     yaw_symmetry: Mapping[str, int] | None = None,
 ) -> ReplayResult:
-    """Up to ``max_attempts`` attempts in all (the first from ``estimate`` itself)."""
+    """Up to ``max_attempts`` attempts in all (the first from ``estimate`` itself). The retry
+    window has no default: it is the config's (`conf/replay`), whose default is not the method's."""
     if max_attempts < 1:
         raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
     poses = dict(estimate)

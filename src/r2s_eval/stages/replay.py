@@ -51,8 +51,8 @@ def main(args) -> None:
             started = time.perf_counter()
             rng = np.random.default_rng([cfg["seed"], int(ep.episode_index)])
             result = replay_episode(
-                env, actions, poses, rng, replay["max_attempts"], replay["perturb_xy_m"], replay["perturb_yaw_rad"],
-                seed=int(ep.episode_index), yaw_symmetry=symmetry,
+                env, actions, poses, rng, max_attempts=replay["max_attempts"], perturb_xy_m=replay["perturb_xy_m"],
+                perturb_yaw_rad=replay["perturb_yaw_rad"], seed=int(ep.episode_index), yaw_symmetry=symmetry,
             )
             sim_index = rec.submit_episode(result.frames, ep.instruction) if result.success else -1
             row = {"episode_index": int(ep.episode_index), "task": ep.task, "success": result.success,

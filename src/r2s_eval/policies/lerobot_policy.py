@@ -256,18 +256,18 @@ def _batch_norms_folded(backbone: torch.nn.Module) -> torch.nn.Module:
     or `backbone` itself when the copy does not compute what it does (another architecture)."""
     import copy
 
+    from torch.nn.utils.fusion import fuse_conv_bn_weights
     from torchvision.ops.misc import FrozenBatchNorm2d
 
     folded = copy.deepcopy(backbone)
     for module in folded.modules():
         children = list(module.named_children())
-        for (conv_name, conv), (norm_name, norm) in zip(children, children[1:]):
+        for (_, conv), (norm_name, norm) in zip(children, children[1:]):
             if not (isinstance(conv, torch.nn.Conv2d) and isinstance(norm, FrozenBatchNorm2d)
                     and conv.bias is None and conv.out_channels == norm.weight.numel()):
                 continue
-            scale = norm.weight * (norm.running_var + norm.eps).rsqrt()
-            conv.weight = torch.nn.Parameter(conv.weight.detach() * scale[:, None, None, None], requires_grad=False)
-            conv.bias = torch.nn.Parameter((norm.bias - norm.running_mean * scale).detach(), requires_grad=False)
+            conv.weight, conv.bias = fuse_conv_bn_weights(conv.weight, None, norm.running_mean, norm.running_var,
+                                                          norm.eps, norm.weight, norm.bias)
             setattr(module, norm_name, torch.nn.Identity())
     device = next(backbone.parameters()).device
     probe = torch.rand(2, 3, 64, 64, generator=torch.Generator().manual_seed(0)).to(device)

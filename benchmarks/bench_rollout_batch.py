@@ -125,13 +125,11 @@ def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: boo
     envs, renderers = {}, {}
     for p in planned:
         if p.task not in envs:
+            renderers[p.task] = {}
+            envs[p.task] = make_env(p.task, world, None, cameras=cameras, renderers=renderers[p.task])
             if model_buffer:  # renderers made as they were: in the model's own offscreen buffer
-                renderers[p.task] = {}
-                envs[p.task] = make_env(p.task, world, None, cameras=cameras, renderers=renderers[p.task])
                 for size in (envs[p.task].image_size, tuple(rollout["video_size"])):
-                    renderers[p.task][tuple(size)] = mujoco.Renderer(envs[p.task].model, *size)
-            else:
-                envs[p.task] = make_env(p.task, world, None, cameras=cameras)
+                    renderers[p.task][size] = mujoco.Renderer(envs[p.task].model, *size)
         runner.reset(seed=p.seed)
         result = run_episode(envs[p.task], runner, p.object_poses, p.seed, rollout["max_steps"],
                              rollout["video_camera"], video_size=rollout["video_size"])  # a frame every step

@@ -35,6 +35,8 @@ import os
 
 # As the rollout rule runs the stage: llvmpipe rasterises in the thread that renders.
 os.environ.setdefault("LP_NUM_THREADS", "0")
+# Headless, as r2s_eval sets it: mujoco reads the variable when it is imported, below.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse
 import contextlib

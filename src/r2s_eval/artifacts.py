@@ -9,6 +9,11 @@ Snakemake stays the only DAG; DVC is the content-addressed store with a remote.
 every job downstream of a pulled file. The content is byte-identical (DVC checks hashes), so
 `push` records each tracked file's and folder's mtime in `artifacts.mtimes.json` and `pull`
 puts them back; then `snakemake -n` plans nothing.
+
+DVC finds the `.dvc` pointers only where git does not ignore them: the repository's
+`.gitignore` ignores every artefact under `results/` and `reports/` but never a folder, a
+pointer or a `.gitignore` there. A DVC command that fails is reported as one paragraph
+naming the command and DVC's own message.
 """
 
 from __future__ import annotations
@@ -19,6 +24,9 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+
+from r2s_eval.errors import DataError, StoreError
+from r2s_eval.stages import _cli
 
 MANIFEST = "artifacts.mtimes.json"
 
@@ -60,34 +68,44 @@ def restore_mtimes(root: Path, mtimes: dict[str, int]) -> int:
 
 
 def _dvc(root: Path, *args: str) -> None:
-    subprocess.run(["dvc", *args], cwd=root, check=True)
+    # DVC of this interpreter's environment, whether or not that environment is on PATH.
+    proc = subprocess.run([sys.executable, "-m", "dvc", *args], cwd=root, capture_output=True, text=True)
+    if proc.returncode != 0:
+        words = [a for a in args if a.startswith("-") or not (root / a).exists()]  # the command, not its paths
+        paths = len(args) - len(words)
+        command = " ".join(["dvc", *words, *([f"<{paths} paths>"] if paths else [])])
+        said = " ".join((proc.stderr.strip() or proc.stdout.strip() or "no message").split())
+        raise StoreError(f"`{command}` failed in {root} (exit status {proc.returncode}): {said}")
 
 
 def push(root: Path, remote: str | None = None) -> list[Path]:
     paths = tracked_paths(root)
     if not paths:
-        raise FileNotFoundError(f"nothing to track under {root}: run the pipeline first")
+        raise DataError(f"nothing to track under {root}: run the pipeline first")
     rel = [str(p.relative_to(root)) for p in paths]
-    _dvc(root, "add", "--quiet", *rel)
+    _dvc(root, "add", *rel)
     (root / MANIFEST).write_text(json.dumps(record_mtimes(root, paths), indent=1, sort_keys=True) + "\n")
-    _dvc(root, "push", "--quiet", *(["--remote", remote] if remote else []), *rel)
+    _dvc(root, "push", *(["--remote", remote] if remote else []), *rel)
     return paths
 
 
 def pull(root: Path, remote: str | None = None) -> int:
-    _dvc(root, "pull", "--quiet", *(["--remote", remote] if remote else []))
+    _dvc(root, "pull", *(["--remote", remote] if remote else []))
     manifest = root / MANIFEST
     if not manifest.exists():
-        raise FileNotFoundError(f"{manifest} is missing: it is written by `push` and committed beside the .dvc files")
+        raise DataError(f"{manifest} is missing: it is written by `push` and committed beside the .dvc files")
     return restore_mtimes(root, json.loads(manifest.read_text()))
 
 
-def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parser() -> argparse.ArgumentParser:
+    p = _cli.parser(__doc__.split("\n")[0], cfg=False)
     p.add_argument("action", choices=["push", "pull"])
     p.add_argument("--root", default=".", help="the pipeline's working directory (a DVC repo)")
     p.add_argument("--remote", help="DVC remote (default: the repo's default remote)")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(args: argparse.Namespace) -> None:
     root = Path(args.root).resolve()
     if args.action == "push":
         for path in push(root, args.remote):
@@ -97,4 +115,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    _cli.run(main, parser())

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from r2s_eval.errors import ConfigError
-from r2s_eval.schema import composition_sources, unknown_override_error, validate_config
+from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem
 
 
 def compose_config(
@@ -36,28 +36,62 @@ def compose_config(
     if not (config_dir / f"{config_name}.yaml").exists():
         raise FileNotFoundError(f"no Hydra config {config_name}.yaml in {config_dir}")
     overrides = list(overrides)
-    all_overrides = [f"experiment={experiment}", *overrides]
-    try:
-        with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
-            cfg = compose(config_name=config_name, overrides=all_overrides, return_hydra_config=True)
-    except (HydraException, OmegaConfBaseException) as exc:
-        raise _composition_error(exc, experiment, overrides) from exc
+    # Hydra stops at the first override of a key it does not have: each such override is set
+    # aside and the rest composed again, so that every problem is reported at once.
+    refused: list[str] = []
+    while True:
+        try:
+            with initialize_config_dir(config_dir=str(config_dir), version_base="1.3"):
+                cfg = compose(config_name=config_name, overrides=[f"experiment={experiment}", *overrides],
+                              return_hydra_config=True)
+            break
+        except (HydraException, OmegaConfBaseException) as exc:
+            line = _refused_override(exc, overrides)
+            if line is None:
+                raise _composition_error(exc, experiment, overrides, refused) from exc
+            refused.append(unknown_override_problem(_override_key(line), line))
+            overrides = [o for o in overrides if o is not line]
     choices = OmegaConf.to_container(cfg.hydra.runtime.choices)
     with open_dict(cfg):
         del cfg["hydra"]
     plain = sort_keys(OmegaConf.to_container(cfg, resolve=True))
-    validate_config(plain, composition_sources(config_dir, config_name, choices, overrides))
+    problems = refused + config_problems(plain, composition_sources(config_dir, config_name, choices, overrides))
+    if problems:
+        raise problems_error(problems)
     return plain
 
 
-def _composition_error(exc: Exception, experiment: str, overrides: list[str]) -> ConfigError:
-    """Hydra's refusal as a ConfigError; an override of a key that does not exist names it."""
+def _override_key(line: str) -> str:
+    return line.lstrip("~+").split("=", 1)[0]
+
+
+def _refused_override(exc: Exception, overrides: list[str]) -> str | None:
+    """The override line Hydra refused because its key does not exist, if that is the refusal."""
     m = re.search(r"Could not override '([^']+)'", str(exc))
-    if m:
-        line = next((o for o in overrides if o.lstrip("~+").split("=", 1)[0] == m.group(1)), m.group(1))
-        return unknown_override_error(m.group(1), line)
-    return ConfigError(f"cannot compose experiment {experiment!r} with overrides {overrides}: "
-                       f"{str(exc).split('Config search path')[0].strip() or type(exc).__name__}")
+    if not m:
+        return None
+    return next((o for o in overrides if _override_key(o) == m.group(1)), None)
+
+
+def _composition_error(exc: Exception, experiment: str, overrides: list[str], refused: list[str]) -> ConfigError:
+    """Hydra's refusal as a ConfigError, after the overrides of unknown keys found before it."""
+    reason = str(exc).split("Config search path")[0].strip() or type(exc).__name__
+    return problems_error([*refused, f"cannot compose experiment {experiment!r} with overrides {overrides}: {reason}"])
+
+
+def missing_inputs(cfg: dict[str, Any]) -> None:
+    """Raise a ConfigError naming each setting whose file or folder is not there: a lab's teleop
+    dataset and its trials CSV (relative paths: from the working directory). Checked when a run
+    is planned, so a wrong path never lets earlier results stand in for the lab's."""
+    real = cfg.get("real") or {}
+    if cfg.get("libero") is not None or real.get("source") != "dataset":
+        return
+    wanted = {"dataset_root": (Path.is_dir, "a LeRobotDataset v3 folder"),
+              "reference_csv": (Path.is_file, "a CSV of hardware trials: policy, task, trials, successes")}
+    lines = [f"real.{key} = {real[key]}: no such {'folder' if test is Path.is_dir else 'file'} ({what})"
+             for key, (test, what) in wanted.items() if not test(Path(real[key]))]
+    if lines:
+        raise problems_error(lines)
 
 
 def sort_keys(value: Any) -> Any:

@@ -38,3 +38,7 @@ class EstimationError(R2SError, RuntimeError):
 
 class StatsError(R2SError, ValueError):
     """Comparisons from which no ranking can be computed."""
+
+
+class StoreError(R2SError, RuntimeError):
+    """The artefact store (DVC) refused an operation: its command and message say which and why."""

@@ -99,9 +99,14 @@ class Tagged:
 
 @dataclass(frozen=True)
 class Entries:
-    """An open name -> settings map whose entries the owner's validator checks (it raises)."""
+    """An open name -> settings map whose entries the owner's validator checks (it raises).
+
+    `schema`, where given, picks the dataclass that types an entry's keys (None: the owner's
+    validator alone); an entry whose keys fail it is reported key by key, the owner's
+    validator then judging only entries that passed."""
 
     validate: Callable[[str, dict], Any]
+    schema: Callable[[dict], type | None] | None = None
 
 
 def optional(default_owner: str) -> Any:
@@ -152,6 +157,14 @@ def _check_policy(name: str, entry: dict) -> dict:
     if is_external(entry):
         return validate_source_cfg(entry, name)
     return validate_policy_cfg(dict(entry, name=name))
+
+
+def _policy_schema(entry: dict) -> type | None:
+    from r2s_eval.policies.config import SUPPORTED_TYPES
+
+    kind = entry.get("type")
+    return {"checkpoint": CheckpointPolicy, "server": ServerPolicy}.get(kind) or (
+        TrainedPolicy if kind in SUPPORTED_TYPES else None)
 
 
 def _check_judge(name: str, entry: dict) -> Any:
@@ -466,6 +479,74 @@ class Libero:
     video: LiberoVideo
 
 
+# Candidate policies: the types of an entry's keys (their defaults are the owners':
+# r2s_eval.policies.config.TOP_LEVEL_DEFAULTS / VLA_DEFAULTS and r2s_eval.policies.sources).
+_POLICY_DEFAULTS = "r2s_eval.policies.config.TOP_LEVEL_DEFAULTS"
+_SOURCE_DEFAULTS = "r2s_eval.policies.sources"
+Beta = Annotated[float, Range(0, 1, open_max=True)]
+
+
+@dataclass
+class TrainedPolicy:
+    """A candidate trained here (act, diffusion, the VLA types)."""
+
+    type: str
+    name: str | None = optional(_POLICY_DEFAULTS)
+    steps: PositiveInt = optional(_POLICY_DEFAULTS)
+    episodes_fraction: Annotated[float, Range(0, 1, open_min=True)] = optional(_POLICY_DEFAULTS)
+    batch_size: PositiveInt = optional(_POLICY_DEFAULTS)
+    lr: Positive = optional(_POLICY_DEFAULTS)
+    weight_decay: NonNegative | None = optional(_POLICY_DEFAULTS)
+    grad_clip_norm: Positive | None = optional(_POLICY_DEFAULTS)
+    warmup_steps: Count = optional(_POLICY_DEFAULTS)
+    threads: PositiveInt = optional(_POLICY_DEFAULTS)
+    device: str = optional(_POLICY_DEFAULTS)
+    log_every: PositiveInt = optional(_POLICY_DEFAULTS)
+    image_keys: Annotated[list[str], NonEmpty()] = optional(_POLICY_DEFAULTS)
+    image_size: tuple[PositiveInt, PositiveInt] | None = optional(_POLICY_DEFAULTS)
+    chunk_size: PositiveInt = optional(_POLICY_DEFAULTS)
+    overrides: dict = optional(_POLICY_DEFAULTS)
+    pretrained_path: str | None = optional(_POLICY_DEFAULTS)
+    tokenizer_path: str | None = optional(_POLICY_DEFAULTS)
+    scheduler: Literal["constant", "cosine"] = optional(_POLICY_DEFAULTS)
+    decay_lr: NonNegative | None = optional(_POLICY_DEFAULTS)
+    ema_decay: Level | None = optional(_POLICY_DEFAULTS)
+    betas: tuple[Beta, Beta] | None = optional(_POLICY_DEFAULTS)
+
+
+@dataclass
+class ExternalPolicy:
+    """What every candidate that is not trained here takes (its `type` picks the rest)."""
+
+    type: str
+    name: str | None = optional(_SOURCE_DEFAULTS)
+    arms: dict[Literal["real", "sim"], dict | None] | None = optional(_SOURCE_DEFAULTS)
+    action_map: list[Count] | None = optional(_SOURCE_DEFAULTS)
+    device: str | None = optional(_SOURCE_DEFAULTS)
+
+
+@dataclass
+class CheckpointPolicy(ExternalPolicy):
+    """A LeRobot checkpoint folder the lab already has."""
+
+    type: Literal["checkpoint"]
+    path: str | None = optional(_SOURCE_DEFAULTS)
+
+
+@dataclass
+class ServerPolicy(ExternalPolicy):
+    """An openpi-protocol policy server."""
+
+    type: Literal["server"]
+    host: str = optional(_SOURCE_DEFAULTS)
+    port: Annotated[int, Range(1, 65535)] | None = optional(_SOURCE_DEFAULTS)
+    api_key_env: str | None = optional(_SOURCE_DEFAULTS)
+    spec: dict | None = optional(_SOURCE_DEFAULTS)
+    connect_timeout_s: Positive = optional(_SOURCE_DEFAULTS)
+    reply_timeout_s: Positive = optional(_SOURCE_DEFAULTS)
+    connect_retries: Count = optional(_SOURCE_DEFAULTS)
+
+
 @dataclass
 class Config:
     """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
@@ -479,7 +560,7 @@ class Config:
     ingest: Ingest
     calib: Calib
     replay: Replay
-    policies: Annotated[dict[str, dict], NonEmpty(), Entries(_check_policy)]
+    policies: Annotated[dict[str, dict], NonEmpty(), Entries(_check_policy, _policy_schema)]
     rollout: Rollout
     judges: Annotated[dict[str, dict], NonEmpty(), Entries(_check_judge)]
     compare: Compare
@@ -618,6 +699,11 @@ def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[
     where = _join(path, name)
     if not isinstance(entry, dict):
         return [Problem(where, f"must be a mapping of settings, got {_describe(entry)}")]
+    schema = entries.schema(entry) if entries.schema else None
+    if schema is not None:  # typed keys first; unknown keys are the owner's to explain
+        known = {f.name for f in dataclasses.fields(schema)}
+        if problems := _check_fields({k: v for k, v in entry.items() if k in known}, schema, where):
+            return problems
     try:
         entries.validate(name, entry)
     except (ValueError, TypeError, KeyError, R2SError) as exc:
@@ -878,36 +964,46 @@ def _unread_in_libero(sources: Sequence[Source]) -> list[Problem]:
             if any(src.sets(path) for src in sources if src.override_key is not None or src.group == "experiment")]
 
 
-def validate_config(cfg: dict, sources: Sequence[Source] = ()) -> None:
-    """Raise one ConfigError listing every problem of the composed `cfg`; return when it is sound."""
+def config_problems(cfg: dict, sources: Sequence[Source] = ()) -> list[str]:
+    """Every problem of the composed `cfg`, one line each naming the key and where it was set."""
     problems = _check(cfg, Config, "")
     if not problems:
         problems = _cross_problems(cfg)
     if not problems and cfg.get("libero") is not None:
         problems = _unread_in_libero(sources)
-    if not problems:
-        return
-    known = known_paths()
+    known = known_paths() if problems else []
     lines = []
     for p in problems:
         line = f"{p.path} ({where(p.path, sources)}){':' if p.owner else ''} {p.message}"
         if p.unknown and (hint := suggest(p.path, known)):
             line += f"; did you mean {hint}?"
         lines.append(line)
+    return lines
+
+
+def problems_error(lines: Sequence[str]) -> ConfigError:
+    """One ConfigError for the problem lines: the line itself, or a count and one line each."""
     if len(lines) == 1:
-        raise ConfigError(lines[0])
-    raise ConfigError(f"{len(lines)} configuration problems:\n" + "\n".join(f"  - {line}" for line in lines))
+        return ConfigError(lines[0])
+    return ConfigError(f"{len(lines)} configuration problems:\n" + "\n".join(f"  - {line}" for line in lines))
+
+
+def validate_config(cfg: dict, sources: Sequence[Source] = ()) -> None:
+    """Raise one ConfigError listing every problem of the composed `cfg`; return when it is sound."""
+    lines = config_problems(cfg, sources)
+    if lines:
+        raise problems_error(lines)
 
 
 OPEN_MAPS = ("suite", "policies", "judges")  # groups whose entries are names chosen by the user
 
 
-def unknown_override_error(key: str, line: str) -> ConfigError:
-    """The error for an override of a key the composed config does not have (Hydra refused it)."""
+def unknown_override_problem(key: str, line: str) -> str:
+    """The problem line for an override of a key the composed config does not have (Hydra refused it)."""
     by = f"set by the command-line override {line!r}"
     known = known_paths()
     if key in known or key.split(".", 1)[0] in OPEN_MAPS or any(k.startswith(key + ".") for k in known):
-        return ConfigError(f"{key} ({by}) is not in the composed config; to add it, write '+{line.lstrip('+')}'")
+        return f"{key} ({by}) is not in the composed config; to add it, write '+{line.lstrip('+')}'"
     parent = key.rsplit(".", 1)[0] if "." in key else "the config"
     hint = suggest(key, known)
-    return ConfigError(f"{key} ({by}) is not a key of {parent}" + (f"; did you mean {hint}?" if hint else ""))
+    return f"{key} ({by}) is not a key of {parent}" + (f"; did you mean {hint}?" if hint else "")

@@ -152,3 +152,82 @@ def test_every_group_has_a_schema():
     top = {p for p in known_paths() if "." not in p}
     assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
             "compare", "stats", "report", "annotate", "tasks", "seed", "libero"} == top
+
+
+def _problem_lines(err: pytest.ExceptionInfo) -> list[str]:
+    message = str(err.value)
+    return [line.removeprefix("  - ") for line in message.splitlines()[1:]] if "problems:" in message else [message]
+
+
+def test_every_bad_override_is_listed_one_line_each():
+    # Hydra refuses an unknown key at the first one; each is set aside and the rest composed,
+    # so the unknown keys and the wrong values are all reported together.
+    overrides = ["stats.nboot=1", "compare.nosuch=2", "stats.ci_level=2", "policies.act.steps=abc"]
+    with pytest.raises(ConfigError) as err:
+        compose_config(CONF, "smoke", overrides)
+    lines = _problem_lines(err)
+    assert str(err.value).startswith("4 configuration problems:")
+    assert len(lines) == 4
+    for override in overrides:
+        key = override.split("=")[0]
+        assert sum(line.startswith(f"{key} (set by the command-line override '{override}')") for line in lines) == 1, lines
+    assert any("did you mean stats.n_boot?" in line for line in lines)
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("policies.act.steps=abc", "must be an integer, got 'abc' (str)"),
+    ("policies.act.steps=-5", "must be in [1, inf], got -5"),
+    ("policies.act.lr=0", "must be in (0, inf], got 0"),
+    ("+policies.act.episodes_fraction=1.5", "must be in (0, 1], got 1.5"),
+    ("policies.act.image_size=[32]", "must be a list of 2 values, got [32]"),
+    ("+policies.act.scheduler=linear", "must be one of ['constant', 'cosine'], got 'linear'"),
+    ("policies.act.image_keys=[]", "must not be empty"),
+])
+def test_trained_policy_entry_is_typed_like_the_groups(override, message):
+    key = override.lstrip("+").split("=")[0]
+    with pytest.raises(ConfigError) as err:
+        compose_config(CONF, "smoke", [override])
+    assert str(err.value) == f"{key} (set by the command-line override '{override}') {message}"
+
+
+def test_external_policy_entry_is_typed_like_the_groups():
+    add = "+policies.lab={type:server,port:99999,reply_timeout_s:abc}"
+    with pytest.raises(ConfigError) as err:
+        compose_config(CONF, "smoke", [add])
+    lines = _problem_lines(err)
+    assert len(lines) == 2
+    assert any(line.startswith("policies.lab.port (") and "must be in [1, 65535], got 99999" in line for line in lines)
+    assert any(line.startswith("policies.lab.reply_timeout_s (") and "must be a number, got 'abc'" in line for line in lines)
+
+
+def test_policy_schemas_type_every_key_their_owners_accept():
+    # The schema types the keys; their owners hold the defaults: the two must list the same keys.
+    import dataclasses
+
+    from r2s_eval.policies import sources
+    from r2s_eval.policies.config import TOP_LEVEL_DEFAULTS
+    from r2s_eval.schema import CheckpointPolicy, ServerPolicy, TrainedPolicy
+
+    def names(cls):
+        return {f.name for f in dataclasses.fields(cls)}
+
+    assert names(TrainedPolicy) == set(TOP_LEVEL_DEFAULTS)
+    assert names(CheckpointPolicy) == {*sources._COMMON, *sources._PER_TYPE["checkpoint"]}
+    assert names(ServerPolicy) == {*sources._COMMON, *sources._PER_TYPE["server"]}
+
+
+def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_path):
+    from r2s_eval.config import missing_inputs
+
+    data, trials = tmp_path / "my_teleop", tmp_path / "trials.csv"
+    cfg = compose_config(CONF, "smoke", ["real=dataset", f"real.dataset_root={data}", f"real.reference_csv={trials}"])
+    with pytest.raises(ConfigError) as err:
+        missing_inputs(cfg)
+    assert _problem_lines(err) == [
+        f"real.dataset_root = {data}: no such folder (a LeRobotDataset v3 folder)",
+        f"real.reference_csv = {trials}: no such file (a CSV of hardware trials: policy, task, trials, successes)",
+    ]
+    data.mkdir()
+    trials.write_text("policy,task,trials,successes\n")
+    missing_inputs(cfg)  # both there: nothing to say
+    missing_inputs(compose_config(CONF, "smoke"))  # the twin's own recording is made by the run

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -23,6 +24,59 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+
+
+def readme_command(command: str) -> str:
+    """`command` exactly as the README shows it: a line of a code block (continuation lines
+    joined, a trailing `# comment` aside) or an inline code span; the test fails when the README
+    says otherwise."""
+    text = (REPO / "README.md").read_text()
+    blocks = re.findall(r"^```[a-z]*\n(.*?)^```", text, re.S | re.M)
+    lines = [re.sub(r"\s+#\s.*$", "", line) for block in blocks for line in block.replace("\\\n", " ").splitlines()]
+    spans = re.findall(r"`([^`\n]+)`", re.sub(r"^```.*?^```", "", text, flags=re.S | re.M))
+    shown = {" ".join(line.split()) for line in [*lines, *spans]}
+    assert " ".join(command.split()) in shown, f"the README shows no command {command!r}"
+    return command
+
+
+def readme_block_after(command: str) -> str:
+    """The code block the README shows right after the block that holds `command` (its output)."""
+    text = (REPO / "README.md").read_text()
+    at = text.index(command)
+    start = text.index("```", text.index("```", at) + 3)
+    body = text[text.index("\n", start) + 1:]
+    return body[: body.index("```")]
+
+
+def clone_checkout(dest: Path) -> Path:
+    """A git clone of this checkout whose working tree is the checkout's as it stands (changes
+    not yet committed included): what a user gets from `git clone`. CI's own checkout is a
+    clean clone, so there the two are the same."""
+    subprocess.run(["git", "clone", "-q", str(REPO), str(dest)], check=True)
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=REPO,
+                            check=True, capture_output=True).stdout.decode().split("\0")
+    for rel in filter(None, listed):
+        source, target = REPO / rel, dest / rel
+        if source.is_file():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, target)
+        elif target.exists():  # deleted in the checkout, not yet committed
+            target.unlink()
+    return dest
+
+
+def run_as_written(command: str, cwd: Path) -> subprocess.CompletedProcess:
+    """Run a README command through bash in `cwd`, with this interpreter's environment first on
+    PATH (as after `. .venv/bin/activate`)."""
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    return subprocess.run(["bash", "-c", command], cwd=cwd, env=env, capture_output=True, text=True)
+
+
+def copy_run(run: Path, dest: Path) -> None:
+    """A finished run's artefacts and Snakemake's records of them, mtimes kept, into `dest`."""
+    for part in ("results", "reports", "logs", ".snakemake/metadata"):
+        if (run / part).exists():
+            shutil.copytree(run / part, dest / part, symlinks=True, dirs_exist_ok=True)
 
 
 def overrides_arg(overrides: list[str]) -> str:

@@ -81,7 +81,8 @@ def test_slurm_profile_plans_the_paper_in_tens_of_jobs(tmp_path):
     assert len(jobs) == len(planned_jobs(proc.stdout)) < 200
     # The README documents this count (the dry run's total counts `all` too).
     readme = (REPO / "README.md").read_text()
-    assert f"| `paper` | {len(jobs)} |" in readme and f"total {len(jobs) + 1}: {len(jobs)} Slurm jobs" in readme
+    assert f"| `paper` | {len(jobs)} |" in readme
+    assert f"fresh directory: total {len(jobs) + 1}, {len(jobs)} Slurm jobs" in readme
     policies = {wc["policy"] for rule, wc, _ in jobs if rule == "train"}
     assert len([1 for rule, _, _ in jobs if rule == "rollout"]) == 2 * len(policies) >= 8
     for rule, _, requests in jobs:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -200,21 +198,6 @@ def test_every_other_artefact_records_its_provenance(smoke_run):
         assert _is_provenance(dict(kv.split("=", 1) for kv in Image.open(png).info["r2s_eval"].split())), png
     for pdf in reports.glob("*.pdf"):
         assert b"config_sha256=" in pdf.read_bytes(), pdf
-
-
-def test_dvc_round_trip_plans_nothing(smoke_run, tmp_path):
-    wd = smoke_run.workdir
-    subprocess.run(["dvc", "init", "--no-scm", "-q"], cwd=wd, check=True)
-    subprocess.run(["dvc", "remote", "add", "-d", "store", str(tmp_path / "remote")], cwd=wd, check=True)
-    run = [sys.executable, "-m", "r2s_eval.artifacts"]
-    subprocess.run([*run, "push", "--root", str(wd)], check=True, capture_output=True)
-    shutil.rmtree(wd / "results" / "real" / "dataset")
-    shutil.rmtree(wd / "results" / "train")
-    (wd / "reports" / "realsim_table.tex").unlink()
-    subprocess.run([*run, "pull", "--root", str(wd)], check=True, capture_output=True)
-    assert (wd / "reports" / "realsim_table.tex").exists()
-    proc = snakemake(wd, "-n")
-    assert planned_jobs(proc.stdout) == [], proc.stdout[-2000:]
 
 
 def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_path):

@@ -7,7 +7,8 @@ from pathlib import Path
 # lerobot logs while it is imported, which installs a root handler that would print each of
 # Snakemake's messages twice; the root keeps the handlers it had.
 _ROOT_HANDLERS = list(logging.getLogger().handlers)
-from r2s_eval.config import compose_config, select, to_json
+from r2s_eval.config import compose_config, missing_inputs, select, to_json
+from r2s_eval.errors import R2SError
 from r2s_eval.policies.sources import (
     check_checkpoint,
     checkpoint_hash,
@@ -27,8 +28,19 @@ CONF_DIR = Path(workflow.basedir) / "conf"
 EXPERIMENT = config.get("experiment", "demo")
 _overrides = config.get("overrides", [])
 OVERRIDES = [_overrides] if isinstance(_overrides, str) else list(_overrides)
-CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
 
+
+def stop_planning(err):
+    """A fault of the user's (a config problem, a missing input) ends the plan before any job,
+    printed as its message alone: one line per problem, no traceback."""
+    sys.exit(str(err).strip())
+
+
+try:
+    CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
+    missing_inputs(CFG)  # a lab's dataset or trials CSV that is not there
+except R2SError as err:
+    stop_planning(err)
 
 
 class _ResumingWorkflow(type(workflow)):
@@ -69,7 +81,10 @@ for _name, _source in EXTERNAL.items():
     if _source["type"] == "checkpoint":  # a wrong folder fails now, before any rollout
         for _arm in ARMS:
             if not workflow_made(for_arm(_source, _arm)["path"]):
-                check_checkpoint(for_arm(_source, _arm), _name, LIBERO_ACTION_DIM if LIBERO else ACTION_DIM)
+                try:
+                    check_checkpoint(for_arm(_source, _arm), _name, LIBERO_ACTION_DIM if LIBERO else ACTION_DIM)
+                except R2SError as err:
+                    stop_planning(err)
 JUDGES = sorted(CFG["judges"])
 TWIN = not LIBERO and CFG["real"]["source"] == "twin"
 PY = sys.executable

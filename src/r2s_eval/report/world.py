@@ -28,9 +28,13 @@ and :func:`format_table` lays it out as a text table.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pandas as pd
 
+from r2s_eval.errors import DataError
 from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
+from r2s_eval.utils.io import read_json
 
 TARGETS = {"teleop_success_min": 0.90, "xy_mm_median_max": 5.0, "yaw_deg_median_max": 5.0, "replay_success_min": 0.95}
 
@@ -146,6 +150,17 @@ def _pct_ci(value, ci) -> str:
     if value is None:
         return "-"
     return f"{100 * value:.0f} [{100 * ci[0]:.0f}, {100 * ci[1]:.0f}]" if ci else f"{100 * value:.0f}"
+
+
+DEFAULT_REPORT = "results/world/report.json"  # where the workflow writes it, from the working directory
+
+
+def saved_table(path: str | Path = DEFAULT_REPORT) -> str:
+    """The table of a world report the workflow wrote."""
+    if not Path(path).is_file():
+        raise DataError(f"{path}: no world report here; the workflow writes it (snakemake -j 2 {DEFAULT_REPORT}) "
+                        f"in the run's working directory")
+    return format_table(read_json(path))
 
 
 def format_table(report: dict) -> str:

@@ -1,8 +1,14 @@
 """Stage and script: the calibrated world's fidelity per task, from the artefacts.
 
-Prints a table and writes the report as JSON (its layout: ``r2s_eval.report.world``)::
+In a run's working directory, prints the report the workflow wrote (``results/world/report.json``,
+or ``--report PATH``)::
 
-    python -m r2s_eval.stages.world_report --truth results/real/init_truth.parquet \\
+    python -m r2s_eval.stages.world_report
+
+As the workflow's stage, builds it from the artefacts, writes it as JSON (its layout:
+``r2s_eval.report.world``) and prints the table (to its log)::
+
+    python -m r2s_eval.stages.world_report --cfg '{...}' --truth results/real/init_truth.parquet \\
         --errors results/init/error.parquet --replay results/replay/log.parquet \\
         --estimates results/init/estimates.parquet --reference results/reference/success.parquet \\
         --rollouts results/rollout/sim/* --out results/world/report.json
@@ -11,19 +17,29 @@ Prints a table and writes the report as JSON (its layout: ``r2s_eval.report.worl
 from __future__ import annotations
 
 import argparse
+import json
 
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.world import build_report, format_table
+from r2s_eval.report.world import DEFAULT_REPORT, build_report, format_table, saved_table
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import read_parquet_metadata, write_json
 
 READS = ("stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds (see _reads.py)
+BUILD_INPUTS = ("cfg", "truth", "errors", "replay")  # what building the report needs
 
 
 def main(args: argparse.Namespace) -> None:
+    given = [name for name in BUILD_INPUTS if getattr(args, name) is not None]
+    if not given:
+        print(saved_table(args.report))
+        return
+    if len(given) < len(BUILD_INPUTS):
+        missing = [f"--{name}" for name in BUILD_INPUTS if name not in given]
+        raise DataError(f"building the world report needs {', '.join(missing)} too (or none of them, to print "
+                        f"{args.report})")
     attempts = read_parquet_metadata(args.truth).get("attempts")
     if not attempts:
         raise DataError(f"{args.truth}: no teleop attempt log in its metadata (written by the teleop stage)")
@@ -43,10 +59,12 @@ def main(args: argparse.Namespace) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = _cli.parser(__doc__.split("\n")[0])
-    p.add_argument("--truth", required=True, help="teleop truth parquet (its metadata holds the attempt log)")
-    p.add_argument("--errors", required=True, help="init_error's per-object error table")
-    p.add_argument("--replay", required=True, help="replay log parquet")
+    p = _cli.parser(__doc__.split("\n")[0], cfg=False)
+    p.add_argument("--report", default=DEFAULT_REPORT, help="the report to print when nothing is to be built")
+    p.add_argument("--cfg", type=json.loads, help="the stage's config slice as JSON (building the report)")
+    p.add_argument("--truth", help="teleop truth parquet (its metadata holds the attempt log)")
+    p.add_argument("--errors", help="init_error's per-object error table")
+    p.add_argument("--replay", help="replay log parquet")
     p.add_argument("--estimates", help="init estimates (for the per-episode estimation cost)")
     p.add_argument("--reference", help="reference success table (the real side), for the real-sim gap")
     p.add_argument("--rollouts", nargs="*", default=[], help="sim rollout folders, one per policy, for the gap")

@@ -1,0 +1,159 @@
+"""The README's commands, run as written in a git clone of the checkout.
+
+The fast ones plan only (seconds); the DVC round trip and the world report read a finished smoke
+run, copied into the clone (`-m slow`, sharing the workflow tests' smoke run).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from .conftest import (
+    clone_checkout,
+    copy_run,
+    planned_jobs,
+    readme_block_after,
+    readme_command,
+    run_as_written,
+)
+
+LAB_DATASET = ("snakemake -j 2 reports/realsim_table.tex --config "
+               "overrides='[real=dataset,real.dataset_root=/data/my_teleop,real.reference_csv=/data/trials.csv]'")
+BAD_OVERRIDES = ("snakemake -j 2 reports/realsim_table.tex --config "
+                 "overrides='[stats.nboot=500,policies.act.steps=abc,rollout.chunk_size=0]'")
+PUSH, PULL = "python -m r2s_eval.artifacts push", "python -m r2s_eval.artifacts pull"
+WORLD_REPORT = "python -m r2s_eval.stages.world_report"
+PLAN_SMOKE = "snakemake -n --config experiment=smoke"
+
+
+@pytest.fixture
+def clone(tmp_path) -> Path:
+    return clone_checkout(tmp_path / "r2s-eval")
+
+
+def _no_traceback(out: str) -> None:
+    assert "Traceback" not in out and not re.search(r'^\s*File "', out, re.M), out[-3000:]
+
+
+def test_bad_overrides_are_listed_one_line_each_before_anything_runs(clone):
+    proc = run_as_written(readme_command(BAD_OVERRIDES), clone)
+    assert proc.returncode == 1
+    _no_traceback(proc.stdout + proc.stderr)
+    assert proc.stderr == readme_block_after(BAD_OVERRIDES), "the README shows what the command prints"
+    assert proc.stdout == "" and not (clone / "results" / "ingest").exists() and not (clone / "logs").exists()
+
+
+def test_a_lab_dataset_that_is_not_there_stops_before_anything_runs(clone):
+    if Path("/data/my_teleop").exists() or Path("/data/trials.csv").exists():
+        pytest.skip("this machine has the README's example paths")
+    proc = run_as_written(readme_command(LAB_DATASET), clone)
+    assert proc.returncode == 1
+    _no_traceback(proc.stdout + proc.stderr)
+    assert proc.stderr.splitlines() == [
+        "2 configuration problems:",
+        "  - real.dataset_root = /data/my_teleop: no such folder (a LeRobotDataset v3 folder)",
+        "  - real.reference_csv = /data/trials.csv: no such file (a CSV of hardware trials: policy, task, trials, "
+        "successes)",
+    ]
+
+
+def test_side_by_side_working_directories_stay_out_of_git(clone):
+    (clone / "runs" / "smoke" / "results").mkdir(parents=True)
+    (clone / "runs" / "smoke" / "results" / "x.parquet").write_bytes(b"")
+    status = subprocess.run(["git", "status", "--porcelain"], cwd=clone, capture_output=True, text=True, check=True)
+    assert "runs" not in status.stdout
+
+
+def test_the_world_report_outside_a_run_says_where_it_comes_from(clone):
+    proc = run_as_written(WORLD_REPORT, clone)
+    assert proc.returncode == 1
+    assert proc.stderr == ("world_report failed: results/world/report.json: no world report here; the workflow "
+                           "writes it (snakemake -j 2 results/world/report.json) in the run's working directory\n")
+
+
+def test_the_rollout_benchmark_renders_without_mujoco_gl(clone):
+    # The README runs it as `python benchmarks/bench_rollout_batch.py`; here two short episodes.
+    readme_command("python benchmarks/bench_rollout_batch.py")
+    env_less = "env -u MUJOCO_GL python benchmarks/bench_rollout_batch.py --episodes 2 --batch 2 --cameras 1 " \
+               "--repeats 1 --max-steps 10"
+    proc = run_as_written(env_less, clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert re.search(r"batched / one at a time: [\d.]+x", proc.stdout), proc.stdout
+
+
+def _contents(root: Path) -> dict[str, str]:
+    """Every file under results/ and reports/ by its SHA-256."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for part in ("results", "reports") for p in sorted((root / part).rglob("*")) if p.is_file()}
+
+
+@pytest.mark.slow
+def test_dvc_push_and_pull_round_trip_in_a_clone(smoke_run, clone):
+    copy_run(smoke_run.workdir, clone)
+    assert (clone / "reports" / "browser").is_dir(), "a run with every report built"
+    assert planned_jobs(run_as_written(PLAN_SMOKE, clone).stdout) == []
+
+    # A DVC command that fails is one paragraph naming it and DVC's message.
+    failed = run_as_written(f"{PUSH} --remote nosuch", clone)
+    assert failed.returncode == 1
+    _no_traceback(failed.stderr)
+    assert re.fullmatch(r"artifacts failed: `dvc push --remote nosuch <\d+ paths>` failed in \S+ \(exit status \d+\): "
+                        r".*nosuch.*\n", failed.stderr), failed.stderr
+
+    pushed = run_as_written(readme_command(PUSH), clone)
+    assert pushed.returncode == 0, pushed.stderr[-3000:]
+    assert "tracked reports/browser" in pushed.stdout and "tracked results/real/dataset" in pushed.stdout
+    # What the README says to commit is not ignored by git.
+    untracked = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=clone,
+                               capture_output=True, text=True, check=True).stdout
+    pointers = {line[3:] for line in untracked.splitlines() if line.startswith("?? ")}
+    for path in ["reports/realsim_table.tex.dvc", "reports/browser.dvc", "reports/index.html.dvc",
+                 "results/real/dataset.dvc", "results/train/real/act.dvc", "artifacts.mtimes.json"]:
+        assert path in pointers, (path, sorted(pointers))
+    assert not any(p.startswith(("results/", "reports/")) and not p.endswith((".dvc", ".gitignore")) for p in pointers)
+
+    before = _contents(clone)
+    shutil.rmtree(clone / "results" / "real" / "dataset")
+    shutil.rmtree(clone / "results" / "train" / "real" / "act")
+    shutil.rmtree(clone / "reports" / "browser")
+    (clone / "reports" / "realsim_table.tex").unlink()
+    pulled = run_as_written(readme_command(PULL), clone)
+    assert pulled.returncode == 0, pulled.stderr[-3000:]
+    assert _contents(clone) == before, "pull restores what was missing and deletes nothing"
+    assert planned_jobs(run_as_written(PLAN_SMOKE, clone).stdout) == []
+
+    # A pull with nothing missing changes nothing either.
+    assert run_as_written(PULL, clone).returncode == 0
+    assert _contents(clone) == before
+    assert planned_jobs(run_as_written(PLAN_SMOKE, clone).stdout) == []
+
+
+@pytest.mark.slow
+def test_readme_commands_in_a_finished_run(smoke_run, clone):
+    copy_run(smoke_run.workdir, clone)
+    before = _contents(clone)
+    # A lab's dataset that is not there: the twin's reports must not pass as the lab's result.
+    if not Path("/data/my_teleop").exists():
+        proc = run_as_written(readme_command(LAB_DATASET), clone)
+        assert proc.returncode == 1 and "real.dataset_root = /data/my_teleop: no such folder" in proc.stderr
+        assert "Nothing to be done" not in proc.stdout + proc.stderr
+        assert _contents(clone) == before
+    # The world report, printed in the run's working directory.
+    shown = run_as_written(readme_command(WORLD_REPORT), clone)
+    assert shown.returncode == 0, shown.stderr
+    header, rule, *rows = shown.stdout.splitlines()
+    assert header.split()[:2] == ["task", "object"] and set(rule) == {"-"}
+    assert any(row.startswith("cup_on_plate") for row in rows), shown.stdout
+
+
+def test_readme_helpers_read_the_readme_as_written():
+    # readme_command joins continuation lines and drops trailing comments, nothing else.
+    assert readme_command(LAB_DATASET) == LAB_DATASET
+    with pytest.raises(AssertionError, match="shows no command"):
+        readme_command(LAB_DATASET.replace("-j 2", "-j 3"))

@@ -134,3 +134,17 @@ def test_judge_video_smoke_and_demo_run_both_offline_judges():
         judges = compose_config(conf, experiment=experiment)["judges"]
         assert {name: j["backend"] for name, j in judges.items()} == {"kinematic": "kinematic", "video": "video"}
         make_judge(judges["video"])  # the configured entry builds
+
+
+def test_goal_relations_come_from_the_tasks_success_conditions():
+    # The relation the judge looks for in the pixels is read from each task's definition (the
+    # table it replaced, pinned).
+    from r2s_eval.judge.video import goal_relation
+    from r2s_eval.sim.tasks import TASKS
+
+    assert {key: goal_relation(task) for key, task in TASKS.items()} == {
+        "cup_on_plate": ("on", "cup", "plate"), "ball_in_box": ("in", "ball", "box"),
+        "ball_in_cup": ("in", "ball", "cup"), "cover_ball": ("cover", "cup", "ball"),
+        "stack_blocks": ("stack", "block_a", "block_b"), "block_from_box": ("out", "block_a", "box"),
+        "upright_cup": ("upright", "cup", None),
+    }

@@ -8,7 +8,7 @@ import pytest
 
 from r2s_eval.sim import TASKS, TabletopEnv
 from r2s_eval.sim.objects import placement_quat
-from r2s_eval.sim.tasks import block_outside_box
+from r2s_eval.sim.predicates import apart
 
 TABLE_Z = 0.75
 UP = placement_quat("upright", 0.0)
@@ -158,13 +158,13 @@ def test_moving_object_is_not_success(envs, task):
     assert not env.is_success(), task
 
 
-def test_block_outside_box_is_a_footprint_test(envs):
+def test_apart_is_a_footprint_test(envs):
     env = envs["block_from_box"]
     _construct(env, _block_from_box, "success")
-    assert block_outside_box(env)
+    assert apart(env, "block_a", "box")
     # Rotating the box by 45 degrees swings its corner over the block.
     env.set_object_pose("box", [-0.02, 0.0, TABLE_Z], placement_quat("upright", np.pi / 4))
-    assert not block_outside_box(env)
+    assert not apart(env, "block_a", "box")
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))

@@ -88,7 +88,7 @@ def test_nominal_params_are_default():
 def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
     """Scaled masses must reach the compile-time constants (subtree masses, inverse weights),
     or a heavier light ball dropped spinning into a cup gets flung through its floor."""
-    from r2s_eval.sim.tasks import centre_m
+    from r2s_eval.sim.predicates import centre_m
 
     params = WorldParams(object_mass_scale={"ball": 1.19, "cup": 0.94})
     env = TabletopEnv("ball_in_cup", params=params, cameras=())

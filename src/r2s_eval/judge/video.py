@@ -100,16 +100,45 @@ _WORDS = {
     "action_continuity": ("continuous", "hesitant at times", "stop-and-go"),
     "force_control": ("gentle", "firm", "forceful"),
 }
-# Goal relation per task: (relation, manipulated object, reference object).
-RELATIONS: dict[str, tuple[str, str, str | None]] = {
-    "cup_on_plate": ("on", "cup", "plate"),
-    "ball_in_box": ("in", "ball", "box"),
-    "ball_in_cup": ("in", "ball", "cup"),
-    "cover_ball": ("cover", "cup", "ball"),
-    "stack_blocks": ("stack", "block_a", "block_b"),
-    "block_from_box": ("out", "block_a", "box"),
-    "upright_cup": ("upright", "cup", None),
+# What each relational predicate of a task's success looks like in pixels: (relation, the moved
+# object's parameter, the reference object's parameter). A judge knows what the instruction asks
+# for; it reads that from the task's definition, never from the outcome.
+RELATION_OF_PREDICATE: dict[str, tuple[str, str, str]] = {
+    "on_top_of": ("on", "object", "support"),
+    "inside": ("in", "object", "container"),
+    "covered_by": ("cover", "cover", "object"),  # the cup moves over the ball
+    "apart": ("out", "object", "other"),
 }
+
+
+def _predicates(condition) -> list[tuple[str, dict]]:
+    """The (predicate, parameters) of a condition in the order the world file lists them."""
+    if isinstance(condition, list):
+        return [p for c in condition for p in _predicates(c)]
+    (name, params), = condition.items()
+    if name in ("all", "any"):
+        return _predicates(params)
+    if name == "not":
+        return []  # what must not hold is no goal to look for
+    return [(name, params)]
+
+
+def goal_relation(task) -> tuple[str, str, str | None]:
+    """(relation, moved object, reference object) of a task: its success condition's first
+    relational predicate ("stack" for an object on a block), else "upright" of the object it
+    must stand up."""
+    found = _predicates(task.success_condition)
+    for name, params in found:
+        if name in RELATION_OF_PREDICATE:
+            relation, mover, reference = RELATION_OF_PREDICATE[name]
+            if name == "on_top_of" and task.object(params["support"]).kind == "block":
+                relation = "stack"
+            return relation, params[mover], params[reference]
+    upright = [params["object"] for name, params in found if name == "upright"]
+    if upright:
+        return "upright", upright[0], None
+    raise ValueError(f"video judge: task {task.key!r} has no goal the judge can see (on_top_of, inside, "
+                     f"covered_by, apart or upright in its success)")
 
 
 def _words(text: str) -> set[str]:
@@ -234,14 +263,20 @@ def _speeds(c: np.ndarray, r: float) -> np.ndarray:
     return v[~np.isnan(v)]
 
 
+def _relation(task_key: str) -> tuple[str, str, str | None]:
+    from r2s_eval.sim.tasks import TASKS
+
+    return goal_relation(TASKS[task_key])
+
+
 def task_objects(task_key: str) -> tuple[str, ...]:
     """The objects the judge follows in a task's video: the one moved and the reference."""
-    _, mover, target = RELATIONS[task_key]
+    _, mover, target = _relation(task_key)
     return tuple(n for n in (mover, target) if n)
 
 
 def progress_force(frames: np.ndarray, task_key: str, segmenter: Any, c: Mapping[str, Any]):
-    rel, mover, target = RELATIONS[task_key]
+    rel, mover, target = _relation(task_key)
     names = task_objects(task_key)
     tr = object_tracks(frames, segmenter, names, c["min_visible_share"])
     k = int(c["end_frames"])

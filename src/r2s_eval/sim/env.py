@@ -48,7 +48,8 @@ import numpy as np  # noqa: E402
 from r2s_eval.sim import cameras as cam_geom  # noqa: E402
 from r2s_eval.sim import objects as obj_geom  # noqa: E402
 from r2s_eval.sim import world  # noqa: E402
-from r2s_eval.sim.tasks import Task, centre_m, get_task, sample_initial_poses  # noqa: E402
+from r2s_eval.sim.predicates import centre_m  # noqa: E402
+from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
 from r2s_eval.sim.params import CAMERA_NAMES, WorldParams  # noqa: E402
 
 ACTION_DIM = 14
@@ -339,6 +340,9 @@ class TabletopEnv:
     def object_dims(self, name: str) -> dict:
         """Object dimensions in this world (size scale applied)."""
         return dict(self._obj_dims[name])
+
+    def object_kind(self, name: str) -> str:
+        return self.task.object(name).kind
 
     def set_object_pose(self, name: str, pos_world_m, quat_wxyz=(1.0, 0.0, 0.0, 0.0), forward: bool = True) -> None:
         """Teleport an object (zero velocity); recomputes kinematics and contacts."""

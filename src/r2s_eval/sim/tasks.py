@@ -1,23 +1,33 @@
-"""Task registry: instruction, objects, initial-pose regions, success and progress.
+"""Tasks: instruction, objects, start regions, success and progress, read from a world file.
 
-A task is data plus two functions of the environment state:
+A task is data (``assets/worlds/<world>/world.yaml``, the bundled one ``tabletop``): its
+``success`` is a condition of documented predicates and its ``progress`` stages towards a goal
+condition (``r2s_eval.sim.predicates``), both compiled here into functions of the scene:
 
-* ``success(env) -> bool``: the rule-based check of the current state.
-* ``progress(env) -> float`` in [0, 1]: the highest stage reached *in the
-  current state*; the env also keeps the running maximum over an episode.
+* ``success(scene) -> bool``: the rule-based check of the current state.
+* ``progress(scene) -> float`` in [0, 1]: the highest stage reached *in the current state*;
+  the env also keeps the running maximum over an episode.
 
-Adding a task = adding object specs (``objects.py`` kinds), regions, and
-these two functions, then one ``Task`` entry in ``TASKS``.
+A task entry (``tasks.<key>`` in the world file)::
 
-Initial regions are axis-aligned boxes on the table top (world frame, metres)
-for each object's planar pose (footprint centre, see ``objects.py``), with yaw
-uniform in ``yaw_range_rad``; poses are drawn by rejection sampling so
-footprints keep ``clearance_m``. A region ``relative_to`` another object is
-expressed in that object's planar frame (its x, y rotated by its yaw) and the
-object starts on the other's support surface (a block inside a box).
-Each object starts in a placement (``upright``, ``upside_down``, ``on_side``).
+    instruction: Pick the Cup and Place it on the Plate   # matched against a dataset's task strings
+    start:                                   # the task's objects (of the world's `objects`), in order
+      cup: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}   # + yaw_range_rad (default any yaw),
+      plate: {x_range_m: [...], y_range_m: [...]}                 #   placement, relative_to
+    manipulated: cup                         # the object the operator grasps
+    arm: nearest                             # left | right | nearest | behind_axis (default nearest)
+    clearance_m: 0.03                        # footprints kept this far apart at the start (default)
+    success: {all: [{upright: {object: cup}}, {on_top_of: {object: cup, support: plate}}, ...]}
+    progress: {objects: [cup], goal: {over: {object: cup, target: plate}}}
 
-The seven tasks (key: instruction; objects; success):
+Start regions are axis-aligned boxes on the table top (world frame, metres) for each object's
+planar pose (footprint centre, see ``objects.py``), with yaw uniform in ``yaw_range_rad``; poses
+are drawn by rejection sampling so footprints keep ``clearance_m``. A region ``relative_to``
+another object is expressed in that object's planar frame (its x, y rotated by its yaw) and the
+object starts on the other's support surface (a block inside a box). Each object starts in a
+placement (``upright`` by default, ``upside_down``, ``on_side``).
+
+The bundled world's seven tasks (its file states them in full):
 
 ================  ==========================================  ==========================
 key               instruction                                 objects (start placement)
@@ -30,43 +40,26 @@ stack_blocks      Stack the Two Blocks                        block_a, block_b
 block_from_box    Take the Block out of the Box               box, block_a (in the box)
 upright_cup       Upright the Fallen Cup                      cup (on its side)
 ================  ==========================================  ==========================
-
-Success rules (thresholds are the module constants below; "released" = no robot
-contact, "at rest" = linear speed < 3 cm/s and angular < 0.5 rad/s):
-
-* cover_ball: cup upside down (within 15 deg), its rim on the table, the ball's centre
-  inside the cup's inner radius less the ball's, the ball on the table; cup released and
-  at rest.
-* ball_in_box: ball centre inside the box's inner walls and below its rim, box upright;
-  ball released and slower than 5 cm/s.
-* ball_in_cup: cup upright, ball centre inside the cup's inner base radius and below its rim;
-  ball and cup released, ball slower than 5 cm/s.
-* cup_on_plate: cup upright, bottom on the plate inside its rim; released and at rest.
-* stack_blocks: one block's bottom face on the other's top face (both upright within
-  15 deg), its centre inside the lower block's top face (inset 5 mm, so it is stable);
-  released and both at rest.
-* block_from_box: the block's footprint does not overlap the box's (separating axis
-  test), the block rests on the table; released and at rest.
-* upright_cup: cup upright (within 15 deg) with its bottom on the table; released and
-  at rest.
-
-Progress (running maximum kept by the env): 0.2 the gripper reached the object to
-manipulate, 0.4 grasped, 0.6 lifted 2 cm, 0.8 grasped in the goal configuration (over the
-target, or upright), 1.0 success.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 
-from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, height_m, yaw_symmetry
+from r2s_eval.errors import ConfigError
+from r2s_eval.sim.objects import BUILDERS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.predicates import Scene, compile_condition, condition_objects, staged_progress
 
-if TYPE_CHECKING:  # pragma: no cover
-    from r2s_eval.sim.env import TabletopEnv
+WORLDS_DIR = Path(__file__).resolve().parents[3] / "assets" / "worlds"
+BUNDLED_WORLD = WORLDS_DIR / "tabletop" / "world.yaml"
+ARM_CHOICES = ("left", "right", "nearest", "behind_axis")
 
 
 @dataclass(frozen=True)
@@ -83,8 +76,8 @@ class Task:
     instruction: str
     objects: tuple[ObjectSpec, ...]
     init_regions: dict[str, Region]
-    success: Callable[["TabletopEnv"], bool]
-    progress: Callable[["TabletopEnv"], float]
+    success: Callable[[Scene], bool]
+    progress: Callable[[Scene], float]
     # The object the operator grasps and moves.
     manipulated: str = ""
     # "left", "right", "nearest" (the arm whose base is nearest to the midpoint of the
@@ -93,6 +86,8 @@ class Task:
     arm: str = "nearest"
     clearance_m: float = 0.03
     placements: dict[str, str] = field(default_factory=dict)  # missing -> "upright"
+    success_condition: Any = None  # the world file's entries the two functions were compiled from
+    progress_stages: Any = None
 
     def placement(self, name: str) -> str:
         return self.placements.get(name, "upright")
@@ -109,419 +104,146 @@ class Task:
         return yaw_symmetry(self.object(name).kind, self.placement(name))
 
 
-# ---------------------------------------------------------------- objects
-# Saturated, well separated hues so the colour segmenter tells them apart from each
-# other and from the (low-saturation) wooden table.
-CUP = ObjectSpec(
-    name="cup",
-    kind="cup",
-    rgba=(0.85, 0.08, 0.08, 1.0),  # red
-    dims=dict(radius_m=0.037, base_radius_m=0.03, height_m=0.085, wall_m=0.006, bottom_m=0.008, n_walls=16),
-    mass_kg=0.12,
-)
-PLATE = ObjectSpec(
-    name="plate",
-    kind="plate",
-    rgba=(0.08, 0.25, 0.85, 1.0),  # blue
-    dims=dict(radius_m=0.085, thickness_m=0.008, rim_height_m=0.012, rim_width_m=0.008, n_rim=20),
-    mass_kg=0.25,
-)
-BALL = ObjectSpec(
-    name="ball",
-    kind="ball",
-    rgba=(0.10, 0.75, 0.15, 1.0),  # green
-    dims=dict(radius_m=0.02),
-    mass_kg=0.045,  # a golf ball's weight
-)
-BOX = ObjectSpec(
-    name="box",
-    kind="box",
-    rgba=(0.10, 0.30, 0.85, 1.0),  # blue
-    dims=dict(length_m=0.17, width_m=0.14, height_m=0.035, wall_m=0.006, floor_m=0.006),
-    mass_kg=0.30,
-)
-BLOCK_A = ObjectSpec(
-    name="block_a",
-    kind="block",
-    rgba=(0.90, 0.80, 0.05, 1.0),  # yellow
-    dims=dict(size_m=0.045),
-    mass_kg=0.06,
-)
-BLOCK_B = ObjectSpec(
-    name="block_b",
-    kind="block",
-    rgba=(0.75, 0.10, 0.75, 1.0),  # magenta
-    dims=dict(size_m=0.045),
-    mass_kg=0.06,
-)
-
-# ---------------------------------------------------------------- thresholds
-UPRIGHT_MAX_TILT_RAD = np.deg2rad(15.0)
-REST_MAX_LIN_SPEED_M_S = 0.03
-REST_MAX_ANG_SPEED_RAD_S = 0.5
-BALL_MAX_LIN_SPEED_M_S = 0.05  # a ball inside a container may still roll slowly
-RESTING_HEIGHT_TOL_M = 0.008  # a face vs the surface it should rest on
-STACK_INSET_M = 0.005  # the top block's centre must be this far inside the lower top face
-REACHED_DIST_M = 0.05
-LIFTED_HEIGHT_M = 0.02
+# ---------------------------------------------------------------- reading a world file
+def _fail(source: str, where: str, message: str) -> ConfigError:
+    return ConfigError(f"{source}: {where}: {message}")
 
 
-# ---------------------------------------------------------------- geometry helpers
-def _tilt_rad(quat_wxyz: np.ndarray) -> float:
-    w, x, y, z = quat_wxyz
-    cos_tilt = 1.0 - 2.0 * (x * x + y * y)  # world z of the body's z axis
-    return float(np.arccos(np.clip(cos_tilt, -1.0, 1.0)))
+def _mapping(value: Any, source: str, where: str) -> dict:
+    if not isinstance(value, Mapping):
+        raise _fail(source, where, f"must be a mapping, got {value!r}")
+    return dict(value)
 
 
-def _rotation(quat_wxyz: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.asarray(quat_wxyz, float) / np.linalg.norm(quat_wxyz)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+def _keys(entry: dict, allowed: set[str], required: set[str], source: str, where: str) -> None:
+    unknown, missing = sorted(set(entry) - allowed), sorted(required - set(entry))
+    if unknown:
+        raise _fail(source, where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    if missing:
+        raise _fail(source, where, f"missing {missing}")
 
 
-def _local(env: "TabletopEnv", frame_obj: str, point_world_m: np.ndarray) -> np.ndarray:
-    """``point_world_m`` in the body frame of ``frame_obj``."""
-    s = env.object_state(frame_obj)
-    return _rotation(s["quat_wxyz"]).T @ (np.asarray(point_world_m) - s["pos_world_m"])
+def _number(value: Any, source: str, where: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise _fail(source, where, f"must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise _fail(source, where, f"must be positive, got {value!r}")
+    return value
 
 
-def centre_m(env: "TabletopEnv", name: str) -> np.ndarray:
-    """World position of the object's geometric centre (half its height along body z)."""
-    s = env.object_state(name)
-    kind = env.task.object(name).kind
-    half = height_m(kind, env.object_dims(name)) / 2
-    return s["pos_world_m"] + _rotation(s["quat_wxyz"])[:, 2] * half
+def _range(value: Any, source: str, where: str) -> tuple[float, float]:
+    if not isinstance(value, list | tuple) or len(value) != 2:
+        raise _fail(source, where, f"must be [low, high], got {value!r}")
+    low, high = (_number(v, source, where) for v in value)
+    if low > high:
+        raise _fail(source, where, f"must be [low, high] with low <= high, got {list(value)}")
+    return low, high
 
 
-def _at_rest(env: "TabletopEnv", name: str) -> bool:
-    s = env.object_state(name)
-    return bool(np.linalg.norm(s["linvel_world_m_s"]) < REST_MAX_LIN_SPEED_M_S
-                and np.linalg.norm(s["angvel_world_rad_s"]) < REST_MAX_ANG_SPEED_RAD_S)
+def _object(name: str, entry: Any, source: str) -> ObjectSpec:
+    where = f"objects.{name}"
+    entry = _mapping(entry, source, where)
+    _keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction"}, {"kind", "rgba", "dims", "mass_kg"}, source, where)
+    if entry["kind"] not in BUILDERS:
+        raise _fail(source, f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
+    rgba = entry["rgba"]
+    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= _number(c, source, f"{where}.rgba") <= 1 for c in rgba):
+        raise _fail(source, f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
+    dims = _mapping(entry["dims"], source, f"{where}.dims")
+    for key, value in dims.items():
+        _number(value, source, f"{where}.dims.{key}", positive=True)
+    return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
+                      mass_kg=_number(entry["mass_kg"], source, f"{where}.mass_kg", positive=True),
+                      friction=_number(entry.get("friction", 1.0), source, f"{where}.friction", positive=True))
 
 
-def _ball_settled(env: "TabletopEnv") -> bool:
-    return bool(np.linalg.norm(env.object_state("ball")["linvel_world_m_s"]) < BALL_MAX_LIN_SPEED_M_S)
+def _region(entry: Any, names: list[str], name: str, source: str, where: str) -> tuple[Region, str]:
+    entry = _mapping(entry, source, where)
+    _keys(entry, {"x_range_m", "y_range_m", "yaw_range_rad", "relative_to", "placement"}, {"x_range_m", "y_range_m"},
+          source, where)
+    placement = entry.get("placement", "upright")
+    if placement not in PLACEMENTS:
+        raise _fail(source, f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
+    parent = entry.get("relative_to")
+    if parent is not None and (parent not in names or parent == name):
+        raise _fail(source, f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
+    yaw = _range(entry["yaw_range_rad"], source, f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
+    region = Region(x_range_m=_range(entry["x_range_m"], source, f"{where}.x_range_m"),
+                    y_range_m=_range(entry["y_range_m"], source, f"{where}.y_range_m"), yaw_range_rad=yaw,
+                    relative_to=parent)
+    return region, placement
 
 
-def _upright(env: "TabletopEnv", name: str) -> bool:
-    return _tilt_rad(env.object_state(name)["quat_wxyz"]) < UPRIGHT_MAX_TILT_RAD
+def _condition(spec: Any, names: list[str], source: str, where: str):
+    try:
+        condition = compile_condition(spec, where)
+    except ValueError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    strangers = sorted(condition_objects(spec) - set(names))
+    if strangers:
+        raise _fail(source, where, f"names {strangers}, which are not objects of the task {names}")
+    return condition
 
 
-def _upside_down(env: "TabletopEnv", name: str) -> bool:
-    return _tilt_rad(env.object_state(name)["quat_wxyz"]) > np.pi - UPRIGHT_MAX_TILT_RAD
-
-
-def _box_corners_xy(centre_xy, axes_xy, half_extents) -> np.ndarray:
-    """Corners of an oriented rectangle (axes_xy: 2 unit vectors as rows)."""
-    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], float)
-    return centre_xy + (signs * half_extents) @ axes_xy
-
-
-def _separated_xy(points_a: np.ndarray, points_b: np.ndarray, axes: list[np.ndarray]) -> bool:
-    """Separating-axis test of the convex hulls of two planar point sets."""
-    for axis in axes:
-        pa, pb = points_a @ axis, points_b @ axis
-        if pa.max() <= pb.min() or pb.max() <= pa.min():
-            return True
-    return False
-
-
-def _block_corners_world(env: "TabletopEnv", name: str) -> tuple[np.ndarray, np.ndarray]:
-    s = env.object_state(name)
-    R = _rotation(s["quat_wxyz"])
-    half = env.object_dims(name)["size_m"] / 2
-    signs = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (0, 2)], float)
-    return s["pos_world_m"] + (signs * half) @ R.T, R
-
-
-def block_outside_box(env: "TabletopEnv", block: str = "block_a", box: str = "box") -> bool:
-    """True when the block's footprint and the box's footprint do not overlap."""
-    corners, R_block = _block_corners_world(env, block)
-    s = env.object_state(box)
-    R_box = _rotation(s["quat_wxyz"])
-    dims = env.object_dims(box)
-    box_axes = [R_box[:2, 0] / np.linalg.norm(R_box[:2, 0]), R_box[:2, 1] / np.linalg.norm(R_box[:2, 1])]
-    box_xy = _box_corners_xy(s["pos_world_m"][:2], np.array(box_axes), np.array([dims["length_m"], dims["width_m"]]) / 2)
-    axes = list(box_axes)
-    for k in range(3):  # the block's horizontal face normals (a flat block has two)
-        a = R_block[:2, k]
-        if np.linalg.norm(a) > 0.3:
-            axes.append(a / np.linalg.norm(a))
-    return _separated_xy(corners[:, :2], box_xy, axes)
-
-
-def _ball_in_cup_geometry(env: "TabletopEnv") -> dict:
-    cup_dims = env.object_dims("cup")
-    ball_r = env.object_dims("ball")["radius_m"]
-    ball_centre = _local(env, "cup", centre_m(env, "ball"))
-    inner_r = cup_dims["radius_m"] - cup_dims["wall_m"]  # at the rim
-    inner_base_r = cup_dims["base_radius_m"] - cup_dims["wall_m"]
-    return dict(offset_m=float(np.hypot(*ball_centre[:2])), inner_r=inner_r, inner_base_r=inner_base_r, ball_r=ball_r,
-                z_local_m=float(ball_centre[2]), cup_h=cup_dims["height_m"])
-
-
-# ---------------------------------------------------------------- success rules
-def _cup_on_plate_geometry(env: "TabletopEnv") -> dict:
-    cup = env.object_state("cup")
-    plate = env.object_state("plate")
-    cup_dims, plate_dims = env.object_dims("cup"), env.object_dims("plate")
-    plate_top_z_m = plate["pos_world_m"][2] + plate_dims["thickness_m"]
-    offset_xy_m = float(np.linalg.norm(cup["pos_world_m"][:2] - plate["pos_world_m"][:2]))
-    return dict(
-        tilt_rad=_tilt_rad(cup["quat_wxyz"]),
-        offset_xy_m=offset_xy_m,
-        max_offset_xy_m=plate_dims["radius_m"] - cup_dims["base_radius_m"],
-        height_above_plate_m=float(cup["pos_world_m"][2] - plate_top_z_m),
-        lin_speed_m_s=float(np.linalg.norm(cup["linvel_world_m_s"])),
-        ang_speed_rad_s=float(np.linalg.norm(cup["angvel_world_rad_s"])),
+def _task(key: str, entry: Any, objects: dict[str, ObjectSpec], source: str) -> Task:
+    where = f"tasks.{key}"
+    entry = _mapping(entry, source, where)
+    _keys(entry, {"instruction", "start", "manipulated", "arm", "clearance_m", "success", "progress"},
+          {"instruction", "start", "manipulated", "success", "progress"}, source, where)
+    if not isinstance(entry["instruction"], str) or not entry["instruction"].strip():
+        raise _fail(source, f"{where}.instruction", "must be a non-empty text")
+    start = _mapping(entry["start"], source, f"{where}.start")
+    names = list(start)
+    unknown = [n for n in names if n not in objects]
+    if not names or unknown:
+        raise _fail(source, f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
+    regions, placements = {}, {}
+    for name in names:
+        regions[name], placement = _region(start[name], names, name, source, f"{where}.start.{name}")
+        if placement != "upright":
+            placements[name] = placement
+    if entry["manipulated"] not in names:
+        raise _fail(source, f"{where}.manipulated", f"must be one of the task's objects {names}, got {entry['manipulated']!r}")
+    arm = entry.get("arm", "nearest")
+    if arm not in ARM_CHOICES:
+        raise _fail(source, f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
+    success = _condition(entry["success"], names, source, f"{where}.success")
+    stages = _mapping(entry["progress"], source, f"{where}.progress")
+    _keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, source, f"{where}.progress")
+    movers = stages["objects"]
+    if not isinstance(movers, list) or not movers or any(m not in names for m in movers):
+        raise _fail(source, f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
+    goal = _condition(stages["goal"], names, source, f"{where}.progress.goal")
+    thresholds = {k: _number(stages[k], source, f"{where}.progress.{k}", positive=True)
+                  for k in ("reach_m", "lift_m") if k in stages}
+    return Task(
+        key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
+        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), manipulated=entry["manipulated"],
+        arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), source, f"{where}.clearance_m", positive=True),
+        placements=placements, success_condition=entry["success"], progress_stages=stages,
     )
 
 
-def cup_on_plate_success(env: "TabletopEnv") -> bool:
-    """Cup upright, bottom resting on the plate inside its rim, at rest, released."""
-    g = _cup_on_plate_geometry(env)
-    return bool(
-        g["tilt_rad"] < UPRIGHT_MAX_TILT_RAD
-        and g["offset_xy_m"] < g["max_offset_xy_m"]
-        and abs(g["height_above_plate_m"]) < RESTING_HEIGHT_TOL_M
-        and g["lin_speed_m_s"] < REST_MAX_LIN_SPEED_M_S
-        and g["ang_speed_rad_s"] < REST_MAX_ANG_SPEED_RAD_S
-        and not env.robot_touches("cup")
-    )
+def load_tasks(path: str | Path) -> dict[str, Task]:
+    """The tasks of a world file, checked: a wrong entry is a ConfigError naming the file and key."""
+    path = Path(path)
+    source = str(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{source}: no such world file") from None
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{source}: not readable YAML: {err}") from None
+    data = _mapping(data, source, "the file")
+    _keys(data, {"objects", "regions", "tasks"}, {"objects", "tasks"}, source, "the file")
+    objects = {str(n): _object(str(n), e, source) for n, e in _mapping(data["objects"], source, "objects").items()}
+    tasks = {str(k): _task(str(k), e, objects, source) for k, e in _mapping(data["tasks"], source, "tasks").items()}
+    if not tasks:
+        raise _fail(source, "tasks", "must list at least one task")
+    return tasks
 
 
-def _cup_over_plate(env: "TabletopEnv") -> bool:
-    g = _cup_on_plate_geometry(env)
-    return bool(g["offset_xy_m"] < g["max_offset_xy_m"] and g["tilt_rad"] < UPRIGHT_MAX_TILT_RAD
-                and g["height_above_plate_m"] > -RESTING_HEIGHT_TOL_M)
-
-
-def cover_ball_success(env: "TabletopEnv") -> bool:
-    """Cup upside down with its rim on the table and the whole ball under it; released, at rest."""
-    cup = env.object_state("cup")
-    cup_h = env.object_dims("cup")["height_m"]
-    g = _ball_in_cup_geometry(env)
-    ball_bottom_z = centre_m(env, "ball")[2] - g["ball_r"]
-    return bool(
-        _upside_down(env, "cup")
-        and abs(cup["pos_world_m"][2] - cup_h - env.table_top_z_m) < RESTING_HEIGHT_TOL_M
-        and g["offset_m"] < g["inner_r"] - g["ball_r"] + 0.002
-        and abs(ball_bottom_z - env.table_top_z_m) < RESTING_HEIGHT_TOL_M
-        and _at_rest(env, "cup")
-        and not env.robot_touches("cup")
-    )
-
-
-def _cup_over_ball(env: "TabletopEnv") -> bool:
-    g = _ball_in_cup_geometry(env)
-    return bool(_upside_down(env, "cup") and g["offset_m"] < g["inner_r"])
-
-
-def ball_in_cup_success(env: "TabletopEnv") -> bool:
-    """Ball inside the upright cup (within its inner radius, below its rim); both released."""
-    g = _ball_in_cup_geometry(env)
-    return bool(
-        _upright(env, "cup")
-        and g["offset_m"] < g["inner_base_r"]
-        and g["z_local_m"] < g["cup_h"]
-        and _ball_settled(env)
-        and not env.robot_touches("ball")
-        and not env.robot_touches("cup")
-    )
-
-
-def _ball_over_cup(env: "TabletopEnv") -> bool:
-    g = _ball_in_cup_geometry(env)
-    return bool(_upright(env, "cup") and g["offset_m"] < g["inner_r"] - g["ball_r"] / 2 and g["z_local_m"] > 0)
-
-
-def _ball_in_box_local(env: "TabletopEnv") -> tuple[np.ndarray, dict]:
-    return _local(env, "box", centre_m(env, "ball")), env.object_dims("box")
-
-
-def ball_in_box_success(env: "TabletopEnv") -> bool:
-    """Ball centre inside the box's inner walls and below its rim; box upright; ball released."""
-    p, d = _ball_in_box_local(env)
-    inside = abs(p[0]) < d["length_m"] / 2 - d["wall_m"] and abs(p[1]) < d["width_m"] / 2 - d["wall_m"]
-    return bool(inside and 0 < p[2] < d["height_m"] and _upright(env, "box") and _ball_settled(env)
-                and not env.robot_touches("ball"))
-
-
-def _ball_over_box(env: "TabletopEnv") -> bool:
-    p, d = _ball_in_box_local(env)
-    return bool(abs(p[0]) < d["length_m"] / 2 - d["wall_m"] and abs(p[1]) < d["width_m"] / 2 - d["wall_m"] and p[2] > 0)
-
-
-def _stacked(env: "TabletopEnv", top: str, bottom: str) -> bool:
-    if not (_upright(env, top) and _upright(env, bottom)):
-        return False
-    d_bottom = env.object_dims(bottom)["size_m"]
-    p = _local(env, bottom, env.object_state(top)["pos_world_m"])  # top block's bottom centre
-    inside = max(abs(p[0]), abs(p[1])) < d_bottom / 2 - STACK_INSET_M
-    return bool(inside and abs(p[2] - d_bottom) < RESTING_HEIGHT_TOL_M)
-
-
-def stack_blocks_success(env: "TabletopEnv") -> bool:
-    """One block resting on the other's top face, its centre inside it; released, both at rest."""
-    for top, bottom in (("block_a", "block_b"), ("block_b", "block_a")):
-        if (_stacked(env, top, bottom)
-                and abs(env.object_state(bottom)["pos_world_m"][2] - env.table_top_z_m) < RESTING_HEIGHT_TOL_M
-                and _at_rest(env, top) and _at_rest(env, bottom)
-                and not env.robot_touches(top) and not env.robot_touches(bottom)):
-            return True
-    return False
-
-
-def _block_over_block(env: "TabletopEnv") -> bool:
-    p = _local(env, "block_b", env.object_state("block_a")["pos_world_m"])
-    d = env.object_dims("block_b")["size_m"]
-    return bool(max(abs(p[0]), abs(p[1])) < d / 2 and p[2] > d - RESTING_HEIGHT_TOL_M)
-
-
-def block_from_box_success(env: "TabletopEnv") -> bool:
-    """The block's footprint clear of the box's, the block resting on the table; released, at rest."""
-    size = env.object_dims("block_a")["size_m"]
-    on_table = abs(_block_corners_world(env, "block_a")[0][:, 2].min() - env.table_top_z_m) < RESTING_HEIGHT_TOL_M
-    return bool(block_outside_box(env) and on_table and abs(centre_m(env, "block_a")[2] - env.table_top_z_m - size / 2)
-                < RESTING_HEIGHT_TOL_M and _at_rest(env, "block_a") and not env.robot_touches("block_a"))
-
-
-def _block_clear_of_box(env: "TabletopEnv") -> bool:
-    return block_outside_box(env)
-
-
-def upright_cup_success(env: "TabletopEnv") -> bool:
-    """Cup upright with its bottom on the table; released, at rest."""
-    cup = env.object_state("cup")
-    return bool(_upright(env, "cup") and abs(cup["pos_world_m"][2] - env.table_top_z_m) < RESTING_HEIGHT_TOL_M
-                and _at_rest(env, "cup") and not env.robot_touches("cup"))
-
-
-def _cup_held_upright(env: "TabletopEnv") -> bool:
-    return _upright(env, "cup")
-
-
-# ---------------------------------------------------------------- progress
-def staged_progress(
-    env: "TabletopEnv", candidates: tuple[str, ...], goal_configuration: Callable[["TabletopEnv"], bool],
-) -> float:
-    """Stages: reached 0.2, grasped 0.4, lifted 0.6, held in the goal configuration 0.8, success 1.0.
-
-    "Lifted" is 2 cm above where the object's centre started (``env.initial_centre_z_m``).
-
-    ``candidates`` are the objects that may be manipulated; the best one counts.
-    """
-    if env.is_success():  # the task's own rule (computed once per state by the env)
-        return 1.0
-    best = 0.0
-    for name in candidates:
-        grasped = env.grasped(name) is not None
-        lifted = centre_m(env, name)[2] > env.initial_centre_z_m[name] + LIFTED_HEIGHT_M
-        if grasped and goal_configuration(env):
-            best = max(best, 0.8)
-        elif grasped and lifted:
-            best = max(best, 0.6)
-        elif grasped:
-            best = max(best, 0.4)
-        else:
-            tcp_dist_m = min(np.linalg.norm(p - centre_m(env, name)) for p in env.ee_positions().values())
-            if tcp_dist_m < REACHED_DIST_M:
-                best = max(best, 0.2)
-    return best
-
-
-def cup_on_plate_progress(env: "TabletopEnv") -> float:
-    """Stages: reached 0.2, grasped 0.4, lifted 0.6, above plate 0.8, placed 1.0."""
-    return staged_progress(env, ("cup",), _cup_over_plate)
-
-
-def _progress(candidates, goal):
-    def progress(env: "TabletopEnv") -> float:
-        return staged_progress(env, candidates, goal)
-
-    progress.__doc__ = f"Staged progress of {candidates} towards {goal.__name__} (see staged_progress)."
-    return progress
-
-
-_FULL_REGION = dict(x_range_m=(-0.12, 0.06), y_range_m=(-0.16, 0.16))
-
-TASKS: dict[str, Task] = {
-    "cover_ball": Task(
-        key="cover_ball",
-        instruction="Cover the Ball with the Cup",
-        objects=(CUP, BALL),
-        init_regions={"cup": Region(**_FULL_REGION), "ball": Region(**_FULL_REGION)},
-        success=cover_ball_success,
-        progress=_progress(("cup",), _cup_over_ball),
-        manipulated="cup",
-        placements={"cup": "upside_down"},
-    ),
-    "ball_in_box": Task(
-        key="ball_in_box",
-        instruction="Pick the Ball and Place it in the Box",
-        objects=(BALL, BOX),
-        init_regions={"ball": Region(**_FULL_REGION), "box": Region(**_FULL_REGION)},
-        success=ball_in_box_success,
-        progress=_progress(("ball",), _ball_over_box),
-        manipulated="ball",
-    ),
-    "ball_in_cup": Task(
-        key="ball_in_cup",
-        instruction="Pick the Ball and Place it in the Cup",
-        objects=(BALL, CUP),
-        init_regions={"ball": Region(**_FULL_REGION), "cup": Region(**_FULL_REGION)},
-        success=ball_in_cup_success,
-        progress=_progress(("ball",), _ball_over_cup),
-        manipulated="ball",
-    ),
-    "cup_on_plate": Task(
-        key="cup_on_plate",
-        instruction="Pick the Cup and Place it on the Plate",
-        objects=(CUP, PLATE),
-        init_regions={"cup": Region(**_FULL_REGION), "plate": Region(**_FULL_REGION)},
-        success=cup_on_plate_success,
-        progress=cup_on_plate_progress,
-        manipulated="cup",
-    ),
-    "stack_blocks": Task(
-        key="stack_blocks",
-        instruction="Stack the Two Blocks",
-        objects=(BLOCK_A, BLOCK_B),
-        init_regions={"block_a": Region(**_FULL_REGION), "block_b": Region(**_FULL_REGION)},
-        success=stack_blocks_success,
-        progress=_progress(("block_a", "block_b"), _block_over_block),
-        manipulated="block_a",
-    ),
-    "block_from_box": Task(
-        key="block_from_box",
-        instruction="Take the Block out of the Box",
-        objects=(BOX, BLOCK_A),
-        init_regions={
-            "box": Region(x_range_m=(-0.10, 0.04), y_range_m=(-0.12, 0.12)),
-            # In the box's frame: the block sits near the box centre, any yaw.
-            "block_a": Region(x_range_m=(-0.015, 0.015), y_range_m=(-0.01, 0.01), relative_to="box"),
-        },
-        success=block_from_box_success,
-        progress=_progress(("block_a",), _block_clear_of_box),
-        manipulated="block_a",
-    ),
-    "upright_cup": Task(
-        key="upright_cup",
-        instruction="Upright the Fallen Cup",
-        objects=(CUP,),
-        # Yaw is the direction the opening points; away from the robot, +-80 deg.
-        init_regions={"cup": Region(x_range_m=(-0.10, 0.05), y_range_m=(-0.14, 0.14),
-                                    yaw_range_rad=(-1.4, 1.4))},
-        success=upright_cup_success,
-        progress=_progress(("cup",), _cup_held_upright),
-        manipulated="cup",
-        arm="behind_axis",
-        placements={"cup": "on_side"},
-    ),
-}
+TASKS: dict[str, Task] = load_tasks(BUNDLED_WORLD)
 
 
 def get_task(key: str) -> Task:

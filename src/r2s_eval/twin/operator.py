@@ -60,7 +60,8 @@ from scipy.spatial.transform import Rotation
 from r2s_eval.sim import world
 from r2s_eval.sim.env import ACTION_DIM, TabletopEnv
 from r2s_eval.sim.objects import height_m
-from r2s_eval.sim.tasks import TASKS, Task, centre_m, get_task
+from r2s_eval.sim.predicates import centre_m
+from r2s_eval.sim.tasks import TASKS, Task, get_task
 from r2s_eval.twin.perturb import sample_twin_params
 
 

@@ -36,12 +36,13 @@ def test_a_new_task_is_an_entry_of_the_world_file(world):
   ball_on_plate:
     instruction: Put the Ball on the Plate
     start: {ball: *full, plate: *full}
-    manipulated: ball
+    plan: [{pick: ball}, {place_on: plate}]
     success: {all: [{over: {object: ball, target: plate}}, {released: {object: ball}}]}
     progress: {objects: [ball], goal: {over: {object: ball, target: plate}}}
 """)
     tasks = load_tasks(world)
     assert len(tasks) == 8 and tasks["ball_on_plate"].object_names == ("ball", "plate")
+    assert tasks["ball_on_plate"].manipulated == "ball"
 
 
 @pytest.mark.parametrize(("old", "new", "message"), [
@@ -61,7 +62,12 @@ def test_a_new_task_is_an_entry_of_the_world_file(world):
     ("relative_to: box", "relative_to: plate", r"tasks\.block_from_box\.start\.block_a\.relative_to: must name another object"),
     ("placement: on_side", "placement: sideways", r"tasks\.upright_cup\.start\.cup\.placement: must be one of \["),
     ("arm: behind_axis", "arm: third", r"tasks\.upright_cup\.arm: must be one of \["),
-    ("    manipulated: ball\n", "    manipulated: plate\n", r"tasks\.ball_in_box\.manipulated: must be one of the task's objects"),
+    ("    plan: [{pick: ball}, {place_in: box}]", "    plan: [{pick: ball}, {place_in: plate}]",
+     r"tasks\.ball_in_box\.plan\[1\]\.place_in: must name an object of the task"),
+    ("    plan: [{pick: ball}, {place_in: box}]", "    plan: [{pick: ball}, {drop: box}]",
+     r"tasks\.ball_in_box\.plan\[1\]: unknown primitive .drop."),
+    ("    plan: [{pick: ball}, {place_in: box}]", "    plan: [{place_in: box}]",
+     r"tasks\.ball_in_box\.plan: must be a pick and one of"),
     ("      objects: [cup]\n      goal: {all: [{over", "      objects: [ball]\n      goal: {all: [{over",
      r"tasks\.cup_on_plate\.progress\.objects: must list objects of the task"),
 ])

@@ -14,7 +14,7 @@ A task entry (``tasks.<key>`` in the world file)::
     start:                                   # the task's objects (of the world's `objects`), in order
       cup: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}   # + yaw_range_rad (default any yaw),
       plate: {x_range_m: [...], y_range_m: [...]}                 #   placement, relative_to
-    manipulated: cup                         # the object the operator grasps
+    plan: [{pick: cup}, {place_on: plate}]   # what the twin's scripted operator does (r2s_eval.twin.operator)
     arm: nearest                             # left | right | nearest | behind_axis (default nearest)
     clearance_m: 0.03                        # footprints kept this far apart at the start (default)
     success: {all: [{upright: {object: cup}}, {on_top_of: {object: cup, support: plate}}, ...]}
@@ -60,6 +60,9 @@ from r2s_eval.sim.predicates import Scene, compile_condition, condition_objects,
 WORLDS_DIR = Path(__file__).resolve().parents[3] / "assets" / "worlds"
 BUNDLED_WORLD = WORLDS_DIR / "tabletop" / "world.yaml"
 ARM_CHOICES = ("left", "right", "nearest", "behind_axis")
+# The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
+PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")
+PLAN_PRIMITIVES = ("pick", *PLACE_PRIMITIVES, "turn_upright")
 
 
 @dataclass(frozen=True)
@@ -78,8 +81,8 @@ class Task:
     init_regions: dict[str, Region]
     success: Callable[[Scene], bool]
     progress: Callable[[Scene], float]
-    # The object the operator grasps and moves.
-    manipulated: str = ""
+    # What the scripted operator does: [{pick: X}, {<place primitive>: Y}] or [{turn_upright: X}].
+    plan: tuple[dict[str, str], ...] = ()
     # "left", "right", "nearest" (the arm whose base is nearest to the midpoint of the
     # objects), or "behind_axis" (on_side objects: the arm on the side the object's axis
     # points away from, so the gripper ends pointing along it).
@@ -91,6 +94,11 @@ class Task:
 
     def placement(self, name: str) -> str:
         return self.placements.get(name, "upright")
+
+    @property
+    def manipulated(self) -> str:
+        """The object the operator grasps and moves (the first of its plan)."""
+        return next(iter(self.plan[0].values()))
 
     @property
     def object_names(self) -> tuple[str, ...]:
@@ -185,11 +193,28 @@ def _condition(spec: Any, names: list[str], source: str, where: str):
     return condition
 
 
+def _plan(value: Any, names: list[str], source: str, where: str) -> tuple[dict[str, str], ...]:
+    steps = value if isinstance(value, list) else []
+    if not all(isinstance(s, Mapping) and len(s) == 1 for s in steps):
+        raise _fail(source, where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
+    kinds = [next(iter(s)) for s in steps]
+    for i, step in enumerate(steps):
+        (primitive, obj), = step.items()
+        if primitive not in PLAN_PRIMITIVES:
+            raise _fail(source, f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
+        if obj not in names:
+            raise _fail(source, f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
+    if not (kinds == ["turn_upright"] or (len(kinds) == 2 and kinds[0] == "pick" and kinds[1] in PLACE_PRIMITIVES)):
+        raise _fail(source, where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; "
+                                   f"got {kinds}")
+    return tuple(dict(s) for s in steps)
+
+
 def _task(key: str, entry: Any, objects: dict[str, ObjectSpec], source: str) -> Task:
     where = f"tasks.{key}"
     entry = _mapping(entry, source, where)
-    _keys(entry, {"instruction", "start", "manipulated", "arm", "clearance_m", "success", "progress"},
-          {"instruction", "start", "manipulated", "success", "progress"}, source, where)
+    _keys(entry, {"instruction", "start", "plan", "arm", "clearance_m", "success", "progress"},
+          {"instruction", "start", "plan", "success", "progress"}, source, where)
     if not isinstance(entry["instruction"], str) or not entry["instruction"].strip():
         raise _fail(source, f"{where}.instruction", "must be a non-empty text")
     start = _mapping(entry["start"], source, f"{where}.start")
@@ -202,8 +227,7 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec], source: str) -> 
         regions[name], placement = _region(start[name], names, name, source, f"{where}.start.{name}")
         if placement != "upright":
             placements[name] = placement
-    if entry["manipulated"] not in names:
-        raise _fail(source, f"{where}.manipulated", f"must be one of the task's objects {names}, got {entry['manipulated']!r}")
+    plan = _plan(entry["plan"], names, source, f"{where}.plan")
     arm = entry.get("arm", "nearest")
     if arm not in ARM_CHOICES:
         raise _fail(source, f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
@@ -218,8 +242,7 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec], source: str) -> 
                   for k in ("reach_m", "lift_m") if k in stages}
     return Task(
         key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
-        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), manipulated=entry["manipulated"],
-        arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), source, f"{where}.clearance_m", positive=True),
+        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), source, f"{where}.clearance_m", positive=True),
         placements=placements, success_condition=entry["success"], progress_stages=stages,
     )
 

@@ -15,11 +15,26 @@ arm (the task's ``arm`` rule), keeps the other at its home pose, and keeps
 its own commanded joint configuration as the IK seed, as a teleoperation
 rig does.
 
-Plans. Six tasks are one pick-and-place (``PickPlace``): pregrasp (above the
+Plans. A task's plan is data (its world-file entry, ``plan``): a ``pick`` of one object followed
+by one place primitive, or a ``turn_upright``:
+
+===================  ===============================================================
+primitive            the operator
+===================  ===============================================================
+pick: X              grasps X from above (a cup round its wall near the table, a ball or
+                     a block with the jaws pre-shaped just wider than it)
+place_on: Y          releases it with its bottom 6 mm above Y's top face (a plate, a block)
+place_in: Y          releases it 2 cm above Y's rim, over its centre: it drops in (a cup, a box)
+place_over: Y        releases the upside-down object with its rim 6 mm above the table,
+                     centred on Y (covering it)
+put_down_beside: Y   puts it on the table beside Y (a box), towards the table's centre line
+turn_upright: X      stands the lying X (a cup) up
+===================  ===============================================================
+
+A pick and a place are one pick-and-place (``PickPlace``): pregrasp (above the
 object, gripper pre-shaped) -> approach (down) -> close -> [regrasp: open, back
 off, re-approach, close] -> lift -> carry (over the target, corrected for where
-the object sits in the hand) -> lower -> release -> retreat. What differs is the
-object, the grasp height, the pre-shape and the release pose:
+the object sits in the hand) -> lower -> release -> retreat. The bundled tasks:
 
 ==============  ========  ======================================================
 task            grasps    releases it
@@ -32,7 +47,7 @@ stack_blocks    block_a   bottom 6 mm above block_b's top face
 block_from_box  block_a   on the table beside the box, towards the centre line
 ==============  ========  ======================================================
 
-``upright_cup`` grasps the lying cup across its middle, lifts it, pitches the
+``upright_cup`` (``turn_upright``) grasps the lying cup across its middle, lifts it, pitches the
 hand by 90 deg about the jaw axis (the cup's opening turns up), lowers it onto
 the table, lets go and backs off along the hand's axis. Blocks are grasped
 with the jaws square to their faces; the hand turns (for round objects in
@@ -59,7 +74,8 @@ from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim import world
 from r2s_eval.sim.env import ACTION_DIM, TabletopEnv
-from r2s_eval.sim.objects import height_m
+from r2s_eval.errors import ConfigError
+from r2s_eval.sim.objects import height_m, support_top_m
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import TASKS, Task, get_task
 from r2s_eval.twin.perturb import sample_twin_params
@@ -173,7 +189,7 @@ class ScriptedOperator:
         self._cmd_pos: np.ndarray | None = None
         self._gripper_cmd = 0.0
         self.arm = self._choose_arm()
-        self._plan = PLANS[task.key](self)
+        self._plan = _plan(self)
 
     # ------------------------------------------------------------ scene reads (what a person sees)
     def object_height_m(self, name: str) -> float:
@@ -398,124 +414,121 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     return [pregrasp, approach, close, lift, carry, lower, release, retreat]
 
 
-def _centre_xy(op: ScriptedOperator, name: str) -> np.ndarray:
-    return centre_m(op.env, name)[:2]
-
-
-def _cup_on_plate_plan(op: ScriptedOperator):
-    env, cfg = op.env, op.cfg
-    cup, plate = env.object_dims("cup"), env.object_dims("plate")
-
-    def place(op):
-        plate_pos = env.object_state("plate")["pos_world_m"]
-        return np.r_[plate_pos[:2], plate_pos[2] + plate["thickness_m"] + cfg.place_clearance_m + cup["height_m"] / 2]
-
-    return _pick_and_place_plan(op, PickPlace("cup", lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m, place))
-
-
-def _cover_ball_plan(op: ScriptedOperator):
-    env, cfg = op.env, op.cfg
-    cup_h = env.object_dims("cup")["height_m"]
-
-    def place(op):  # the upside-down cup's rim just above the table, centred on the ball
-        return np.r_[_centre_xy(op, "ball"), env.table_top_z_m + cfg.place_clearance_m + cup_h / 2]
-
-    return _pick_and_place_plan(op, PickPlace("cup", lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m - 0.005, place))
-
-
-def _ball_grasp(op: ScriptedOperator) -> tuple[Callable, float]:
-    r = op.env.object_dims("ball")["radius_m"]
-    # tcp slightly above the ball's centre keeps the fingertips off the table.
-    grasp_z = lambda op: centre_m(op.env, "ball")[2] + 0.006  # noqa: E731
-    return grasp_z, _jaw_cmd(r + op.cfg.preshape_margin_m)
-
-
 def _jaw_cmd(jaw_opening_m: float) -> float:
     """Gripper command that opens each jaw ``jaw_opening_m`` from the centre."""
     return float(np.clip(1.0 - jaw_opening_m / world.GRIPPER_OPEN_M, 0.0, 1.0))
 
 
-def _ball_in_cup_plan(op: ScriptedOperator):
+def _centre_xy(op: ScriptedOperator, name: str) -> np.ndarray:
+    return centre_m(op.env, name)[:2]
+
+
+def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator], float], float]:
+    """How the hand takes ``name`` from above: the tcp height when closing, and the pre-shape."""
     env, cfg = op.env, op.cfg
-    r, cup_h = env.object_dims("ball")["radius_m"], env.object_dims("cup")["height_m"]
-    grasp_z, open_cmd = _ball_grasp(op)
+    kind = env.object_kind(name)
+    if kind == "cup" and op.task.placement(name) == "upside_down":  # a little lower round its rim
+        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m - 0.005), 0.0
+    if kind == "cup":  # round its wall, near the table
+        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m), 0.0
+    if kind in ("ball", "block"):
+        # tcp slightly above the centre keeps the fingertips off the table; jaws pre-shaped.
+        dims = env.object_dims(name)
+        half_width = dims["radius_m"] if kind == "ball" else dims["size_m"] / 2
+        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(half_width + cfg.preshape_margin_m)
+    raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind} ({name}) from above; "
+                      f"it picks cups, balls and blocks")
 
-    def place(op):  # drop the ball from just above the rim
-        cup = env.object_state("cup")["pos_world_m"]
-        return np.r_[cup[:2], cup[2] + cup_h + r + cfg.drop_height_m]
 
-    return _pick_and_place_plan(op, PickPlace("ball", grasp_z, place, open_cmd))
-
-
-def _ball_in_box_plan(op: ScriptedOperator):
+def _place_on(op: ScriptedOperator, held: str, support: str) -> Callable[[ScriptedOperator], np.ndarray]:
+    """The held object's bottom a little above the support's top face, over its centre."""
     env, cfg = op.env, op.cfg
-    r, box_h = env.object_dims("ball")["radius_m"], env.object_dims("box")["height_m"]
-    grasp_z, open_cmd = _ball_grasp(op)
+    kind, dims, held_h = env.object_kind(support), env.object_dims(support), op.object_height_m(held)
 
     def place(op):
-        box = env.object_state("box")["pos_world_m"]
-        return np.r_[box[:2], box[2] + box_h + r + cfg.drop_height_m]
+        pos = env.object_state(support)["pos_world_m"]
+        return np.r_[pos[:2], pos[2] + support_top_m(kind, dims) + cfg.place_clearance_m + held_h / 2]
 
-    return _pick_and_place_plan(op, PickPlace("ball", grasp_z, place, open_cmd))
-
-
-def _block_pick(op: ScriptedOperator, name: str) -> tuple[Callable, float]:
-    size = op.env.object_dims(name)["size_m"]
-    grasp_z = lambda op: centre_m(op.env, name)[2] + 0.006  # noqa: E731
-    return grasp_z, _jaw_cmd(size / 2 + op.cfg.preshape_margin_m)
+    return place
 
 
-def _stack_blocks_plan(op: ScriptedOperator):
+def _place_in(op: ScriptedOperator, held: str, container: str) -> Callable[[ScriptedOperator], np.ndarray]:
+    """The held object just above the container's rim, over its centre (it drops in)."""
     env, cfg = op.env, op.cfg
-    size = env.object_dims("block_b")["size_m"]
-    grasp_z, open_cmd = _block_pick(op, "block_a")
+    rim_h, held_h = op.object_height_m(container), op.object_height_m(held)
 
     def place(op):
-        below = env.object_state("block_b")["pos_world_m"]
-        return np.r_[below[:2], below[2] + size + cfg.place_clearance_m + env.object_dims("block_a")["size_m"] / 2]
+        pos = env.object_state(container)["pos_world_m"]
+        return np.r_[pos[:2], pos[2] + rim_h + held_h / 2 + cfg.drop_height_m]
 
-    return _pick_and_place_plan(op, PickPlace("block_a", grasp_z, place, open_cmd))
+    return place
 
 
-def _block_from_box_plan(op: ScriptedOperator):
+def _place_over(op: ScriptedOperator, held: str, covered: str) -> Callable[[ScriptedOperator], np.ndarray]:
+    """The held (upside-down) object's rim just above the table, centred on the covered one."""
     env, cfg = op.env, op.cfg
-    grasp_z, open_cmd = _block_pick(op, "block_a")
-    box = env.object_dims("box")
-    block_half_diag = env.object_dims("block_a")["size_m"] / np.sqrt(2)
-    box_pos = env.object_state("box")["pos_world_m"]
-    # Put the block down beside the box, on the side of the table's centre line.
+    held_h = op.object_height_m(held)
+
+    def place(op):
+        return np.r_[_centre_xy(op, covered), env.table_top_z_m + cfg.place_clearance_m + held_h / 2]
+
+    return place
+
+
+def _put_down_beside(op: ScriptedOperator, held: str, other: str):
+    """On the table beside ``other`` (a box), towards the table's centre line; hovering high
+    enough that the fingertips clear its walls. Returns (place, hover)."""
+    env, cfg = op.env, op.cfg
+    box = env.object_dims(other)
+    held_half_diag = env.object_dims(held)["size_m"] / np.sqrt(2)
+    box_pos = env.object_state(other)["pos_world_m"]
     side = -np.sign(box_pos[1]) if abs(box_pos[1]) > 0.03 else (1.0 if op.arm == "right" else -1.0)
-    box_yaw = env.object_poses()["box"]["yaw_rad"]
+    box_yaw = env.object_poses()[other]["yaw_rad"]
     c, s = np.cos(box_yaw), np.sin(box_yaw)
     corners = np.array([[c * sx * box["length_m"] / 2 - s * sy * box["width_m"] / 2,
                          s * sx * box["length_m"] / 2 + c * sy * box["width_m"] / 2] for sx in (-1, 1) for sy in (-1, 1)])
-    reach_y = float(np.max(corners[:, 1] * side)) + block_half_diag + cfg.put_down_margin_m
+    reach_y = float(np.max(corners[:, 1] * side)) + held_half_diag + cfg.put_down_margin_m
     target_xy = box_pos[:2] + np.array([0.0, side * reach_y])
 
     def place(op):
-        return np.r_[target_xy, env.table_top_z_m + cfg.place_clearance_m + env.object_dims("block_a")["size_m"] / 2]
+        return np.r_[target_xy, env.table_top_z_m + cfg.place_clearance_m + env.object_dims(held)["size_m"] / 2]
 
-    # Hover high enough that the fingertips clear the box walls.
     hover = lambda op: env.table_top_z_m + box["height_m"] + cfg.hover_above_cup_m + 0.03  # noqa: E731
-    return _pick_and_place_plan(op, PickPlace("block_a", grasp_z, place, open_cmd, hover))
+    return place, hover
 
 
-def _upright_cup_plan(op: ScriptedOperator):
-    """Grasp the lying cup across its middle, lift, pitch the hand 90 deg, set it down, let go."""
+PLACES = {"place_on": _place_on, "place_in": _place_in, "place_over": _place_over}
+
+
+def _plan(op: ScriptedOperator) -> list[Callable[[], list[Segment]]]:
+    """The segments of the task's plan (its world-file entry): pick and a place, or turn upright."""
+    steps = [next(iter(step.items())) for step in op.task.plan]
+    if steps[0][0] == "turn_upright":
+        return _turn_upright_plan(op, steps[0][1])
+    (_, held), (place_kind, target) = steps
+    grasp_z, open_cmd = _grasp(op, held)
+    if place_kind == "put_down_beside":
+        place, hover = _put_down_beside(op, held, target)
+        return _pick_and_place_plan(op, PickPlace(held, grasp_z, place, open_cmd, hover))
+    return _pick_and_place_plan(op, PickPlace(held, grasp_z, PLACES[place_kind](op, held, target), open_cmd))
+
+
+def _turn_upright_plan(op: ScriptedOperator, name: str) -> list[Callable[[], list[Segment]]]:
+    """Grasp the lying object (a cup) across its middle, lift, pitch the hand 90 deg, set it down, let go."""
     env, cfg = op.env, op.cfg
     table_z = env.table_top_z_m
-    dims = env.object_dims("cup")
-    axis_yaw = env.object_poses()["cup"]["yaw_rad"]
+    dims = env.object_dims(name)
+    axis_yaw = env.object_poses()[name]["yaw_rad"]
     axis = np.array([np.cos(axis_yaw), np.sin(axis_yaw), 0.0])
     # Rotating about (axis x up) by +90 deg turns the cup's axis (bottom -> opening) upwards.
     R_turn = Rotation.from_rotvec(np.cross(axis, [0.0, 0.0, 1.0]) * (np.pi / 2)).as_matrix()
 
     def pregrasp():
-        cup = centre_m(env, "cup")
+        cup = centre_m(env, name)
         return op._free_move("pregrasp", np.r_[cup[:2] + _aim(op), table_z + 2 * dims["radius_m"] + cfg.hover_above_cup_m], 0.0)
 
     def approach():
-        cup = centre_m(env, "cup")
+        cup = centre_m(env, name)
         return [Segment("approach", np.r_[cup[:2] + _aim(op), cup[2] + 0.004], 0.0, op._speed(cfg.fine_speed_m_s),
                         settle_m=cfg.settle_m)]
 
@@ -530,7 +543,7 @@ def _upright_cup_plan(op: ScriptedOperator):
         return [Segment("turn", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, R_world=R_turn @ op._R_cmd)]
 
     def lower():
-        bottom_z = env.object_state("cup")["pos_world_m"][2]  # body origin = bottom centre
+        bottom_z = env.object_state(name)["pos_world_m"][2]  # body origin = bottom centre
         drop = bottom_z - (table_z + cfg.place_clearance_m)
         return [Segment("lower", op._cmd_pos - np.array([0.0, 0.0, drop]), 1.0, op._speed(cfg.fine_speed_m_s))]
 
@@ -543,17 +556,6 @@ def _upright_cup_plan(op: ScriptedOperator):
                 Segment("retreat_up", back + np.array([0.0, 0.0, 0.06]), 0.0, op._speed(cfg.free_speed_m_s))]
 
     return [pregrasp, approach, close, lift, turn, lower, release, retreat]
-
-
-PLANS: dict[str, Callable[[ScriptedOperator], list]] = {
-    "cover_ball": _cover_ball_plan,
-    "ball_in_box": _ball_in_box_plan,
-    "ball_in_cup": _ball_in_cup_plan,
-    "cup_on_plate": _cup_on_plate_plan,
-    "stack_blocks": _stack_blocks_plan,
-    "block_from_box": _block_from_box_plan,
-    "upright_cup": _upright_cup_plan,
-}
 
 
 def make_operator(

@@ -103,7 +103,8 @@ def _stage_name(main: Callable) -> str:
     if module == "__main__":  # run with `python -m r2s_eval.stages.<stage>`
         spec = getattr(sys.modules["__main__"], "__spec__", None)
         module = spec.name if spec is not None else Path(sys.argv[0]).stem
-    return module.rsplit(".", 1)[-1]
+    parts = module.split(".")
+    return parts[-2] if parts[-1] == "__main__" and len(parts) > 1 else parts[-1]  # `python -m r2s_eval.world`
 
 
 def add_validation_table_inputs(p: argparse.ArgumentParser) -> None:

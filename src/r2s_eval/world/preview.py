@@ -1,0 +1,168 @@
+"""A look at a world before a run: every camera at a sampled start of each task, and, given a
+dataset, each camera's first recorded frame beside the simulation rendered at the poses the
+calibration estimates from it.
+
+A wrong camera pose, a wrong unit or a mislabelled object shows at a glance: the estimated poses
+are drawn into both images (a dot at each object's centre, a line along its yaw, its name), so
+the real frame's objects should sit under the dots and the rendered ones should look the same.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from r2s_eval.calib.episodes import estimate_episodes
+from r2s_eval.data.contract import read_metadata, scan_video
+from r2s_eval.data.dataset import camera_key
+from r2s_eval.errors import ConfigError, DataError
+from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim import cameras as cam_geom
+from r2s_eval.sim.predicates import centre_m
+from r2s_eval.sim.tasks import WORLDS_DIR, Task, load_tasks
+
+LABEL_PX = 18  # height of the text band above each image
+MIN_SHOWN_PX = 256  # smaller frames are shown enlarged, so that the labels and marks stay legible
+
+
+def world_file(world: str | Path) -> Path:
+    """A world by name (a folder of ``assets/worlds``), by folder, or by its file."""
+    path = Path(world)
+    for candidate in (path, path / "world.yaml", WORLDS_DIR / str(world) / "world.yaml"):
+        if candidate.is_file():
+            return candidate
+    known = sorted(p.name for p in WORLDS_DIR.iterdir() if (p / "world.yaml").is_file())
+    raise ConfigError(f"world {str(world)!r}: no such world file or folder; bundled worlds: {known}")
+
+
+def _labelled(image: np.ndarray, text: str) -> np.ndarray:
+    band = np.full((LABEL_PX, image.shape[1], 3), 255, np.uint8)
+    cv2.putText(band, text, (3, LABEL_PX - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    return np.vstack([band, image])
+
+
+def _draw_poses(image: np.ndarray, env: TabletopEnv, camera: str, poses: Mapping[str, Sequence[float]]) -> np.ndarray:
+    """Each object's planar pose drawn into ``camera``'s image: its centre, its yaw, its name."""
+    out = image.copy()
+    K = env.camera_K(camera, image.shape[:2])
+    T = env.camera_T_world_from_cam(camera)
+    scale = image.shape[0] / 256
+    for name, (x_m, y_m, yaw_rad) in poses.items():
+        z_m = float(centre_m(env, name)[2])
+        ends = np.array([[x_m, y_m, z_m], [x_m + 0.04 * np.cos(yaw_rad), y_m + 0.04 * np.sin(yaw_rad), z_m]])
+        uv, depth = cam_geom.project_points(ends, K, T)
+        if np.any(depth <= 0):
+            continue  # behind the camera
+        (u0, v0), (u1, v1) = np.round(uv).astype(int)
+        cv2.line(out, (u0, v0), (u1, v1), (255, 255, 0), max(1, round(2 * scale)), cv2.LINE_AA)
+        cv2.circle(out, (u0, v0), max(2, round(4 * scale)), (255, 255, 0), -1, cv2.LINE_AA)
+        cv2.putText(out, name, (u0 + 4, v0 - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35 * max(scale, 1), (255, 255, 255), 1,
+                    cv2.LINE_AA)
+    return out
+
+
+def _grid(rows: list[list[np.ndarray]]) -> np.ndarray:
+    width = max(sum(im.shape[1] for im in row) for row in rows)
+    padded = []
+    for row in rows:
+        line = np.hstack(row)
+        padded.append(np.pad(line, ((0, 4), (0, width - line.shape[1]), (0, 0)), constant_values=255))
+    return np.vstack(padded)
+
+
+def render_starts(tasks: Mapping[str, Task], cameras: Sequence[str], size_hw: tuple[int, int], seed: int
+                  ) -> np.ndarray:
+    """One row per task, one image per camera: the task at a start sampled from its regions."""
+    rows = []
+    for i, (key, task) in enumerate(tasks.items()):
+        env = TabletopEnv(task, image_size=size_hw, cameras=cameras)
+        try:
+            poses = env.sample_initial_poses(np.random.default_rng([seed, i]))
+            env.reset(object_poses=poses, settle=False, observe=False)
+            rows.append([_labelled(_draw_poses(env.render(cam), env, cam, poses), f"{key}: {cam}") for cam in cameras])
+        finally:
+            env.close()
+    return _grid(rows)
+
+
+def _first_episodes(meta, tasks: Mapping[str, Task]) -> dict[str, int]:
+    """The first episode of each task the dataset records (by instruction)."""
+    by_instruction = {t.instruction: key for key, t in tasks.items()}
+    first: dict[str, int] = {}
+    for ep in meta.episodes.sort_values("episode_index").itertuples():
+        texts = list(ep.tasks) if not isinstance(ep.tasks, str) else [ep.tasks]
+        key = next((by_instruction[t] for t in texts if t in by_instruction), None)
+        if key is not None:
+            first.setdefault(key, int(ep.episode_index))
+    if not first:
+        raise DataError(f"dataset {meta.root}: no episode's task is an instruction of the world's tasks "
+                        f"{sorted(by_instruction)}")
+    return first
+
+
+def _first_frame(meta, episode: int, camera: str) -> np.ndarray:
+    key = camera_key(camera)
+    if key not in meta.features:
+        raise DataError(f"dataset {meta.root}: records no camera {camera!r} ({key}); it records "
+                        f"{sorted(k for k in meta.features if k.startswith('observation.images.'))}")
+    ep = meta.episodes[meta.episodes["episode_index"] == episode].iloc[0]
+    rel = meta.video_file(key, ep[f"videos/{key}/chunk_index"], ep[f"videos/{key}/file_index"])
+    t0 = float(ep[f"videos/{key}/from_timestamp"])
+    scan = scan_video(meta.root / rel, [t0], 0.5 / meta.fps)
+    if t0 not in scan.images:
+        raise DataError(f"dataset {meta.root}: {rel}: no frame of episode {episode} at {t0:.3f} s"
+                        + (f" ({scan.error})" if scan.error else ""))
+    return scan.images[t0]
+
+
+def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, cameras: Sequence[str], calib: dict,
+                       world: dict) -> np.ndarray:
+    """Per task the dataset records, its first episode: each camera's first frame beside the
+    simulation rendered at the poses estimated from the calibration camera's frame."""
+    meta = read_metadata(dataset_root)
+    first = _first_episodes(meta, tasks)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="r2s_eval_preview.") as scratch:
+        index = []
+        for key, episode in first.items():
+            frame = _first_frame(meta, episode, calib["camera"])
+            name = f"episode_{episode:06d}.png"
+            cv2.imwrite(str(Path(scratch) / name), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            index.append({"episode_index": episode, "task": key, "first_frame": name})
+        estimates = estimate_episodes(pd.DataFrame(index), scratch, calib, world, desc="preview")
+    for key, episode in first.items():
+        mine = estimates[estimates["episode_index"] == episode]
+        poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in mine.itertuples()}
+        row = []
+        for cam in cameras:
+            real = _first_frame(meta, episode, cam)
+            factor = max(1, -(-MIN_SHOWN_PX // real.shape[0]))
+            shown = cv2.resize(real, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
+            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,))
+            try:
+                env.reset(object_poses=poses, settle=False, observe=False)
+                row += [_labelled(_draw_poses(shown, env, cam, poses), f"{key} ep {episode}: {cam}, recorded"),
+                        _labelled(_draw_poses(env.render(cam), env, cam, poses), f"{cam}, simulated at the estimate")]
+            finally:
+                env.close()
+        rows.append(row)
+    return _grid(rows)
+
+
+def preview(world: str | Path, out: str | Path, cameras: Sequence[str], size_hw: tuple[int, int], seed: int = 0,
+            dataset: str | Path | None = None, calib: dict | None = None, world_cfg: dict | None = None) -> Path:
+    """Check the world file and write the preview PNG(s); returns the folder written."""
+    tasks = load_tasks(world_file(world))
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    starts = render_starts(tasks, cameras, size_hw, seed)
+    cv2.imwrite(str(out / "starts.png"), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
+    if dataset is not None:
+        side = dataset_beside_sim(tasks, dataset, cameras, calib, world_cfg)
+        cv2.imwrite(str(out / "dataset.png"), cv2.cvtColor(side, cv2.COLOR_RGB2BGR))
+    return out

@@ -1,0 +1,83 @@
+"""`python -m r2s_eval.world`: a world checked and shown before a run."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from r2s_eval.config import compose_config  # noqa: E402
+from r2s_eval.sim import WorldParams  # noqa: E402
+from r2s_eval.sim.tasks import BUNDLED_WORLD, TASKS  # noqa: E402
+from r2s_eval.twin.record import record_teleop  # noqa: E402
+from r2s_eval.world.preview import LABEL_PX, dataset_beside_sim, preview  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+CONF = REPO / "conf"
+
+
+def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "r2s_eval.world", *args], cwd=cwd, capture_output=True, text=True)
+
+
+def test_starts_show_every_task_from_every_camera(tmp_path):
+    proc = _run("--out", "look", "--size", "96", "96", "--cameras", "head_left", "wrist_right", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    image = cv2.imread(str(tmp_path / "look" / "starts.png"))
+    assert image.shape == (len(TASKS) * (LABEL_PX + 96 + 4), 2 * 96, 3)
+    assert f"wrote {Path('look') / 'starts.png'}" in proc.stdout
+
+
+def test_a_wrong_world_file_stops_with_one_line_naming_file_and_key(tmp_path):
+    world = Path(shutil.copy(BUNDLED_WORLD, tmp_path / "world.yaml"))
+    world.write_text(world.read_text().replace("- on_top_of: {object: cup, support: plate}",
+                                               "- on_top_of: {object: cup, support: saucer}"))
+    proc = _run(str(world), "--out", "look", cwd=tmp_path)
+    assert proc.returncode == 1
+    assert proc.stderr == (f"world failed: {world}: tasks.cup_on_plate.success: names ['saucer'], which are not "
+                           f"objects of the task ['cup', 'plate']\n")
+    assert not (tmp_path / "look").exists()
+    unknown = _run("no_such_world", cwd=tmp_path)
+    assert unknown.returncode == 1 and "world 'no_such_world': no such world file or folder; bundled worlds: " \
+                                      "['tabletop']" in unknown.stderr
+
+
+def test_a_recording_beside_the_simulation_at_its_estimated_poses(tmp_path):
+    cfg = compose_config(CONF, "smoke")
+    world = dict(cfg["world"], cameras=["head_left", "wrist_right"])
+    tasks = ["cup_on_plate", "stack_blocks"]
+    teleop = dict(cfg["teleop"], episodes_per_task=1)
+    truth, _ = record_teleop(str(tmp_path / "data"), WorldParams(), teleop=teleop, world=world, tasks=tasks,
+                             suite=cfg["suite"], seed=0)
+    side = dataset_beside_sim({t: TASKS[t] for t in tasks}, tmp_path / "data", world["cameras"], cfg["calib"], world)
+    shown = 2 * world["image_height"]  # 128 px frames are shown at 256 px
+    assert side.shape == (len(tasks) * (LABEL_PX + shown + 4), 2 * len(world["cameras"]) * shown, 3)
+    # The recording's objects lie where the drawn estimates are: rendered at the estimate, the
+    # simulation looks like the recording (the nominal world recorded it).
+    for row in range(len(tasks)):
+        top = row * (LABEL_PX + shown + 4) + LABEL_PX
+        recorded = side[top:top + shown, :shown].astype(float)
+        simulated = side[top:top + shown, shown:2 * shown].astype(float)
+        assert np.mean(np.abs(recorded - simulated)) < 6.0, row
+    assert set(truth["task"]) == set(tasks)
+
+    out = preview("tabletop", tmp_path / "look", ["head_left"], (64, 64), dataset=tmp_path / "data",
+                  calib=cfg["calib"], world_cfg=world)
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.png", "starts.png"]
+
+
+def test_a_dataset_without_the_cameras_asked_for_names_them(tmp_path):
+    cfg = compose_config(CONF, "smoke")
+    world = dict(cfg["world"], cameras=["head_left"])
+    record_teleop(str(tmp_path / "data"), WorldParams(), teleop=dict(cfg["teleop"], episodes_per_task=1), world=world,
+                  tasks=["cup_on_plate"], suite=cfg["suite"], seed=0)
+    with pytest.raises(Exception, match=r"records no camera 'wrist_left' \(observation\.images\.wrist_left\)"):
+        dataset_beside_sim(TASKS, tmp_path / "data", ["head_left", "wrist_left"], cfg["calib"], world)

@@ -188,7 +188,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
     try:
         trained = args.checkpoint or save_random_act(work / "act", list(CAMERA_NAMES[: args.cameras]), image_hw)
-        inits = sample_inits([configured_task(args.task, cfg["suite"])], args.episodes, cfg["seed"])
+        inits = sample_inits([configured_task(args.task, cfg["world"], cfg["suite"])], args.episodes, cfg["seed"])
         inits_path = work / "inits.parquet"
         inits.to_parquet(inits_path)
         loops = {"one at a time": lambda out: one_at_a_time(out, trained, inits, cfg),

@@ -120,12 +120,6 @@ def _cameras() -> Sequence[str]:
     return CAMERA_NAMES
 
 
-def _tasks() -> Sequence[str]:
-    from r2s_eval.sim.tasks import TASKS
-
-    return list(TASKS)
-
-
 def _control_dt_s() -> float:
     from r2s_eval.sim.world import CONTROL_DT_S
 
@@ -181,7 +175,6 @@ Share = Annotated[float, Range(0, 1)]
 Level = Annotated[float, Range(0, 1, open_min=True, open_max=True)]
 Interval = Annotated[tuple[float, float], Increasing()]
 Camera = Annotated[str, OneOf(_cameras)]
-TaskName = Annotated[str, OneOf(_tasks)]
 
 # ----------------------------------------------------------------------------- groups
 
@@ -204,6 +197,9 @@ class World:
     image_height: PositiveInt
     image_width: PositiveInt
     cameras: Annotated[list[Camera], NonEmpty()]
+    # Checked by their owner, r2s_eval.sim.tasks.load_tasks (one problem named by its key).
+    objects: Annotated[dict[str, dict], NonEmpty()]
+    tasks: Annotated[dict[str, dict], NonEmpty()]
 
 
 @dataclass
@@ -551,9 +547,9 @@ class ServerPolicy(ExternalPolicy):
 class Config:
     """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
 
-    tasks: Annotated[list[TaskName], NonEmpty()]
+    tasks: Annotated[list[str], NonEmpty()]  # keys of world.tasks
     seed: Count
-    suite: dict[TaskName, SuiteTask]
+    suite: dict[str, SuiteTask]  # keys of world.tasks
     world: World
     real: Real
     teleop: Teleop
@@ -720,8 +716,24 @@ def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[
 
 def _cross_problems(cfg: dict) -> list[Problem]:
     """Contradictions between groups (run once every group has passed its own schema)."""
+    from r2s_eval.sim.tasks import WorldError, world_tasks
+
     problems: list[Problem] = []
     real, world = cfg["real"], cfg["world"]
+    try:
+        tasks = world_tasks(world)
+    except WorldError as err:
+        return [Problem(err.path, err.message, owner=True)]
+    def stranger(key: str) -> str:
+        close = difflib.get_close_matches(key, list(tasks), n=1)
+        return f"world.tasks {sorted(tasks)}" + (f"; did you mean {close[0]!r}?" if close else "")
+
+    for i, key in enumerate(cfg["tasks"]):
+        if key not in tasks:
+            problems.append(Problem(f"tasks[{i}]", f"must be a task of {stranger(key)}, got {key!r}"))
+    problems += [Problem(f"suite.{key}", f"is not a task of {stranger(key)}") for key in cfg["suite"] if key not in tasks]
+    if problems:
+        return problems
     if real["source"] == "twin" and real["twin"] is None:
         problems.append(Problem("real.twin", "must be set when real.source is twin"))
     if real["source"] == "dataset":
@@ -742,7 +754,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
                                 f"must be below teleop.episodes_per_task ({cfg['teleop']['episodes_per_task']}): "
                                 f"the calibration episodes are never scored, so none would be left"))
     for task, settings in cfg["suite"].items():
-        problems += _region_problems(task, settings["init_regions"])
+        problems += _region_problems(tasks[task], settings["init_regions"])
     rollout = cfg["rollout"]
     control_hz = round(1 / _control_dt_s())
     if control_hz % rollout["video_fps"]:
@@ -797,11 +809,9 @@ def _libero_problems(cfg: dict) -> list[Problem]:
     return problems
 
 
-def _region_problems(task: str, regions: dict | None) -> list[Problem]:
-    from r2s_eval.sim.tasks import TASKS
-
-    objects = list(TASKS[task].init_regions)
-    return [Problem(f"suite.{task}.init_regions.{name}", f"is not an object of task {task} {objects}", True)
+def _region_problems(task, regions: dict | None) -> list[Problem]:
+    objects = list(task.init_regions)
+    return [Problem(f"suite.{task.key}.init_regions.{name}", f"is not an object of task {task.key} {objects}", True)
             for name in regions or {} if name not in objects]
 
 
@@ -823,6 +833,8 @@ class Source:
             return path == k or path.startswith(k + ".") or k.startswith(path + ".")
         node: Any = self.data
         for part in path.split("."):
+            if isinstance(node, list):  # a list is set whole: whatever lies inside it was set here
+                return True
             if not isinstance(node, dict) or part not in node:
                 return False
             node = node[part]

@@ -306,7 +306,8 @@ def test_dropping_keeps_the_sound_episodes(dataset, tmp_path, no_network):
 
 
 def _run_stage(root: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
-    cfg = {"world": {"cameras": CAMERAS}, "calib.camera": "head_left", "tasks": ["cup_on_plate"],
+    cfg = {"world.cameras": CAMERAS, "calib.camera": "head_left",
+           "instructions": {"cup_on_plate": "Pick the Cup and Place it on the Plate"},
            "ingest": {"repo_id": "local/test", "min_length": 5, "max_length": 100, "drop_bad_episodes": False,
                       "check_videos": True}}
     out = tmp_path / "out"

@@ -17,6 +17,7 @@ import pytest
 from r2s_eval.compare import wins_at_checkpoints
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import describe_rollouts, judge_pairs, make_judge
+from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.stats import order_swap_consistency
 
@@ -157,7 +158,9 @@ def test_openai_stage_killed_mid_run_resumes_without_repeating_a_request(rollout
     dirs, episodes = rollouts
     cache, out = tmp_path / "cache", tmp_path / "judge" / "descriptions.parquet"
     with ChatServer(hold_after=5) as server:
-        cfg = json.dumps({"judge": judge_cfg(server.url, concurrency=2), "name": "vlm"})
+        world = bundled_world()
+        cfg = json.dumps({"judge": judge_cfg(server.url, concurrency=2), "name": "vlm",
+                          "world.objects": world["objects"], "world.tasks": world["tasks"]})
         cmd = [sys.executable, "-m", "r2s_eval.stages.describe", "--cfg", cfg, "--rollouts", *dirs,
                "--cache", str(cache), "--out", str(out)]
         env = {**os.environ, "PYTHONPATH": str(SRC)}
@@ -202,8 +205,10 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     with ChatServer() as server:
         judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
         desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
+        world = bundled_world()
+        describe_cfg = {**judge, "world.objects": world["objects"], "world.tasks": world["tasks"]}
         _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out", "--stats"]),
-                 ["--cfg", json.dumps(judge), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
+                 ["--cfg", json.dumps(describe_cfg), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
         _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),
                  ["--cfg", json.dumps(judge), "--pairs", str(pairs), "--rollouts", *dirs,
                   "--descriptions", str(desc), "--cache", "cache", "--out", str(verdicts)])

@@ -246,12 +246,13 @@ def test_partial_loading_copies_the_pretrained_slices(offline, pretrained, datas
 def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
     from r2s_eval.rollout import run_episode
     from r2s_eval.sim.build import make_env
+    from r2s_eval.sim.tasks import bundled_world
 
     runner = load_policy(trained[policy_type], n_action_steps=5)
     spec = runner.policy.spec
     assert spec.cameras == CAMS and spec.action_dim == ROBOT_DIM and spec.uses_task
     assert (runner.chunk_size, runner.n_action_steps) == (10, 5)
-    world = {"image_height": 64, "image_width": 64, "cameras": [c.rsplit(".", 1)[1] for c in CAMS]}
+    world = {**bundled_world(), "image_height": 64, "image_width": 64, "cameras": [c.rsplit(".", 1)[1] for c in CAMS]}
     env = make_env("cup_on_plate", world)
     try:
         runner.reset(seed=3)

@@ -21,11 +21,12 @@ from r2s_eval.rollout import run_episode, sample_inits, write_video
 from r2s_eval.rollout.candidate import planned_episodes, run_candidate
 from r2s_eval.sim import get_task
 from r2s_eval.sim.build import make_env
+from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.utils.numerics import deterministic_torch
 
 TASKS = ["cup_on_plate", "stack_blocks"]
-WORLD = {"image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
+WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
 ROLLOUT = {"chunk_size": 10, "n_action_steps": 5, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
            "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "real_video_size": [64, 64],
            "video_fps": 10}

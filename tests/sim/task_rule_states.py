@@ -4,7 +4,7 @@
 nominal world and in twin worlds (whose objects are resized and whose joints are offset, so some
 episodes fail), keeps every other control step's physics state and evaluates the tasks' success
 and progress on it, and writes them to `data/task_rule_states.npz`. It was run once with the
-rules as hand-written Python functions, before they became predicates of the world file: the test
+rules as hand-written Python functions, before they became predicates of the world config: the test
 beside it checks that the rules of today give the same answers on the same states.
 
 A state is evaluated after `mj_forward`, so its contacts are those of its own positions: a pure

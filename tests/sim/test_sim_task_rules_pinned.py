@@ -1,4 +1,4 @@
-"""The tasks' success and progress rules give the answers pinned before they became world-file
+"""The tasks' success and progress rules give the answers pinned before they became world
 predicates (`task_rule_states.py` recorded the states and the hand-written rules' answers)."""
 
 from __future__ import annotations

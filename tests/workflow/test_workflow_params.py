@@ -62,7 +62,7 @@ def test_every_rule_builds_its_cfg_from_the_stage_declaration():
             helper = re.search(r"cfg=(\w+)", block).group(1)
             assert helper in ("stage_params", "policy_params", "rollout_params", "judge_params", "libero_rollout_params"), block
             if helper == "stage_params":
-                assert f'stage_params("{stage}")' in block, block
+                assert f'stage_params("{stage}"' in block, block  # with the values it PROVIDES, if any
         else:
             assert not decl["READS"] and not decl["PROVIDED"], f"stage {stage} declares config its rule never passes"
 

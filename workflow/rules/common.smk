@@ -86,6 +86,8 @@ for _name, _source in EXTERNAL.items():
                 except R2SError as err:
                     stop_planning(err)
 JUDGES = sorted(CFG["judges"])
+# What ingest matches a dataset's task strings against: the instructions of the tasks evaluated.
+INSTRUCTIONS = {key: CFG["world"]["tasks"][key]["instruction"] for key in CFG["tasks"]}
 TWIN = not LIBERO and CFG["real"]["source"] == "twin"
 PY = sys.executable
 # Scheduling: ingest -> init_offsets -> init_estimate -> replay ahead of trains (train.smk ranks those).

@@ -9,7 +9,7 @@ rule ingest:
         report="results/ingest/report.json",
         frames=directory("results/ingest/first_frames"),
     params:
-        cfg=stage_params("ingest"),
+        cfg=stage_params("ingest", instructions=INSTRUCTIONS),
     log:
         "logs/ingest.log",
     shell:

@@ -218,6 +218,10 @@ class Judge(ABC):
     def name(self) -> str:
         return str(self.cfg.get("name") or self.backend)
 
+    def know_tasks(self, tasks: Mapping[str, Any]) -> None:
+        """The world's tasks ({key: Task}), for a judge that reads more of a task than its
+        instruction (the offline video judge); the others ignore them."""
+
     def identity(self) -> dict[str, str]:
         """Everything that changes a judge's answers; part of every cache key."""
         return {

@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from r2s_eval.judge.cache import cache_key
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
 
@@ -112,7 +113,7 @@ RELATION_OF_PREDICATE: dict[str, tuple[str, str, str]] = {
 
 
 def _predicates(condition) -> list[tuple[str, dict]]:
-    """The (predicate, parameters) of a condition in the order the world file lists them."""
+    """The (predicate, parameters) of a condition in the order the world lists them."""
     if isinstance(condition, list):
         return [p for c in condition for p in _predicates(c)]
     (name, params), = condition.items()
@@ -145,13 +146,14 @@ def _words(text: str) -> set[str]:
     return {w for w in re.findall(r"[a-z]+", text.lower()) if w not in {"the", "and", "it", "with", "of", "a"}}
 
 
-def task_from_instruction(instruction: str) -> str:
-    """The task key whose instruction shares the most words with `instruction` (ValueError if none fits)."""
+def task_from_instruction(instruction: str, tasks: Mapping[str, Any] | None = None) -> str:
+    """The key of the task (of ``tasks``, default the bundled world's) whose instruction shares the
+    most words with `instruction` (ValueError if none fits)."""
     from r2s_eval.sim.tasks import TASKS
 
     words = _words(instruction)
     best, best_score = None, 0.0
-    for key, task in sorted(TASKS.items()):
+    for key, task in sorted((tasks or TASKS).items()):
         ref = _words(task.instruction)
         score = len(words & ref) / max(len(words | ref), 1)
         if score > best_score:
@@ -263,21 +265,15 @@ def _speeds(c: np.ndarray, r: float) -> np.ndarray:
     return v[~np.isnan(v)]
 
 
-def _relation(task_key: str) -> tuple[str, str, str | None]:
-    from r2s_eval.sim.tasks import TASKS
-
-    return goal_relation(TASKS[task_key])
-
-
-def task_objects(task_key: str) -> tuple[str, ...]:
+def task_objects(task) -> tuple[str, ...]:
     """The objects the judge follows in a task's video: the one moved and the reference."""
-    _, mover, target = _relation(task_key)
+    _, mover, target = goal_relation(task)
     return tuple(n for n in (mover, target) if n)
 
 
-def progress_force(frames: np.ndarray, task_key: str, segmenter: Any, c: Mapping[str, Any]):
-    rel, mover, target = _relation(task_key)
-    names = task_objects(task_key)
+def progress_force(frames: np.ndarray, task, segmenter: Any, c: Mapping[str, Any]):
+    rel, mover, target = goal_relation(task)
+    names = task_objects(task)
     tr = object_tracks(frames, segmenter, names, c["min_visible_share"])
     k = int(c["end_frames"])
     m = tr[mover]
@@ -314,7 +310,7 @@ def progress_force(frames: np.ndarray, task_key: str, segmenter: Any, c: Mapping
     label = ("successful" if goal_met else
              "partially successful" if score >= c["partial_min_score"] else "failed")
     prog = {
-        "task": task_key, "relation": rel, "object": mover, "reference": target,
+        "task": task.key, "relation": rel, "object": mover, "reference": target,
         "object_visible": seen, "goal_gap": g1, "goal_closure": closure, "max_move": max_move,
         "end_speed": end_speed, "goal_met": goal_met, "progress_score": score,
     }
@@ -356,17 +352,30 @@ class VideoJudge(Judge):
         if not int(self.cfg["end_frames"]) >= 1:
             raise ValueError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
         self._segmenters: dict[str, Any] = {}
+        from r2s_eval.sim.tasks import TASKS
+
+        self.tasks: Mapping[str, Any] = TASKS  # what the judge knows of the tasks (know_tasks)
+
+    def know_tasks(self, tasks: Mapping[str, Any]) -> None:
+        """The world's tasks: what each instruction asks for (its goal relation) and what its
+        objects look like (their colours). It is part of the judge's identity, so answers given
+        with other knowledge are never reused."""
+        self.tasks, self._segmenters = tasks, {}
+
+    def identity(self) -> dict[str, str]:
+        knowledge = {key: [t.instruction, list(goal_relation(t)), {n: list(t.object(n).rgba) for n in task_objects(t)}]
+                     for key, t in sorted(self.tasks.items())}
+        return {**super().identity(), "tasks": cache_key(knowledge)}
 
     def segmenter(self, task_key: str):
         """A segmenter of the objects the judge follows in ``task_key`` only: each object's mask
         is the same whichever others are segmented beside it, and the rest would cost time."""
         if task_key not in self._segmenters:
             from r2s_eval.calib.segment import make_segmenter
-            from r2s_eval.sim.tasks import TASKS
 
-            colours = {o.name: o.rgba for t in TASKS.values() for o in t.objects}
+            task = self.tasks[task_key]
             self._segmenters[task_key] = make_segmenter(self.cfg["segmenter"],
-                                                        {n: colours[n] for n in task_objects(task_key)})
+                                                        {n: task.object(n).rgba for n in task_objects(task)})
         return self._segmenters[task_key]
 
     # ---------------------------------------------------------------- describe
@@ -377,10 +386,10 @@ class VideoJudge(Judge):
 
         c = self.cfg
         frames = read_video(rollout.video_path)
-        task_key = task_from_instruction(rollout.instruction)
+        task_key = task_from_instruction(rollout.instruction, self.tasks)
         e = motion_energy(frames, int(c["blur_px"]), float(c["diff_threshold"]))
         smooth, cont = smoothness_continuity(e, c)
-        prog, label, force = progress_force(frames, task_key, self.segmenter(task_key), c)
+        prog, label, force = progress_force(frames, self.tasks[task_key], self.segmenter(task_key), c)
 
         w = {k: self._word(k, ev) for k, ev in
              (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}

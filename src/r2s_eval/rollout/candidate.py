@@ -165,7 +165,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
             ep = p.episode_id
             folder.finish({
                 "episode_id": ep, "policy": policy, "arm": arm, "task": p.task,
-                "instruction": get_task(p.task).instruction, "init_id": p.init_id, "seed": p.seed,
+                "instruction": get_task(p.task, world).instruction, "init_id": p.init_id, "seed": p.seed,
                 "success": bool(episode.success), "length": len(episode.rows),
                 "video_path": f"videos/{ep}.mp4", "trajectory_path": f"trajectories/{ep}.parquet",
                 "policy_stats": stats,

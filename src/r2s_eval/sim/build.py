@@ -1,4 +1,4 @@
-"""Worlds from the experiment's config slices: the suite's tasks and their environments."""
+"""Worlds from the experiment's config slices: the world's tasks and their environments."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ def image_size(world_cfg: dict) -> tuple[int, int]:
     return int(world_cfg["image_height"]), int(world_cfg["image_width"])
 
 
-def configured_task(key: str, suite_cfg: dict | None) -> Task:
-    """The suite's task with the experiment's start regions, if the config sets any."""
-    task = get_task(key)
+def configured_task(key: str, world_cfg: dict, suite_cfg: dict | None) -> Task:
+    """The world's task with the experiment's start regions, if the config sets any."""
+    task = get_task(key, world_cfg)
     regions = ((suite_cfg or {}).get(key) or {}).get("init_regions")
     if not regions:
         return task
@@ -36,7 +36,7 @@ def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, came
     """The task's environment as the ``world`` config slice describes it (image size, cameras);
     ``shared``: a compiled model and renderers to share (`TabletopEnv`)."""
     return TabletopEnv(
-        configured_task(task, suite_cfg),
+        configured_task(task, world_cfg, suite_cfg),
         params=params,
         image_size=image_size(world_cfg),
         cameras=tuple(world_cfg["cameras"] if cameras is None else cameras),

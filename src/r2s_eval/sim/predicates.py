@@ -1,7 +1,8 @@
 """Task success and progress as data: documented predicates over a small scene interface.
 
-A world file states each task's success as a composition of predicates, and its progress as
-stages towards a goal condition; this module turns those entries into functions of a ``Scene``.
+A world (the ``world`` config group) states each task's success as a composition of predicates,
+and its progress as stages towards a goal condition; this module turns those entries into
+functions of a ``Scene``.
 Predicates read only the scene's state queries (poses, velocities, dimensions, contacts), never
 the environment class, so a rule means the same in every world that offers them.
 

@@ -1,6 +1,7 @@
-"""Tasks: instruction, objects, start regions, success and progress, read from a world file.
+"""Tasks: instruction, objects, start regions, success and progress, read from the world config.
 
-A task is data (``assets/worlds/<world>/world.yaml``, the bundled one ``tabletop``): its
+A task is data (the ``world`` config group, ``conf/world/<name>.yaml``; the bundled world is
+``tabletop``, picked with ``world=<name>``): its
 ``success`` is a condition of documented predicates and its ``progress`` stages towards a goal
 condition (``r2s_eval.sim.predicates``), both compiled here into functions of the scene:
 
@@ -8,7 +9,11 @@ condition (``r2s_eval.sim.predicates``), both compiled here into functions of th
 * ``progress(scene) -> float`` in [0, 1]: the highest stage reached *in the current state*;
   the env also keeps the running maximum over an episode.
 
-A task entry (``tasks.<key>`` in the world file)::
+An object (``world.objects.<name>``): ``kind`` (cup, plate, ball, block, box: the builders and
+geometry of ``objects.py``), ``rgba`` (its colour, which the colour segmenter looks for), ``dims``
+(the kind's dimensions, metres), ``mass_kg`` and optionally ``friction`` (1.0).
+
+A task entry (``world.tasks.<key>``)::
 
     instruction: Pick the Cup and Place it on the Plate   # matched against a dataset's task strings
     start:                                   # the task's objects (of the world's `objects`), in order
@@ -27,7 +32,7 @@ another object is expressed in that object's planar frame (its x, y rotated by i
 object starts on the other's support surface (a block inside a box). Each object starts in a
 placement (``upright`` by default, ``upside_down``, ``on_side``).
 
-The bundled world's seven tasks (its file states them in full):
+The bundled world's seven tasks (``conf/world/tabletop.yaml`` states them in full):
 
 ================  ==========================================  ==========================
 key               instruction                                 objects (start placement)
@@ -44,6 +49,8 @@ upright_cup       Upright the Fallen Cup                      cup (on its side)
 
 from __future__ import annotations
 
+import functools
+import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -57,8 +64,8 @@ from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import BUILDERS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.predicates import Scene, compile_condition, condition_objects, staged_progress
 
-WORLDS_DIR = Path(__file__).resolve().parents[3] / "assets" / "worlds"
-BUNDLED_WORLD = WORLDS_DIR / "tabletop" / "world.yaml"
+WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
+BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
 ARM_CHOICES = ("left", "right", "nearest", "behind_axis")
 # The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
 PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")
@@ -89,7 +96,7 @@ class Task:
     arm: str = "nearest"
     clearance_m: float = 0.03
     placements: dict[str, str] = field(default_factory=dict)  # missing -> "upright"
-    success_condition: Any = None  # the world file's entries the two functions were compiled from
+    success_condition: Any = None  # the world's entries the two functions were compiled from
     progress_stages: Any = None
 
     def placement(self, name: str) -> str:
@@ -112,168 +119,187 @@ class Task:
         return yaw_symmetry(self.object(name).kind, self.placement(name))
 
 
-# ---------------------------------------------------------------- reading a world file
-def _fail(source: str, where: str, message: str) -> ConfigError:
-    return ConfigError(f"{source}: {where}: {message}")
+# ---------------------------------------------------------------- reading a world
+class WorldError(ConfigError):
+    """A wrong entry of a world: ``path`` is its dotted key (``world.tasks.<key>...``)."""
+
+    def __init__(self, path: str, message: str):
+        super().__init__(f"{path}: {message}")
+        self.path, self.message = path, message
 
 
-def _mapping(value: Any, source: str, where: str) -> dict:
+def _fail(where: str, message: str) -> WorldError:
+    return WorldError(f"world.{where}", message)
+
+
+def _mapping(value: Any, where: str) -> dict:
     if not isinstance(value, Mapping):
-        raise _fail(source, where, f"must be a mapping, got {value!r}")
+        raise _fail(where, f"must be a mapping, got {value!r}")
     return dict(value)
 
 
-def _keys(entry: dict, allowed: set[str], required: set[str], source: str, where: str) -> None:
+def _keys(entry: dict, allowed: set[str], required: set[str], where: str) -> None:
     unknown, missing = sorted(set(entry) - allowed), sorted(required - set(entry))
     if unknown:
-        raise _fail(source, where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        raise _fail(where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
     if missing:
-        raise _fail(source, where, f"missing {missing}")
+        raise _fail(where, f"missing {missing}")
 
 
-def _number(value: Any, source: str, where: str, positive: bool = False) -> float:
+def _number(value: Any, where: str, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise _fail(source, where, f"must be a finite number, got {value!r}")
+        raise _fail(where, f"must be a finite number, got {value!r}")
     if positive and value <= 0:
-        raise _fail(source, where, f"must be positive, got {value!r}")
+        raise _fail(where, f"must be positive, got {value!r}")
     return value
 
 
-def _range(value: Any, source: str, where: str) -> tuple[float, float]:
+def _range(value: Any, where: str) -> tuple[float, float]:
     if not isinstance(value, list | tuple) or len(value) != 2:
-        raise _fail(source, where, f"must be [low, high], got {value!r}")
-    low, high = (_number(v, source, where) for v in value)
+        raise _fail(where, f"must be [low, high], got {value!r}")
+    low, high = (_number(v, where) for v in value)
     if low > high:
-        raise _fail(source, where, f"must be [low, high] with low <= high, got {list(value)}")
+        raise _fail(where, f"must be [low, high] with low <= high, got {list(value)}")
     return low, high
 
 
-def _object(name: str, entry: Any, source: str) -> ObjectSpec:
+def _object(name: str, entry: Any) -> ObjectSpec:
     where = f"objects.{name}"
-    entry = _mapping(entry, source, where)
-    _keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction"}, {"kind", "rgba", "dims", "mass_kg"}, source, where)
+    entry = _mapping(entry, where)
+    _keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction"}, {"kind", "rgba", "dims", "mass_kg"}, where)
     if entry["kind"] not in BUILDERS:
-        raise _fail(source, f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
+        raise _fail(f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
     rgba = entry["rgba"]
-    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= _number(c, source, f"{where}.rgba") <= 1 for c in rgba):
-        raise _fail(source, f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
-    dims = _mapping(entry["dims"], source, f"{where}.dims")
+    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= _number(c, f"{where}.rgba") <= 1 for c in rgba):
+        raise _fail(f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
+    dims = _mapping(entry["dims"], f"{where}.dims")
     for key, value in dims.items():
-        _number(value, source, f"{where}.dims.{key}", positive=True)
+        _number(value, f"{where}.dims.{key}", positive=True)
     return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
-                      mass_kg=_number(entry["mass_kg"], source, f"{where}.mass_kg", positive=True),
-                      friction=_number(entry.get("friction", 1.0), source, f"{where}.friction", positive=True))
+                      mass_kg=_number(entry["mass_kg"], f"{where}.mass_kg", positive=True),
+                      friction=_number(entry.get("friction", 1.0), f"{where}.friction", positive=True))
 
 
-def _region(entry: Any, names: list[str], name: str, source: str, where: str) -> tuple[Region, str]:
-    entry = _mapping(entry, source, where)
+def _region(entry: Any, names: list[str], name: str, where: str) -> tuple[Region, str]:
+    entry = _mapping(entry, where)
     _keys(entry, {"x_range_m", "y_range_m", "yaw_range_rad", "relative_to", "placement"}, {"x_range_m", "y_range_m"},
-          source, where)
+          where)
     placement = entry.get("placement", "upright")
     if placement not in PLACEMENTS:
-        raise _fail(source, f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
+        raise _fail(f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
     parent = entry.get("relative_to")
     if parent is not None and (parent not in names or parent == name):
-        raise _fail(source, f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
-    yaw = _range(entry["yaw_range_rad"], source, f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
-    region = Region(x_range_m=_range(entry["x_range_m"], source, f"{where}.x_range_m"),
-                    y_range_m=_range(entry["y_range_m"], source, f"{where}.y_range_m"), yaw_range_rad=yaw,
+        raise _fail(f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
+    yaw = _range(entry["yaw_range_rad"], f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
+    region = Region(x_range_m=_range(entry["x_range_m"], f"{where}.x_range_m"),
+                    y_range_m=_range(entry["y_range_m"], f"{where}.y_range_m"), yaw_range_rad=yaw,
                     relative_to=parent)
     return region, placement
 
 
-def _condition(spec: Any, names: list[str], source: str, where: str):
+def _condition(spec: Any, names: list[str], where: str):
     try:
         condition = compile_condition(spec, where)
     except ValueError as err:
-        raise ConfigError(f"{source}: {err}") from None
+        raise _fail(err.args[0].split(": ", 1)[0], err.args[0].split(": ", 1)[1]) from None
     strangers = sorted(condition_objects(spec) - set(names))
     if strangers:
-        raise _fail(source, where, f"names {strangers}, which are not objects of the task {names}")
+        raise _fail(where, f"names {strangers}, which are not objects of the task {names}")
     return condition
 
 
-def _plan(value: Any, names: list[str], source: str, where: str) -> tuple[dict[str, str], ...]:
+def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...]:
     steps = value if isinstance(value, list) else []
     if not all(isinstance(s, Mapping) and len(s) == 1 for s in steps):
-        raise _fail(source, where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
+        raise _fail(where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
     kinds = [next(iter(s)) for s in steps]
     for i, step in enumerate(steps):
         (primitive, obj), = step.items()
         if primitive not in PLAN_PRIMITIVES:
-            raise _fail(source, f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
+            raise _fail(f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
         if obj not in names:
-            raise _fail(source, f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
+            raise _fail(f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
     if not (kinds == ["turn_upright"] or (len(kinds) == 2 and kinds[0] == "pick" and kinds[1] in PLACE_PRIMITIVES)):
-        raise _fail(source, where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; "
+        raise _fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; "
                                    f"got {kinds}")
     return tuple(dict(s) for s in steps)
 
 
-def _task(key: str, entry: Any, objects: dict[str, ObjectSpec], source: str) -> Task:
+def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
     where = f"tasks.{key}"
-    entry = _mapping(entry, source, where)
+    entry = _mapping(entry, where)
     _keys(entry, {"instruction", "start", "plan", "arm", "clearance_m", "success", "progress"},
-          {"instruction", "start", "plan", "success", "progress"}, source, where)
+          {"instruction", "start", "plan", "success", "progress"}, where)
     if not isinstance(entry["instruction"], str) or not entry["instruction"].strip():
-        raise _fail(source, f"{where}.instruction", "must be a non-empty text")
-    start = _mapping(entry["start"], source, f"{where}.start")
+        raise _fail(f"{where}.instruction", "must be a non-empty text")
+    start = _mapping(entry["start"], f"{where}.start")
     names = list(start)
     unknown = [n for n in names if n not in objects]
     if not names or unknown:
-        raise _fail(source, f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
+        raise _fail(f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
     regions, placements = {}, {}
     for name in names:
-        regions[name], placement = _region(start[name], names, name, source, f"{where}.start.{name}")
+        regions[name], placement = _region(start[name], names, name, f"{where}.start.{name}")
         if placement != "upright":
             placements[name] = placement
-    plan = _plan(entry["plan"], names, source, f"{where}.plan")
+    plan = _plan(entry["plan"], names, f"{where}.plan")
     arm = entry.get("arm", "nearest")
     if arm not in ARM_CHOICES:
-        raise _fail(source, f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
-    success = _condition(entry["success"], names, source, f"{where}.success")
-    stages = _mapping(entry["progress"], source, f"{where}.progress")
-    _keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, source, f"{where}.progress")
+        raise _fail(f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
+    success = _condition(entry["success"], names, f"{where}.success")
+    stages = _mapping(entry["progress"], f"{where}.progress")
+    _keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, f"{where}.progress")
     movers = stages["objects"]
     if not isinstance(movers, list) or not movers or any(m not in names for m in movers):
-        raise _fail(source, f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
-    goal = _condition(stages["goal"], names, source, f"{where}.progress.goal")
-    thresholds = {k: _number(stages[k], source, f"{where}.progress.{k}", positive=True)
+        raise _fail(f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
+    goal = _condition(stages["goal"], names, f"{where}.progress.goal")
+    thresholds = {k: _number(stages[k], f"{where}.progress.{k}", positive=True)
                   for k in ("reach_m", "lift_m") if k in stages}
     return Task(
         key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
-        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), source, f"{where}.clearance_m", positive=True),
+        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
         placements=placements, success_condition=entry["success"], progress_stages=stages,
     )
 
 
-def load_tasks(path: str | Path) -> dict[str, Task]:
-    """The tasks of a world file, checked: a wrong entry is a ConfigError naming the file and key."""
-    path = Path(path)
-    source = str(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{source}: no such world file") from None
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{source}: not readable YAML: {err}") from None
-    data = _mapping(data, source, "the file")
-    _keys(data, {"objects", "regions", "tasks"}, {"objects", "tasks"}, source, "the file")
-    objects = {str(n): _object(str(n), e, source) for n, e in _mapping(data["objects"], source, "objects").items()}
-    tasks = {str(k): _task(str(k), e, objects, source) for k, e in _mapping(data["tasks"], source, "tasks").items()}
+def load_tasks(world: Mapping) -> dict[str, Task]:
+    """The tasks of a world (the ``world`` config group's ``objects`` and ``tasks``), checked: a
+    wrong entry is a ``WorldError`` naming its key."""
+    objects = {str(n): _object(str(n), e) for n, e in _mapping(world.get("objects"), "objects").items()}
+    tasks = {str(k): _task(str(k), e, objects) for k, e in _mapping(world.get("tasks"), "tasks").items()}
     if not tasks:
-        raise _fail(source, "tasks", "must list at least one task")
+        raise _fail("tasks", "must list at least one task")
     return tasks
 
 
-TASKS: dict[str, Task] = load_tasks(BUNDLED_WORLD)
+_LOADED: dict[str, dict[str, Task]] = {}
 
 
-def get_task(key: str) -> Task:
+def world_tasks(world: Mapping) -> dict[str, Task]:
+    """The tasks of ``world`` (a ``world`` config slice), compiled once per content."""
+    key = json.dumps({"objects": world.get("objects"), "tasks": world.get("tasks")}, sort_keys=True)
+    if key not in _LOADED:
+        _LOADED[key] = load_tasks(world)
+    return _LOADED[key]
+
+
+@functools.cache
+def bundled_world() -> dict:
+    """The bundled world's config (``conf/world/tabletop.yaml``), for callers without a config."""
+    return yaml.safe_load(BUNDLED_WORLD.read_text())
+
+
+# The bundled world's tasks: what a caller without a world config (a test, a benchmark) gets.
+TASKS: dict[str, Task] = world_tasks(bundled_world())
+
+
+def get_task(key: str, world: Mapping | None = None) -> Task:
+    """Task ``key`` of ``world`` (a ``world`` config slice; default: the bundled world)."""
+    tasks = TASKS if world is None else world_tasks(world)
     try:
-        return TASKS[key]
+        return tasks[key]
     except KeyError:
-        raise KeyError(f"unknown task {key!r}; known: {sorted(TASKS)}") from None
+        raise KeyError(f"unknown task {key!r}; known: {sorted(tasks)}") from None
 
 
 def sample_initial_poses(

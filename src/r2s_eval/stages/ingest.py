@@ -5,22 +5,22 @@ from __future__ import annotations
 from r2s_eval.data import IngestSpec, ingest_dataset
 from r2s_eval.sim.env import ACTION_DIM
 from r2s_eval.sim.world import CONTROL_DT_S
-from r2s_eval.sim.tasks import get_task
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
 
-READS = ("tasks", "world", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("world.cameras", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
+PROVIDED = ("instructions",)  # the rule adds {task: instruction} of the tasks evaluated
 
 
 def main(args) -> None:
     cfg = args.cfg
-    world, ingest = cfg["world"], cfg["ingest"]
+    ingest = cfg["ingest"]
     spec = IngestSpec(
-        cameras=list(world["cameras"]),
+        cameras=list(cfg["world.cameras"]),
         state_dim=ACTION_DIM,
         action_dim=ACTION_DIM,
         fps=round(1 / CONTROL_DT_S),
-        tasks={get_task(key).instruction: key for key in cfg["tasks"]},
+        tasks={instruction: key for key, instruction in cfg["instructions"].items()},
         first_frame_camera=cfg["calib.camera"],
         min_length=ingest["min_length"],
         max_length=ingest["max_length"],

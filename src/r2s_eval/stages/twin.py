@@ -6,12 +6,12 @@ from r2s_eval.stages import _cli
 from r2s_eval.twin import twin_world
 from r2s_eval.utils.io import write_json
 
-READS = ("real.twin", "tasks")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("real.twin", "world.objects")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
-    # All objects of the suite, so the twin (and its seed) does not depend on which tasks run.
-    write_json(args.out, twin_world(args.cfg["real.twin"], args.cfg.get("tasks", []) or []), provenance=True)
+    # All the world's objects, so the twin (and its seed) does not depend on which tasks run.
+    write_json(args.out, twin_world(args.cfg["real.twin"], args.cfg["world.objects"]), provenance=True)
 
 
 if __name__ == "__main__":

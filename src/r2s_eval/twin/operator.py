@@ -15,7 +15,7 @@ arm (the task's ``arm`` rule), keeps the other at its home pose, and keeps
 its own commanded joint configuration as the IK seed, as a teleoperation
 rig does.
 
-Plans. A task's plan is data (its world-file entry, ``plan``): a ``pick`` of one object followed
+Plans. A task's plan is data (its ``world.tasks`` entry, ``plan``): a ``pick`` of one object followed
 by one place primitive, or a ``turn_upright``:
 
 ===================  ===============================================================
@@ -501,7 +501,7 @@ PLACES = {"place_on": _place_on, "place_in": _place_in, "place_over": _place_ove
 
 
 def _plan(op: ScriptedOperator) -> list[Callable[[], list[Segment]]]:
-    """The segments of the task's plan (its world-file entry): pick and a place, or turn upright."""
+    """The segments of the task's plan (its world entry): pick and a place, or turn upright."""
     steps = [next(iter(step.items())) for step in op.task.plan]
     if steps[0][0] == "turn_upright":
         return _turn_upright_plan(op, steps[0][1])
@@ -561,8 +561,11 @@ def _turn_upright_plan(op: ScriptedOperator, name: str) -> list[Callable[[], lis
 def make_operator(
     task: str | Task, env: TabletopEnv, rng: np.random.Generator, cfg: OperatorConfig | None = None
 ) -> ScriptedOperator:
-    """Operator for ``task`` on a freshly reset ``env``."""
-    task = get_task(task) if isinstance(task, str) else task
+    """Operator for ``task`` (the env's own, when named by its key) on a freshly reset ``env``."""
+    if isinstance(task, str):
+        if task != env.task.key:
+            raise ValueError(f"operator for task {task!r} on an environment of task {env.task.key!r}")
+        task = env.task
     return ScriptedOperator(task, env, rng, cfg)
 
 

@@ -32,13 +32,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from r2s_eval.sim import get_task
+from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.sim.params import CAMERA_NAMES, WorldParams
 from r2s_eval.sim.world import ARM_JOINTS, ARMS
 
 # Every object of the bundled suite (the twin perturbs each physical object once, whichever
 # task it appears in).
-ALL_OBJECT_NAMES = ("ball", "block_a", "block_b", "box", "cup", "plate")
+# The bundled world's objects: what a caller without a world config perturbs.
+ALL_OBJECT_NAMES = tuple(sorted(bundled_world()["objects"]))
 
 
 @dataclass(frozen=True)
@@ -98,14 +99,14 @@ def sample_twin_params(
     )
 
 
-def twin_world(twin_cfg: dict, tasks=()) -> dict:
+def twin_world(twin_cfg: dict, object_names) -> dict:
     """The twin stage's record: the magnitudes and the world drawn from ``twin_cfg["seed"]``
     (``twin_cfg``: the ``real.twin`` config group).
 
-    All objects of the suite are perturbed (and those of ``tasks``), so the twin (and its
-    seed) does not depend on which tasks run.
+    All the world's objects are perturbed (``object_names``), so the twin (and its seed) does not
+    depend on which tasks run.
     """
     magnitudes = TwinMagnitudes(**(twin_cfg.get("magnitudes") or {}))
-    objects = sorted(set(ALL_OBJECT_NAMES) | {o.name for task in tasks for o in get_task(task).objects})
+    objects = sorted(object_names)
     params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), CAMERA_NAMES)
     return {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)}

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from r2s_eval.data import DatasetRecorder, lerobot_features
 from r2s_eval.errors import R2SError
-from r2s_eval.sim import TabletopEnv, WorldParams, get_task
+from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.sim.build import image_size, make_env
 from r2s_eval.sim.world import ARM_JOINTS, ARMS, CONTROL_DT_S
 from r2s_eval.twin.operator import OperatorConfig, make_operator, run_episode
@@ -71,7 +71,7 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                 if not success and not teleop["keep_failed"]:
                     continue
                 # Encoded while the operator records the next take (when the job has two threads).
-                index = rec.submit_episode(steps, get_task(task).instruction)
+                index = rec.submit_episode(steps, env.task.instruction)
                 kept += 1
                 progress.update()
                 truth += truth_rows(index, task, env, initial)

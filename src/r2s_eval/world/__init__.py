@@ -1,3 +1,3 @@
-"""Worlds as data: a world file (``assets/worlds/<name>/world.yaml``) holds a setup's objects and
-tasks (``r2s_eval.sim.tasks``, ``r2s_eval.sim.predicates``); ``python -m r2s_eval.world`` checks one
-and shows it (``preview``)."""
+"""Worlds as data: the ``world`` config group (``conf/world/<name>.yaml``) holds a setup's cameras,
+objects and tasks (``r2s_eval.sim.tasks``, ``r2s_eval.sim.predicates``); ``python -m r2s_eval.world``
+checks one and shows it (``preview``)."""

@@ -20,24 +20,14 @@ import pandas as pd
 from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.data.contract import read_metadata, scan_video
 from r2s_eval.data.dataset import camera_key
-from r2s_eval.errors import ConfigError, DataError
+from r2s_eval.errors import DataError
 from r2s_eval.sim import TabletopEnv
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.predicates import centre_m
-from r2s_eval.sim.tasks import WORLDS_DIR, Task, load_tasks
+from r2s_eval.sim.tasks import Task, world_tasks
 
 LABEL_PX = 18  # height of the text band above each image
 MIN_SHOWN_PX = 256  # smaller frames are shown enlarged, so that the labels and marks stay legible
-
-
-def world_file(world: str | Path) -> Path:
-    """A world by name (a folder of ``assets/worlds``), by folder, or by its file."""
-    path = Path(world)
-    for candidate in (path, path / "world.yaml", WORLDS_DIR / str(world) / "world.yaml"):
-        if candidate.is_file():
-            return candidate
-    known = sorted(p.name for p in WORLDS_DIR.iterdir() if (p / "world.yaml").is_file())
-    raise ConfigError(f"world {str(world)!r}: no such world file or folder; bundled worlds: {known}")
 
 
 def _labelled(image: np.ndarray, text: str) -> np.ndarray:
@@ -143,7 +133,7 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
             real = _first_frame(meta, episode, cam)
             factor = max(1, -(-MIN_SHOWN_PX // real.shape[0]))
             shown = cv2.resize(real, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
-            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,))
+            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,))  # the world's own task
             try:
                 env.reset(object_poses=poses, settle=False, observe=False)
                 row += [_labelled(_draw_poses(shown, env, cam, poses), f"{key} ep {episode}: {cam}, recorded"),
@@ -154,15 +144,15 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
     return _grid(rows)
 
 
-def preview(world: str | Path, out: str | Path, cameras: Sequence[str], size_hw: tuple[int, int], seed: int = 0,
-            dataset: str | Path | None = None, calib: dict | None = None, world_cfg: dict | None = None) -> Path:
-    """Check the world file and write the preview PNG(s); returns the folder written."""
-    tasks = load_tasks(world_file(world))
+def preview(world: dict, out: str | Path, cameras: Sequence[str], size_hw: tuple[int, int], seed: int = 0,
+            dataset: str | Path | None = None, calib: dict | None = None) -> Path:
+    """Write the preview PNG(s) of ``world`` (a ``world`` config slice); returns the folder written."""
+    tasks = world_tasks(world)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     starts = render_starts(tasks, cameras, size_hw, seed)
     cv2.imwrite(str(out / "starts.png"), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
     if dataset is not None:
-        side = dataset_beside_sim(tasks, dataset, cameras, calib, world_cfg)
+        side = dataset_beside_sim(tasks, dataset, cameras, calib, world)
         cv2.imwrite(str(out / "dataset.png"), cv2.cvtColor(side, cv2.COLOR_RGB2BGR))
     return out

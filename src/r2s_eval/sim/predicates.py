@@ -89,6 +89,14 @@ class Scene(Protocol):
 Condition = Callable[[Scene], bool]
 
 
+class ConditionError(ValueError):
+    """A condition entry that cannot be compiled: ``path`` is the part that is wrong."""
+
+    def __init__(self, path: str, message: str):
+        super().__init__(f"{path}: {message}")
+        self.path, self.message = path, message
+
+
 # ---------------------------------------------------------------- geometry
 def tilt_rad(quat_wxyz: np.ndarray) -> float:
     """Angle between the body z axis and world up."""
@@ -249,7 +257,8 @@ def over(scene: Scene, object: str, target: str, tolerance_m: float = RESTING_TO
         g = _in_cup(scene, object, target)
         return bool(g["offset_m"] < g["inner_r"] - scene.object_dims(object)["radius_m"] / 2 and g["z_m"] > 0)
     if kind == "ball" and scene.object_kind(object) == "cup":  # an upside-down cup over the ball
-        return bool(_in_cup(scene, target, object)["offset_m"] < _in_cup(scene, target, object)["inner_r"])
+        g = _in_cup(scene, target, object)
+        return bool(g["offset_m"] < g["inner_r"])
     if kind == "box":
         p, within = _in_box(scene, object, target)
         return bool(within and p[2] > 0)
@@ -292,6 +301,14 @@ PREDICATES: dict[str, Callable[..., bool]] = {
     "at_rest": at_rest, "grasped": grasped, "lifted": lifted,
 }
 COMBINATORS = ("all", "any", "not")
+# The object kinds a predicate's geometry is defined for, per parameter (checked when a world is read).
+SUPPORTED_KINDS: dict[str, dict[str, tuple[str, ...]]] = {
+    "on_top_of": {"support": ("plate", "block")},
+    "inside": {"container": ("cup", "box")},
+    "covered_by": {"cover": ("cup",)},
+    "over": {"target": ("plate", "cup", "box", "block", "ball")},
+    "apart": {"object": ("block", "box"), "other": ("block", "box")},
+}
 # The parameters that name objects (a task's condition may name only its own objects).
 OBJECT_PARAMS = ("object", "support", "container", "cover", "target", "other")
 
@@ -309,28 +326,44 @@ def condition_objects(spec: Any) -> set[str]:
     return {v for k, v in (params or {}).items() if k in OBJECT_PARAMS}
 
 
-def compile_condition(spec: Any, where: str = "condition") -> Condition:
-    """A condition entry (see the module docstring) as a function of a scene; raises ValueError
-    naming ``where`` and the part that is wrong."""
+def _kind_problem(name: str, params: Mapping, kinds: Mapping[str, str]) -> str | None:
+    """Why predicate ``name`` cannot judge these objects (``kinds``: object -> kind), if it cannot."""
+    for param, supported in SUPPORTED_KINDS.get(name, {}).items():
+        kind = kinds.get(params.get(param))
+        if kind is not None and kind not in supported:
+            return f"{param} {params[param]!r} is a {kind}; {name} is defined for {list(supported)}"
+    if name == "over" and kinds.get(params.get("target")) == "ball" and kinds.get(params.get("object")) != "cup":
+        return "over a ball is defined for a cup (upside down, covering it) only"
+    if name == "on_table" and params.get("face") == "any" and kinds.get(params.get("object")) not in ("block", "ball"):
+        return "face 'any' is defined for blocks (and balls, which have no faces)"
+    return None
+
+
+def compile_condition(spec: Any, where: str = "condition", kinds: Mapping[str, str] | None = None) -> Condition:
+    """A condition entry (see the module docstring) as a function of a scene; raises
+    ConditionError naming the part of ``where`` that is wrong. With ``kinds`` (object -> kind),
+    a predicate asked of objects its geometry does not cover is wrong too."""
     if not isinstance(spec, Mapping) or len(spec) != 1:
-        raise ValueError(f"{where}: a condition is one mapping {{predicate or all/any/not: ...}}, got {spec!r}")
+        raise ConditionError(where, f"a condition is one mapping {{predicate or all/any/not: ...}}, got {spec!r}")
     (name, params), = spec.items()
     if name in ("all", "any"):
         if not isinstance(params, list) or not params:
-            raise ValueError(f"{where}.{name}: must be a non-empty list of conditions, got {params!r}")
-        parts = [compile_condition(p, f"{where}.{name}[{i}]") for i, p in enumerate(params)]
+            raise ConditionError(f"{where}.{name}", f"must be a non-empty list of conditions, got {params!r}")
+        parts = [compile_condition(p, f"{where}.{name}[{i}]", kinds) for i, p in enumerate(params)]
         combine = all if name == "all" else any
         return lambda scene: combine(part(scene) for part in parts)
     if name == "not":
-        part = compile_condition(params, f"{where}.not")
+        part = compile_condition(params, f"{where}.not", kinds)
         return lambda scene: not part(scene)
     if name not in PREDICATES:
-        raise ValueError(f"{where}: unknown predicate {name!r}; predicates are {sorted(PREDICATES)}, "
+        raise ConditionError(where, f"unknown predicate {name!r}; predicates are {sorted(PREDICATES)}, "
                          f"combined with {list(COMBINATORS)}")
     if not isinstance(params, Mapping):
-        raise ValueError(f"{where}.{name}: its parameters are a mapping, e.g. {{object: cup}}, got {params!r}")
+        raise ConditionError(f"{where}.{name}", f"its parameters are a mapping, e.g. {{object: cup}}, got {params!r}")
     predicate, kwargs = PREDICATES[name], dict(params)
     _check_params(predicate, kwargs, f"{where}.{name}")
+    if kinds is not None and (problem := _kind_problem(name, kwargs, kinds)):
+        raise ConditionError(f"{where}.{name}", problem)
     return lambda scene: bool(predicate(scene, **kwargs))
 
 
@@ -343,7 +376,7 @@ def _check_params(predicate: Callable, kwargs: dict, where: str) -> None:
     missing = [p for p, v in signature.parameters.items()
                if p != "scene" and v.default is inspect.Parameter.empty and p not in kwargs]
     if unknown or missing:
-        raise ValueError(f"{where}: " + "; ".join(
+        raise ConditionError(where, "; ".join(
             ([f"unknown parameter(s) {unknown}"] if unknown else []) + ([f"missing {missing}"] if missing else []))
             + f" (it takes {accepted})")
 

@@ -62,7 +62,7 @@ import yaml
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import BUILDERS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
-from r2s_eval.sim.predicates import Scene, compile_condition, condition_objects, staged_progress
+from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 
 WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
 BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
@@ -197,15 +197,15 @@ def _region(entry: Any, names: list[str], name: str, where: str) -> tuple[Region
     return region, placement
 
 
-def _condition(spec: Any, names: list[str], where: str):
-    try:
-        condition = compile_condition(spec, where)
-    except ValueError as err:
-        raise _fail(err.args[0].split(": ", 1)[0], err.args[0].split(": ", 1)[1]) from None
+def _condition(spec: Any, objects: Mapping[str, ObjectSpec], where: str):
+    names = list(objects)
     strangers = sorted(condition_objects(spec) - set(names))
     if strangers:
         raise _fail(where, f"names {strangers}, which are not objects of the task {names}")
-    return condition
+    try:
+        return compile_condition(spec, where, {n: o.kind for n, o in objects.items()})
+    except ConditionError as err:
+        raise _fail(err.path, err.message) from None
 
 
 def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...]:
@@ -220,8 +220,7 @@ def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...
         if obj not in names:
             raise _fail(f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
     if not (kinds == ["turn_upright"] or (len(kinds) == 2 and kinds[0] == "pick" and kinds[1] in PLACE_PRIMITIVES)):
-        raise _fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; "
-                                   f"got {kinds}")
+        raise _fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; got {kinds}")
     return tuple(dict(s) for s in steps)
 
 
@@ -246,18 +245,20 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
     arm = entry.get("arm", "nearest")
     if arm not in ARM_CHOICES:
         raise _fail(f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
-    success = _condition(entry["success"], names, f"{where}.success")
+    mine = {n: objects[n] for n in names}
+    success = _condition(entry["success"], mine, f"{where}.success")
     stages = _mapping(entry["progress"], f"{where}.progress")
     _keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, f"{where}.progress")
     movers = stages["objects"]
     if not isinstance(movers, list) or not movers or any(m not in names for m in movers):
         raise _fail(f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
-    goal = _condition(stages["goal"], names, f"{where}.progress.goal")
+    goal = _condition(stages["goal"], mine, f"{where}.progress.goal")
     thresholds = {k: _number(stages[k], f"{where}.progress.{k}", positive=True)
                   for k in ("reach_m", "lift_m") if k in stages}
     return Task(
         key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
-        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm, clearance_m=_number(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
+        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm,
+        clearance_m=_number(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
         placements=placements, success_condition=entry["success"], progress_stages=stages,
     )
 

@@ -95,19 +95,28 @@ def _first_episodes(meta, tasks: Mapping[str, Task]) -> dict[str, int]:
     return first
 
 
-def _first_frame(meta, episode: int, camera: str) -> np.ndarray:
-    key = camera_key(camera)
-    if key not in meta.features:
-        raise DataError(f"dataset {meta.root}: records no camera {camera!r} ({key}); it records "
-                        f"{sorted(k for k in meta.features if k.startswith('observation.images.'))}")
-    ep = meta.episodes[meta.episodes["episode_index"] == episode].iloc[0]
-    rel = meta.video_file(key, ep[f"videos/{key}/chunk_index"], ep[f"videos/{key}/file_index"])
-    t0 = float(ep[f"videos/{key}/from_timestamp"])
-    scan = scan_video(meta.root / rel, [t0], 0.5 / meta.fps)
-    if t0 not in scan.images:
-        raise DataError(f"dataset {meta.root}: {rel}: no frame of episode {episode} at {t0:.3f} s"
-                        + (f" ({scan.error})" if scan.error else ""))
-    return scan.images[t0]
+def _first_frames(meta, episodes: Sequence[int], cameras: Sequence[str]) -> dict[tuple[int, str], np.ndarray]:
+    """The first frame of each episode from each camera, {(episode, camera): image}: every video
+    file is decoded once (a file holds many episodes)."""
+    wanted: dict[str, list[tuple[int, str, float]]] = {}
+    for camera in dict.fromkeys(cameras):
+        key = camera_key(camera)
+        if key not in meta.features:
+            raise DataError(f"dataset {meta.root}: records no camera {camera!r} ({key}); it records "
+                            f"{sorted(k for k in meta.features if k.startswith('observation.images.'))}")
+        for episode in episodes:
+            ep = meta.episodes[meta.episodes["episode_index"] == episode].iloc[0]
+            rel = meta.video_file(key, ep[f"videos/{key}/chunk_index"], ep[f"videos/{key}/file_index"])
+            wanted.setdefault(rel, []).append((episode, camera, float(ep[f"videos/{key}/from_timestamp"])))
+    frames = {}
+    for rel, items in wanted.items():
+        scan = scan_video(meta.root / rel, [t0 for _, _, t0 in items], 0.5 / meta.fps)
+        for episode, camera, t0 in items:
+            if t0 not in scan.images:
+                raise DataError(f"dataset {meta.root}: {rel}: no frame of episode {episode} at {t0:.3f} s"
+                                + (f" ({scan.error})" if scan.error else ""))
+            frames[episode, camera] = scan.images[t0]
+    return frames
 
 
 def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, cameras: Sequence[str], calib: dict,
@@ -116,11 +125,12 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
     simulation rendered at the poses estimated from the calibration camera's frame."""
     meta = read_metadata(dataset_root)
     first = _first_episodes(meta, tasks)
+    frames = _first_frames(meta, list(first.values()), [calib["camera"], *cameras])
     rows = []
     with tempfile.TemporaryDirectory(prefix="r2s_eval_preview.") as scratch:
         index = []
         for key, episode in first.items():
-            frame = _first_frame(meta, episode, calib["camera"])
+            frame = frames[episode, calib["camera"]]
             name = f"episode_{episode:06d}.png"
             cv2.imwrite(str(Path(scratch) / name), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
             index.append({"episode_index": episode, "task": key, "first_frame": name})
@@ -130,7 +140,7 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
         poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in mine.itertuples()}
         row = []
         for cam in cameras:
-            real = _first_frame(meta, episode, cam)
+            real = frames[episode, cam]
             factor = max(1, -(-MIN_SHOWN_PX // real.shape[0]))
             shown = cv2.resize(real, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
             env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,))  # the world's own task

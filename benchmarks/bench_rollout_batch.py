@@ -57,14 +57,17 @@ from r2s_eval.policies.config import candidate_config, make_lerobot_config
 from r2s_eval.policies.interface import ActionMap
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.rollout import run_episode, sample_inits, write_video
-from r2s_eval.rollout.candidate import _collect, planned_episodes, run_candidate
-from r2s_eval.sim import ACTION_DIM, CAMERA_NAMES
+from r2s_eval.rollout.candidate import planned_episodes, run_candidate
+from r2s_eval.rollout.store import collect_episodes
+from r2s_eval.sim import bundled_robot
 from r2s_eval.sim.build import configured_task, make_env
-from r2s_eval.sim.world import CONTROL_DT_S
 from r2s_eval.utils.io import write_json, write_parquet
 from r2s_eval.utils.numerics import deterministic_torch
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
+
+ROBOT = bundled_robot()  # the bundled world's robot: its action layout, rig and control rate
+ACTION_DIM, CAMERA_NAMES = ROBOT.action_dim, ROBOT.camera_names
 
 
 def save_random_act(folder: Path, cameras: list[str], image_hw: tuple[int, int]) -> Path:
@@ -138,7 +141,7 @@ def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: boo
         folder = store / p.episode_id
         folder.mkdir()
         # 10 fps, encoded with the preset the loop used then (libx264 veryfast)
-        write_video(folder / f"{p.episode_id}.mp4", result.frames, round(1 / CONTROL_DT_S), preset="veryfast")
+        write_video(folder / f"{p.episode_id}.mp4", result.frames, round(ROBOT.control_hz), preset="veryfast")
         write_parquet(folder / f"{p.episode_id}.parquet", result.trajectory)
         write_json(folder / "row.json", {
             "episode_id": p.episode_id, "task": p.task, "init_id": p.init_id, "seed": p.seed,
@@ -150,7 +153,7 @@ def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: boo
     for task_renderers in renderers.values():
         for renderer in task_renderers.values():
             renderer.close()
-    _collect(out, store, planned)
+    collect_episodes(out, store, planned)
 
 
 def batched(out: Path, trained: Path, inits_path: Path, cfg: dict, batch: int, threads: int) -> None:

@@ -31,10 +31,9 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from r2s_eval.rollout import run_episode  # noqa: E402
-from r2s_eval.sim import CAMERA_NAMES, TabletopEnv  # noqa: E402
+from r2s_eval.sim import TabletopEnv  # noqa: E402
 from r2s_eval.twin.operator import make_operator  # noqa: E402
 from r2s_eval.twin.operator import run_episode as run_teleop  # noqa: E402
-from r2s_eval.sim.world import GRIPPER_OPEN_M, N_SUBSTEPS  # noqa: E402
 
 
 class Replay:
@@ -69,6 +68,8 @@ def bare(env: TabletopEnv, poses, actions: np.ndarray) -> tuple[int, float, floa
     model, data = env.model, env.data
     env.reset(poses, seed=0)  # same start state; reset itself is not timed
     renderer = env._renderer(env.image_size)
+    # The bundled robot's layout, written out: per arm six joint targets and a gripper command
+    # (0 open .. 1 closed), the gripper servo's target 0.05 m at open.
     arms = [env._arm_act["left"], env._arm_act["right"]]
     grippers = [env._grip_act["left"], env._grip_act["right"]]
     wall, cpu = _clocks()
@@ -76,10 +77,10 @@ def bare(env: TabletopEnv, poses, actions: np.ndarray) -> tuple[int, float, floa
         # Same servo targets as ours, so the physics (grasp contacts included) is the same.
         data.ctrl[arms[0]] = action[0:6]
         data.ctrl[arms[1]] = action[7:13]
-        data.ctrl[grippers[0]] = GRIPPER_OPEN_M * (1.0 - action[6])
-        data.ctrl[grippers[1]] = GRIPPER_OPEN_M * (1.0 - action[13])
-        mujoco.mj_step(model, data, nstep=N_SUBSTEPS)
-        for cam in CAMERA_NAMES:
+        data.ctrl[grippers[0]] = 0.05 * (1.0 - action[6])
+        data.ctrl[grippers[1]] = 0.05 * (1.0 - action[13])
+        mujoco.mj_step(model, data, nstep=env.n_substeps)
+        for cam in env.cameras:
             renderer.update_scene(data, camera=cam)
             renderer.render()
     return len(actions), time.perf_counter() - wall, time.process_time() - cpu
@@ -92,7 +93,7 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=128, help="image height and width")
     args = parser.parse_args()
 
-    env = TabletopEnv(args.task, cameras=CAMERA_NAMES, image_size=(args.size, args.size))
+    env = TabletopEnv(args.task, image_size=(args.size, args.size))  # all four cameras of the rig
     poses = env.sample_initial_poses(np.random.default_rng(0))
     obs = env.reset(poses, seed=0)
     steps = run_teleop(env, make_operator(args.task, env, np.random.default_rng(0)), 150, obs)
@@ -107,14 +108,14 @@ def main() -> None:
             best[name, "wall"] = min(best[name, "wall"], wall_s / n)
             best[name, "cpu"] = min(best[name, "cpu"], cpu_s / n)
     print(f"task {args.task}, {n} control steps per episode, 4 cameras at {args.size}x{args.size}, "
-          f"{N_SUBSTEPS} physics steps per control step, best of {args.repeats}")
+          f"{env.n_substeps} physics steps per control step, best of {args.repeats}")
     # Wall clock is what a run waits for; process CPU time (all threads, the software GL's
     # included) is the steadier measure on a machine shared with other jobs.
     for clock, unit in (("wall", "wall-clock s"), ("cpu", "CPU s")):
         rate = {name: 1.0 / best[name, clock] for name in ("ours", "bare")}
         print(f"  per {unit}:")
         for name, label in (("bare", "bare mj_step + render"), ("ours", "our rollout loop")):
-            print(f"    {label:24s} {rate[name]:8.1f} control steps/s  ({rate[name] * N_SUBSTEPS:9.0f} physics steps/s)")
+            print(f"    {label:24s} {rate[name]:8.1f} control steps/s  ({rate[name] * env.n_substeps:9.0f} physics steps/s)")
         print(f"    overhead of our loop: {100 * (rate['bare'] / rate['ours'] - 1.0):+.1f} %  (target <= 30 %)")
     env.close()
 

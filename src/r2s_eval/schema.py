@@ -114,18 +114,6 @@ def optional(default_owner: str) -> Any:
     return field(default=None, metadata={"default_owner": default_owner})
 
 
-def _cameras() -> Sequence[str]:
-    from r2s_eval.sim import CAMERA_NAMES
-
-    return CAMERA_NAMES
-
-
-def _control_dt_s() -> float:
-    from r2s_eval.sim.world import CONTROL_DT_S
-
-    return CONTROL_DT_S
-
-
 def _intervals() -> Sequence[str]:
     from r2s_eval.stats import INTERVALS
 
@@ -174,7 +162,7 @@ NonNegative = Annotated[float, Range(min=0)]
 Share = Annotated[float, Range(0, 1)]
 Level = Annotated[float, Range(0, 1, open_min=True, open_max=True)]
 Interval = Annotated[tuple[float, float], Increasing()]
-Camera = Annotated[str, OneOf(_cameras)]
+Camera = str  # a camera of the world's rig (checked with the world, in _cross_problems)
 
 # ----------------------------------------------------------------------------- groups
 
@@ -197,7 +185,10 @@ class World:
     image_height: PositiveInt
     image_width: PositiveInt
     cameras: Annotated[list[Camera], NonEmpty()]
-    # Checked by their owner, r2s_eval.sim.tasks.load_tasks (one problem named by its key).
+    # Checked by their owners, r2s_eval.sim.robot.load_robot and r2s_eval.sim.tasks.load_tasks
+    # (one problem named by its key).
+    robot: dict
+    rig: Annotated[dict[str, dict], NonEmpty()]
     objects: Annotated[dict[str, dict], NonEmpty()]
     tasks: Annotated[dict[str, dict], NonEmpty()]
 
@@ -249,14 +240,6 @@ class Ingest:
 
 
 @dataclass
-class HueRange:
-    hue_lo: Annotated[int, Range(0, 179)]
-    hue_hi: Annotated[int, Range(0, 179)]
-    sat_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.HueRange")
-    val_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.HueRange")
-
-
-@dataclass
 class HsvSegmenter:
     type: Literal["hsv"]
     hue_tol: Annotated[int, Range(0, 90)] = optional("r2s_eval.calib.segment.make_segmenter")
@@ -264,7 +247,6 @@ class HsvSegmenter:
     val_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.make_segmenter")
     blur_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
     min_area_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
-    objects: dict[str, HueRange] = optional("colour ranges around each object's nominal colour")
 
 
 @dataclass
@@ -272,7 +254,6 @@ class GroundedSamSegmenter:
     type: Literal["grounded_sam"]
     detector_path: str
     sam_path: str
-    prompts: dict[str, str] = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
     box_threshold: Share = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
     text_threshold: Share = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
     device: str = optional("r2s_eval.calib.open_vocab.make_grounded_sam")
@@ -716,12 +697,13 @@ def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[
 
 def _cross_problems(cfg: dict) -> list[Problem]:
     """Contradictions between groups (run once every group has passed its own schema)."""
-    from r2s_eval.sim.tasks import WorldError, world_tasks
+    from r2s_eval.sim.reading import WorldError
+    from r2s_eval.sim.robot import load_world
 
     problems: list[Problem] = []
     real, world = cfg["real"], cfg["world"]
     try:
-        tasks = world_tasks(world)
+        robot, tasks = load_world(world)
     except WorldError as err:
         return [Problem(err.path, err.message, owner=True)]
     def stranger(key: str) -> str:
@@ -756,7 +738,10 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     for task, settings in cfg["suite"].items():
         problems += _region_problems(tasks[task], settings["init_regions"])
     rollout = cfg["rollout"]
-    control_hz = round(1 / _control_dt_s())
+    if rollout["video_camera"] not in world["cameras"]:
+        problems.append(Problem("rollout.video_camera", f"must be one of the recorded world.cameras {world['cameras']}, "
+                                                        f"got {rollout['video_camera']!r}"))
+    control_hz = round(robot.control_hz)
     if control_hz % rollout["video_fps"]:
         problems.append(Problem("rollout.video_fps", f"must divide the control rate ({control_hz} Hz): the video "
                                                      f"keeps every k-th control step, got {rollout['video_fps']}"))

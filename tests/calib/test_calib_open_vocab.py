@@ -79,8 +79,8 @@ def test_grounded_sam_loads_locally_and_returns_a_mask_per_object(checkpoints):
     det, sam = checkpoints
     segmenter = make_segmenter(
         {"type": "grounded_sam", "detector_path": str(det), "sam_path": str(sam), "box_threshold": 0.0,
-         "text_threshold": 0.0, "prompts": {"cup": "a red cup"}},
-        OBJECTS,
+         "text_threshold": 0.0},
+        OBJECTS, {"cup": {"prompt": "a red cup"}},  # the world's prompt for the cup; the ball has none
     )
     assert segmenter.prompts == {"cup": "a red cup", "ball": "a ball"}  # default prompt from the name
     image = np.random.default_rng(0).integers(0, 255, (96, 128, 3), dtype=np.uint8)

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.data import DatasetRecorder, DatasetValidationError, IngestSpec, ingest_dataset, lerobot_features
 
 TASKS = ["Pick the Cup and Place it on the Plate", "Stack the Two Blocks"]
@@ -66,7 +67,7 @@ def _split_last_episode(root: Path) -> None:
 
 
 def spec(**changes) -> IngestSpec:
-    base = dict(cameras=CAMERAS, state_dim=14, action_dim=14, fps=FPS,
+    base = dict(cameras=CAMERAS, feature_names=NAMES, fps=FPS,
                 tasks={TASKS[0]: "cup_on_plate", TASKS[1]: "stack_blocks"}, first_frame_camera="head_left",
                 min_length=5)
     base.update(changes)
@@ -306,7 +307,8 @@ def test_dropping_keeps_the_sound_episodes(dataset, tmp_path, no_network):
 
 
 def _run_stage(root: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedProcess:
-    cfg = {"world.cameras": CAMERAS, "calib.camera": "head_left",
+    world = bundled_world()
+    cfg = {"world.cameras": CAMERAS, "world.robot": world["robot"], "world.rig": world["rig"], "calib.camera": "head_left",
            "instructions": {"cup_on_plate": "Pick the Cup and Place it on the Plate"},
            "ingest": {"repo_id": "local/test", "min_length": 5, "max_length": 100, "drop_bad_episodes": False,
                       "check_videos": True}}

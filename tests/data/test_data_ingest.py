@@ -33,7 +33,7 @@ def make_dataset(root: Path, episodes: int = 3, length: int = 12) -> Path:
 
 
 def spec(**changes) -> IngestSpec:
-    base = dict(cameras=["head_left"], state_dim=14, action_dim=14, fps=10, tasks={INSTRUCTION: "cup_on_plate"},
+    base = dict(cameras=["head_left"], feature_names=NAMES, fps=10, tasks={INSTRUCTION: "cup_on_plate"},
                 first_frame_camera="head_left", min_length=5)
     base.update(changes)
     return IngestSpec(**base)
@@ -97,12 +97,17 @@ def test_drop_bad_episodes_keeps_the_rest(dataset_copy, tmp_path):
 
 
 def test_wrong_fps_and_missing_camera(dataset, tmp_path):
-    with pytest.raises(DatasetValidationError, match="fps is 10, expected 30"):
+    with pytest.raises(DatasetValidationError, match="fps is 10, the world's robot.control_hz is 30"):
         ingest_dataset(dataset, "local/test", spec(fps=30), tmp_path / "frames")
     with pytest.raises(DatasetValidationError, match="camera feature 'observation.images.wrist_left' is missing"):
         ingest_dataset(dataset, "local/test", spec(cameras=["head_left", "wrist_left"]), tmp_path / "frames")
-    with pytest.raises(DatasetValidationError, match=r"feature 'action' has shape \(14,\), expected \(7,\)"):
-        ingest_dataset(dataset, "local/test", spec(action_dim=7), tmp_path / "frames")
+    # The world's robot maps other names: both sides' strays are named.
+    other = [*NAMES[:6], "gripper_left"]
+    with pytest.raises(DatasetValidationError, match=r"feature 'action' names \[.*not in robot.features: "
+                                                     r"\['j6', .*'j13'\]; robot.features has, the dataset lacks: \['gripper_left'\]"):
+        ingest_dataset(dataset, "local/test", spec(feature_names=other), tmp_path / "frames")
+    with pytest.raises(DatasetValidationError, match=r"feature 'observation.state' names .* \(another order\)"):
+        ingest_dataset(dataset, "local/test", spec(feature_names=NAMES[::-1]), tmp_path / "frames")
 
 
 def test_unknown_task_and_short_episodes(dataset, tmp_path):

@@ -16,7 +16,7 @@ from r2s_eval.judge.trajectory import load_trajectory
 from r2s_eval.libero import SUITES, selected_tasks, suite_of
 from r2s_eval.libero.rollout import failure_text, keep_episode, planned_episodes, policy_cameras, shards, world_job
 from r2s_eval.policies.interface import PolicyError, PolicySpec
-from r2s_eval.rollout.candidate import _collect, episode_store
+from r2s_eval.rollout.store import collect_episodes, episode_store
 from r2s_eval.rollout.video import read_video
 
 CAMERAS = {"image": "agentview", "wrist_image": "robot0_eye_in_hand"}
@@ -116,7 +116,7 @@ def test_a_libero_record_becomes_our_rollout_files(tmp_path):
         np.savez(tmp_path / f"{p.episode_id}.npz", **_record(12, 4, success))
         keep_episode(tmp_path / f"{p.episode_id}.npz", p, store, "pi0", fps=5)
         assert not (tmp_path / f"{p.episode_id}.npz").exists()
-    episodes = _collect(out, store, planned)
+    episodes = collect_episodes(out, store, planned)
     assert episodes["success"].tolist() == [True, False] and episodes["task"].tolist() == ["libero_goal_4"] * 2
     assert episodes["instruction"].tolist() == ["put the bowl on the plate"] * 2
     row = episodes.iloc[0]

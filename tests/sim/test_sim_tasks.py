@@ -5,7 +5,9 @@ import pytest
 
 from r2s_eval.sim import TASKS
 from r2s_eval.twin.operator import make_operator
-from r2s_eval.sim.world import TABLE_TOP_Z_M
+from r2s_eval.sim import bundled_robot
+
+TABLE_TOP_Z_M = bundled_robot().workspace_z_m
 
 POSES = {"cup": (0.03, 0.12, 0.0), "plate": (-0.04, -0.06, 0.0)}
 

@@ -106,15 +106,15 @@ def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
 def test_joint_offsets_hold_each_joint_off_its_command(twin_params):
     """The twin's kinematic calibration error: every arm joint settles at its command plus its
     offset, and the offsets survive the JSON round trip the twin stage writes."""
-    from r2s_eval.sim import world
+    from r2s_eval.sim import bundled_robot
     from r2s_eval.sim.params import load_world_params
 
-    m = TwinMagnitudes()
-    offsets = {arm: twin_params.joint_offsets(arm) for arm in world.ARMS}
+    m, robot = TwinMagnitudes(), bundled_robot()
+    offsets = {name: twin_params.joint_offsets(name, len(arm.joints)) for name, arm in robot.arms.items()}
     assert all(0 < np.abs(o).max() <= m.joint_offset_rad for o in offsets.values())
     env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
     env.reset(POSES)
-    command = np.r_[world.home_arm_q("left"), 0.0, world.home_arm_q("right"), 0.0]
+    command = robot.from_model(robot.home_targets())
     for _ in range(30):
         env.step(command, images=False)
     state = env.state()
@@ -130,7 +130,6 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
     """The operator makes up for the joint offsets (as a person watching the gripper would): the
     twin's demonstration still succeeds, and its recorded joint targets differ from the joint
     angles the arm reached by the offsets, which is what replay in the nominal sim inherits."""
-    from r2s_eval.sim import world
     from r2s_eval.twin.operator import make_operator, run_episode
 
     env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
@@ -140,7 +139,7 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
     steps = run_episode(env, operator, 150, obs)
     assert env.is_success()
     arm = operator.arm
-    i = 7 * world.ARMS.index(arm)
-    last_command = np.asarray(steps[-1][1])[i : i + 6]
-    np.testing.assert_allclose(env.state()[i : i + 6] - last_command, twin_params.joint_offsets(arm), atol=5e-3)
+    joints, _ = env.robot.slices(arm)
+    last_command = np.asarray(steps[-1][1])[joints]
+    np.testing.assert_allclose(env.state()[joints] - last_command, twin_params.joint_offsets(arm, len(joints)), atol=5e-3)
     env.close()

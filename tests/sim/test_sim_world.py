@@ -3,18 +3,20 @@
 import numpy as np
 import pytest
 
-from r2s_eval.sim import ACTION_DIM, CAMERA_NAMES, TabletopEnv
+from r2s_eval.sim import TabletopEnv, bundled_robot
 from r2s_eval.sim.cameras import backproject_pixels, project_points
-from r2s_eval.sim.world import TABLE_TOP_Z_M
+
+ROBOT = bundled_robot()
+TABLE_TOP_Z_M = ROBOT.workspace_z_m
 
 POSES = {"cup": (0.0, 0.08, 0.3), "plate": (-0.05, -0.1, 0.0)}
 
 
 def test_observation_layout(nominal_env):
     obs = nominal_env.reset(POSES)
-    assert obs["observation.state"].shape == (ACTION_DIM,)
+    assert obs["observation.state"].shape == (14,) == (ROBOT.action_dim,)
     assert obs["observation.state"].dtype == np.float32
-    for cam in CAMERA_NAMES:
+    for cam in ROBOT.camera_names:
         img = obs[f"observation.images.{cam}"]
         assert img.shape == (128, 128, 3) and img.dtype == np.uint8
         assert img.std() > 5  # not a blank frame

@@ -12,6 +12,7 @@ import pytest
 
 from r2s_eval.config import compose_config
 from r2s_eval.errors import ConfigError
+from r2s_eval.sim.robot import load_world
 from r2s_eval.sim.tasks import BUNDLED_WORLD, TASKS, WorldError, bundled_world, load_tasks
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -68,7 +69,10 @@ def _broken(old: str, new: str) -> dict:
      r"world\.tasks\.block_from_box\.start\.box\.y_range_m: must be \[low, high\] with low <= high"),
     ("relative_to: box", "relative_to: plate", r"world\.tasks\.block_from_box\.start\.block_a\.relative_to: must name another object"),
     ("placement: on_side", "placement: sideways", r"world\.tasks\.upright_cup\.start\.cup\.placement: must be one of \["),
-    ("arm: behind_axis", "arm: third", r"world\.tasks\.upright_cup\.arm: must be one of \["),
+    ("arm: behind_axis", "arm: third", r"world\.tasks\.upright_cup\.arm: must be an arm of the robot \['left', 'right'\]"),
+        ("start: {ball: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}, box: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}}",
+         "start: {ball: {x_range_m: [0.0, 0.01], y_range_m: [0.0, 0.01]}, box: {x_range_m: [0.0, 0.01], y_range_m: [0.0, 0.01]}}",
+         r"world\.tasks\.ball_in_box\.start: leaves no room: no draw of 1000 keeps"),
     ("    plan: [{pick: ball}, {place_in: box}]", "    plan: [{pick: ball}, {place_in: plate}]",
      r"world\.tasks\.ball_in_box\.plan\[1\]\.place_in: must name an object of the task"),
     ("    plan: [{pick: ball}, {place_in: box}]", "    plan: [{pick: ball}, {drop: box}]",
@@ -77,10 +81,46 @@ def _broken(old: str, new: str) -> dict:
      r"world\.tasks\.ball_in_box\.plan: must be a pick and one of"),
     ("      objects: [cup]\n      goal: {all: [{over", "      objects: [ball]\n      goal: {all: [{over",
      r"world\.tasks\.cup_on_plate\.progress\.objects: must list objects of the task"),
+    ("    mass_kg: 0.045  # a golf ball's weight", "    mass_kg: 0.045\n    find: {hue: {hue_lo: 200, hue_hi: 10}}",
+     r"world\.objects\.ball\.find\.hue\.hue_lo: must be a whole number in \[0, 179\], got 200"),
+    ("    mass_kg: 0.045  # a golf ball's weight", "    mass_kg: 0.045\n    find: {prompt: ''}",
+     r"world\.objects\.ball\.find\.prompt: must be a non-empty text"),
+    # The robot and its rig.
+    ("      model: assets/arm.xml\n      mount: {frame: left_mount}", "      model: assets/arms.xml\n      mount: {frame: left_mount}",
+     r"world\.robot\.arms\.left\.model: no such model file: .*assets/arms\.xml"),
+    ("  scene: assets/tabletop.xml", "  scene: {package: r2s_eval, resource: scene.xml}",
+     r"world\.robot\.scene: no such model file: .*r2s_eval/scene\.xml"),
+    ("  scene: assets/tabletop.xml", "  scene: {package: no_such_robots, resource: scene.xml}",
+     r"world\.robot\.scene\.package: package 'no_such_robots' is not installed"),
+    ("mount: {frame: right_mount}", "mount: {frame: rear_mount}",
+     r"world\.robot\.arms\.right\.mount\.frame: the scene 'r2s_tabletop' has no frame 'rear_mount'"),
+    ("      joints: [j1, j2, j3, j4, j5, j6]\n      home: [0.0", "      joints: [j1, j2, j3, j4, j5, j7]\n      home: [0.0",
+     r"world\.robot\.arms\.left\.joints: arm\.xml has no joint 'j7'"),
+    ("      joints: [j1, j2, j3, j4, j5, j6]\n      home: [0.0", "      joints: [j1, j2, j3, j4, j5, j6]\n      home: [0.0, 0.1",
+     r"world\.robot\.arms\.left\.home: must be a list of 6 numbers"),
+    ("        actuator: gripper", "        actuator: grip",
+     r"world\.robot\.arms\.left\.gripper\.actuator: arm\.xml has no actuator 'grip'"),
+    ("      ee: {site: tcp, approach: +x, jaw: +y}\n    right:", "      ee: {site: tool, approach: +x, jaw: +y}\n    right:",
+     r"world\.robot\.arms\.left\.ee\.site: arm\.xml has no site 'tool'"),
+    ("      ee: {site: tcp, approach: +x, jaw: +y}\n    right:", "      ee: {site: tcp, approach: +x, jaw: -x}\n    right:",
+     r"world\.robot\.arms\.left\.ee: approach and jaw must be different axes"),
+    ("  control_hz: 10", "  control_hz: 10\n  features: [{name: left_j1, arm: left, joint: j1}]",
+     r"world\.robot\.features: no feature maps to \['left j2', .*'right gripper'\]"),
+    ("  control_hz: 10", "  control_hz: 10\n  features: [{name: left_j1, arm: left, joint: j9}]",
+     r"world\.robot\.features\[0\]\.joint: must be a joint of arm left"),
+    ("  control_hz: 10", "  control_hz: 7",
+     r"world\.robot\.control_hz: 7 Hz is not a whole number of 0\.002 s physics steps"),
+    ("cameras: [head_left, head_right, wrist_left, wrist_right]", "cameras: [head_left, top]",
+     r"world\.cameras: records \['top'\], which the rig .* does not place"),
+    ("  wrist_left: {camera: wrist, arm: left}", "  wrist_left: {camera: wrist_cam, arm: left}",
+     r"world\.rig\.wrist_left\.camera: the model has no camera 'left_wrist_cam'"),
+    ("  head_left: {camera: head_left, look_at: [-0.03, 0.0, 0.75]}",
+     "  head_left: {camera: head_left, intrinsics: {fx: 100, fy: 100, cx: 70, cy: 63.5, width: 64, height: 128}}",
+     r"world\.rig\.head_left\.intrinsics\.cx: must lie inside the 64x128 image \(0\.\.63\), got 70"),
 ])
 def test_a_wrong_entry_names_its_key(old, new, message):
     with pytest.raises(WorldError) as err:
-        load_tasks(_broken(old, new))
+        load_world(_broken(old, new))
     assert "\n" not in str(err.value) and re.fullmatch(message + ".*", str(err.value)), str(err.value)
 
 
@@ -106,3 +146,16 @@ def test_the_loaded_world_is_not_changed_by_its_reader():
     world = copy.deepcopy(bundled_world())
     load_tasks(world)
     assert world == bundled_world()
+
+
+def test_how_an_object_is_found_is_the_worlds():
+    """An object's explicit colour range and open-vocabulary prompt come from its world entry."""
+    from r2s_eval.calib.segment import HueRange, finders, make_segmenter
+
+    world = _broken("    mass_kg: 0.045  # a golf ball's weight",
+                    "    mass_kg: 0.045\n    find: {hue: {hue_lo: 40, hue_hi: 80, sat_min: 60}, prompt: a golf ball}")
+    task = load_tasks(world)["ball_in_box"]
+    segmenter = make_segmenter({"type": "hsv"}, {o.name: o.rgba for o in task.objects}, finders(task.objects))
+    assert segmenter.ranges["ball"] == HueRange(hue_lo=40, hue_hi=80, sat_min=60)
+    assert segmenter.ranges["box"] == make_segmenter({"type": "hsv"}, {"box": task.object("box").rgba}).ranges["box"]
+    assert task.object("ball").prompt == "a golf ball" and task.object("box").prompt is None

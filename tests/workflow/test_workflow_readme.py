@@ -33,6 +33,10 @@ BAD_OVERRIDES = ("snakemake -j 2 reports/realsim_table.tex --config "
 PUSH, PULL = "python -m r2s_eval.artifacts push", "python -m r2s_eval.artifacts pull"
 WORLD_REPORT = "python -m r2s_eval.stages.world_report"
 PLAN_SMOKE = "snakemake -n --config experiment=smoke"
+PANDA_PREVIEW = "python -m r2s_eval.world panda"
+PANDA_DATASET = ("snakemake -j 2 reports/realsim_table.tex --config overrides='[world=panda,suite=world,"
+                 "\"tasks=[block_on_plate]\",real=dataset,real.dataset_root=/data/my_teleop,"
+                 "real.reference_csv=/data/trials.csv]'")
 
 
 @pytest.fixture
@@ -64,6 +68,36 @@ def test_a_lab_dataset_that_is_not_there_stops_before_anything_runs(clone):
         "  - real.reference_csv = /data/trials.csv: no such file (a CSV of hardware trials: policy, task, trials, "
         "successes)",
     ]
+
+
+def test_the_panda_world_is_looked_at_then_pointed_at_a_lab_dataset(clone):
+    pytest.importorskip("gym_hil", reason="the Panda world's robot comes from gym-hil")
+    import cv2
+
+    proc = run_as_written(readme_command(PANDA_PREVIEW), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "wrote reports/world_preview/starts.png" in proc.stdout
+    starts = cv2.imread(str(clone / "reports" / "world_preview" / "starts.png"))
+    assert starts.shape[1] == 3 * 128  # its three recorded cameras, one task
+    if Path("/data/my_teleop").exists() or Path("/data/trials.csv").exists():
+        pytest.skip("this machine has the README's example paths")
+    proc = run_as_written(readme_command(PANDA_DATASET), clone)
+    assert proc.returncode == 1
+    _no_traceback(proc.stdout + proc.stderr)
+    assert proc.stderr.splitlines()[0] == "2 configuration problems:", proc.stderr
+
+
+def test_the_readme_shows_a_wrong_world_as_the_check_prints_it(tmp_path):
+    from r2s_eval.config import compose_config
+    from r2s_eval.errors import ConfigError
+
+    shown = readme_block_after("python -m r2s_eval.world panda").strip()  # the world check's example line
+    conf = Path(shutil.copytree(REPO / "conf", tmp_path / "conf"))
+    world = conf / "world" / "tabletop.yaml"
+    world.write_text(world.read_text().replace("joints: [j1, j2, j3, j4, j5, j6]", "joints: [j1, j2, j3, j4, j5, j7]", 1))
+    with pytest.raises(ConfigError) as err:
+        compose_config(conf, "smoke")
+    assert str(err.value) == shown
 
 
 def test_side_by_side_working_directories_stay_out_of_git(clone):

@@ -19,7 +19,7 @@ from r2s_eval.policies.sources import (
 )
 from r2s_eval.judge.base import transport_keys
 from r2s_eval.libero import ACTION_DIM as LIBERO_ACTION_DIM
-from r2s_eval.sim.env import ACTION_DIM
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages._reads import declaration as stage_declaration
 
 logging.getLogger().handlers[:] = _ROOT_HANDLERS
@@ -82,7 +82,8 @@ for _name, _source in EXTERNAL.items():
         for _arm in ARMS:
             if not workflow_made(for_arm(_source, _arm)["path"]):
                 try:
-                    check_checkpoint(for_arm(_source, _arm), _name, LIBERO_ACTION_DIM if LIBERO else ACTION_DIM)
+                    check_checkpoint(for_arm(_source, _arm), _name,
+                                     LIBERO_ACTION_DIM if LIBERO else world_robot(CFG["world"]).action_dim)
                 except R2SError as err:
                     stop_planning(err)
 JUDGES = sorted(CFG["judges"])

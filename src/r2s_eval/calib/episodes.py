@@ -10,7 +10,7 @@ from tqdm import tqdm
 
 from r2s_eval.calib.estimate import InitEstimationError, estimate_initial_poses
 from r2s_eval.calib.scene import camera_model, image_renderer, mask_renderer, object_geometries
-from r2s_eval.calib.segment import make_segmenter
+from r2s_eval.calib.segment import finders, make_segmenter
 from r2s_eval.errors import DataError
 from r2s_eval.sim.build import make_env
 
@@ -23,7 +23,7 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
         if ep.task not in envs:
             env = make_env(ep.task, world, cameras=())
             rgba = {o.name: o.rgba for o in env.task.objects}
-            envs[ep.task] = (env, make_segmenter(calib["segmenter"], rgba), camera_model(env, calib["camera"]))
+            envs[ep.task] = (env, make_segmenter(calib["segmenter"], rgba, finders(env.task.objects)), camera_model(env, calib["camera"]))
         env, segmenter, camera = envs[ep.task]
         frame_path = Path(frames_dir) / ep.first_frame
         raw = cv2.imread(str(frame_path))

@@ -107,8 +107,9 @@ class GroundedSAMSegmenter:
         return masks
 
 
-def make_grounded_sam(cfg: Mapping, object_names) -> GroundedSAMSegmenter:
-    prompts = {name: (cfg.get("prompts") or {}).get(name, f"a {name.replace('_', ' ')}") for name in object_names}
+def make_grounded_sam(cfg: Mapping, prompts: Mapping[str, str | None]) -> GroundedSAMSegmenter:
+    """The segmenter for the objects of ``prompts`` ({name: the world's prompt, or None for "a <name>"})."""
+    prompts = {name: prompt or f"a {name.replace('_', ' ')}" for name, prompt in prompts.items()}
     for key in ("detector_path", "sam_path"):
         if not cfg.get(key):
             raise ValueError(f"calib.segmenter.{key} is required for type grounded_sam (a local checkpoint folder)")

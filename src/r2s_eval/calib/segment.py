@@ -70,27 +70,34 @@ class HSVSegmenter:
         return labels == best
 
 
-def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]]) -> Segmenter:
-    """Build the configured segmenter. `object_rgba` gives nominal colours for defaults.
+def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]],
+                   find: Mapping[str, Mapping] | None = None) -> Segmenter:
+    """Build the configured segmenter for the objects of `object_rgba` (their nominal colours).
 
-    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40, "blur_px": 0,
-          "objects": {name: {"hue_lo":..,"hue_hi":..,"sat_min":..,"val_min":..}}}  (objects optional)
-    or {"type": "grounded_sam", ...} (see ``r2s_eval.calib.open_vocab``).
+    cfg: {"type": "hsv", "hue_tol": 12, "sat_min": 90, "val_min": 40, "blur_px": 0}
+    or {"type": "grounded_sam", ...} (see ``r2s_eval.calib.open_vocab``). `find`: per object how
+    the world says it is found (an ``ObjectSpec``'s ``hue`` range and ``prompt``; absent: the
+    defaults, a range around its colour and "a <name>").
     """
+    find = find or {}
     kind = cfg.get("type", "hsv")
     if kind == "grounded_sam":
         from r2s_eval.calib.open_vocab import make_grounded_sam
 
-        return make_grounded_sam(cfg, list(object_rgba))
+        return make_grounded_sam(cfg, {name: (find.get(name) or {}).get("prompt") for name in object_rgba})
     if kind != "hsv":
         raise ValueError(f"unknown segmenter type {kind!r} (available: hsv, grounded_sam)")
-    explicit = cfg.get("objects") or {}
     ranges = {}
     for name, rgba in object_rgba.items():
-        if name in explicit:
-            ranges[name] = HueRange(**explicit[name])
+        if (find.get(name) or {}).get("hue"):
+            ranges[name] = HueRange(**find[name]["hue"])
         else:
             ranges[name] = HueRange.around_rgb(
                 rgba, cfg.get("hue_tol", 12), cfg.get("sat_min", 90), cfg.get("val_min", 40)
             )
     return HSVSegmenter(ranges, min_area_px=cfg.get("min_area_px", 20), blur_px=int(cfg.get("blur_px", 0)))
+
+
+def finders(objects) -> dict[str, dict]:
+    """``find`` of ``make_segmenter`` from the world's objects (``ObjectSpec``: hue, prompt)."""
+    return {o.name: {"hue": o.hue, "prompt": o.prompt} for o in objects}

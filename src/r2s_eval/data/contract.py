@@ -235,20 +235,31 @@ def metadata_problems(meta: LocalMetadata) -> list[Problem]:
     return out
 
 
-def feature_problems(meta: LocalMetadata, state_key: str, action_key: str, state_dim: int, action_dim: int,
+def feature_problems(meta: LocalMetadata, state_key: str, action_key: str, feature_names: list[str],
                      camera_keys: list[str], fps: int) -> list[Problem]:
-    """What info.json declares against what the robot config expects."""
+    """What info.json declares against what the world's robot expects: the state and action entries
+    named as its ``robot.features`` map them (same names, same order), its cameras, its control rate."""
     out: list[Problem] = []
     if float(meta.info["fps"]) != float(fps):
-        out.append(Problem(INFO, f"fps is {meta.info['fps']}, expected {fps}"))
+        out.append(Problem(INFO, f"fps is {meta.info['fps']}, the world's robot.control_hz is {fps}"))
     feats = meta.features
-    for key, dim in ((state_key, state_dim), (action_key, action_dim)):
+    dim = len(feature_names)
+    for key in (state_key, action_key):
         if key not in feats:
             out.append(Problem(INFO, f"feature {key!r} is missing"))
             continue
-        shape = tuple(feats[key].get("shape") or ())
-        if shape != (dim,):
-            out.append(Problem(INFO, f"feature {key!r} has shape {shape}, expected ({dim},)"))
+        shape, names = tuple(feats[key].get("shape") or ()), feats[key].get("names")
+        if isinstance(names, dict):  # older datasets: {"motors": [...]}
+            names = next(iter(names.values()), None)
+        if names is not None and list(names) != list(feature_names):
+            unmapped = [n for n in names if n not in feature_names]
+            absent = [n for n in feature_names if n not in names]
+            detail = (f"; not in robot.features: {unmapped}" if unmapped else "") + (
+                f"; robot.features has, the dataset lacks: {absent}" if absent else "")
+            out.append(Problem(INFO, f"feature {key!r} names {list(names)}, the world's robot.features map "
+                                     f"{list(feature_names)}{detail or ' (another order)'}"))
+        elif shape != (dim,):
+            out.append(Problem(INFO, f"feature {key!r} has shape {shape}, the world's robot.features map ({dim},)"))
         if feats[key].get("dtype") not in ("float32", "float64"):
             out.append(Problem(INFO, f"feature {key!r} has dtype {feats[key].get('dtype')!r}, expected float32"))
     for key in camera_keys:

@@ -39,8 +39,7 @@ __all__ = ["DatasetValidationError", "IngestSpec", "ingest_dataset"]
 @dataclass
 class IngestSpec:
     cameras: list[str]
-    state_dim: int
-    action_dim: int
+    feature_names: list[str]  # the state's and action's entries, as the world's robot.features name them
     fps: int
     # instruction text -> task key of the suite; episodes with other instructions are errors
     tasks: dict[str, str]
@@ -91,7 +90,7 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
     if first_key not in cameras:
         cameras[first_key] = spec.first_frame_camera
     problems = Problems()
-    problems.extend(feature_problems(meta, STATE_KEY, ACTION_KEY, spec.state_dim, spec.action_dim, list(cameras),
+    problems.extend(feature_problems(meta, STATE_KEY, ACTION_KEY, spec.feature_names, list(cameras),
                                      spec.fps))
     if problems.dataset:  # the files cannot be checked against features this robot cannot use
         raise fail(root, problems.lines())

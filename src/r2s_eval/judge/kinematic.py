@@ -43,7 +43,7 @@ from r2s_eval.judge import trajectory as T
 DEFAULTS: dict[str, Any] = {
     "backend": "kinematic",
     "name": "kinematic-trajectory-heuristic-not-vlm",
-    "joint_dims": None,  # state/action dims used for joint jerk, jitter and idleness; None = all 14
+    "joint_dims": None,  # state/action dims used for joint jerk, jitter and idleness; None = all of them
     "idle_speed_rad_s": 0.05,  # joint-space speed below this is idle
     "min_pause_steps": 3,  # an idle run this long, followed by motion, is a stop-and-go pause
     "reversal_min_speed_m_s": 0.02,  # direction changes at lower end-effector speed are noise

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-_LIST_COLUMNS = ("state", "action", "ee_pos_left", "ee_pos_right")
+_LIST_COLUMNS = ("state", "action")
+_EE_PREFIX = "ee_pos_"  # one column per arm: ee_pos_<arm>
 _SCALAR_COLUMNS = ("step", "time_s", "contact_force_n", "progress")
 DEFAULT_DT_S = 0.1  # the control rate is 10 Hz
 
@@ -20,10 +21,9 @@ DEFAULT_DT_S = 0.1  # the control rate is 10 Hz
 @dataclass(frozen=True)
 class Trajectory:
     time_s: np.ndarray  # (T,)
-    state: np.ndarray  # (T, 14) joint positions + gripper openings
-    action: np.ndarray  # (T, 14) commanded joint targets
-    ee_left: np.ndarray  # (T, 3) metres
-    ee_right: np.ndarray  # (T, 3) metres
+    state: np.ndarray  # (T, D) joint positions + gripper openings, the world's dataset layout
+    action: np.ndarray  # (T, D) commanded joint targets
+    ee: tuple[np.ndarray, ...]  # per arm (T, 3) grasp-centre positions, metres
     force_n: np.ndarray  # (T,) total normal contact force
     progress: np.ndarray  # (T,) staged task progress in [0, 1]
 
@@ -55,17 +55,19 @@ def load_trajectory(path: str | Path) -> Trajectory:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"trajectory file not found: {path}")
-    names = set(pq.read_schema(path).names)
-    lacking = [c for c in (*_SCALAR_COLUMNS, *_LIST_COLUMNS) if c not in names]
+    names = pq.read_schema(path).names
+    ee_columns = [c for c in names if c.startswith(_EE_PREFIX)]
+    lacking = [c for c in (*_SCALAR_COLUMNS, *_LIST_COLUMNS) if c not in names] + ([] if ee_columns else [f"{_EE_PREFIX}<arm>"])
     if lacking:
         raise ValueError(f"{path}: trajectory lacks columns {lacking}")
-    table = pq.read_table(path, columns=[*_SCALAR_COLUMNS, *_LIST_COLUMNS])
+    list_columns = [*_LIST_COLUMNS, *ee_columns]
+    table = pq.read_table(path, columns=[*_SCALAR_COLUMNS, *list_columns])
     if table.num_rows == 0:
         raise ValueError(f"{path}: trajectory has no steps")
     # Rows are control steps; sort by step in case a writer appended out of order.
     order = np.argsort(table.column("step").to_numpy(), kind="stable")
     scalar = {c: np.asarray(table.column(c).to_numpy(), dtype=float)[order] for c in _SCALAR_COLUMNS}
-    lists = {c: _list_column(table, c, path)[order] for c in _LIST_COLUMNS}
+    lists = {c: _list_column(table, c, path)[order] for c in list_columns}
     for c, arr in {**scalar, **lists}.items():
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{path}: column {c!r} has NaN or infinite values")
@@ -73,8 +75,7 @@ def load_trajectory(path: str | Path) -> Trajectory:
         time_s=scalar["time_s"],
         state=lists["state"],
         action=lists["action"],
-        ee_left=lists["ee_pos_left"],
-        ee_right=lists["ee_pos_right"],
+        ee=tuple(lists[c] for c in ee_columns),
         force_n=scalar["contact_force_n"],
         progress=np.clip(scalar["progress"], 0.0, 1.0),
     )
@@ -99,7 +100,7 @@ def smoothness_metrics(tr: Trajectory, joint_dims: list[int] | None) -> dict[str
     joint_jerk = np.diff(q, n=3, axis=0) / dt**3
     # Per-arm jerk vector norm, so the value does not depend on how many arms move.
     ee_jerk = np.concatenate(
-        [np.linalg.norm(np.diff(p, n=3, axis=0), axis=1) for p in (tr.ee_left, tr.ee_right)]
+        [np.linalg.norm(np.diff(p, n=3, axis=0), axis=1) for p in tr.ee]
     ) / dt**3
     # Jitter: step-to-step change of the commanded step, i.e. chattering targets.
     jitter = np.diff(a, n=2, axis=0)
@@ -162,7 +163,7 @@ def continuity_metrics(
     pauses = sum(1 for s, e in idle_runs if e - s >= min_pause_steps and e < len(window))
     longest = max((e - s for s, e in idle_runs), default=0)
     reversals = 0
-    for p in (tr.ee_left, tr.ee_right):
+    for p in tr.ee:
         v = np.diff(p, axis=0)[start:end] / dt
         fast = np.linalg.norm(v, axis=1) >= reversal_min_speed_m_s
         both = fast[:-1] & fast[1:]

@@ -363,7 +363,10 @@ class VideoJudge(Judge):
         self.tasks, self._segmenters = tasks, {}
 
     def identity(self) -> dict[str, str]:
-        knowledge = {key: [t.instruction, list(goal_relation(t)), {n: list(t.object(n).rgba) for n in task_objects(t)}]
+        def looks(obj) -> list:  # its colour, and the world's explicit colour range where it gives one
+            return list(obj.rgba) + ([obj.hue] if obj.hue else [])
+
+        knowledge = {key: [t.instruction, list(goal_relation(t)), {n: looks(t.object(n)) for n in task_objects(t)}]
                      for key, t in sorted(self.tasks.items())}
         return {**super().identity(), "tasks": cache_key(knowledge)}
 
@@ -371,11 +374,12 @@ class VideoJudge(Judge):
         """A segmenter of the objects the judge follows in ``task_key`` only: each object's mask
         is the same whichever others are segmented beside it, and the rest would cost time."""
         if task_key not in self._segmenters:
-            from r2s_eval.calib.segment import make_segmenter
+            from r2s_eval.calib.segment import finders, make_segmenter
 
             task = self.tasks[task_key]
-            self._segmenters[task_key] = make_segmenter(self.cfg["segmenter"],
-                                                        {n: task.object(n).rgba for n in task_objects(task)})
+            followed = [task.object(n) for n in task_objects(task)]
+            self._segmenters[task_key] = make_segmenter(self.cfg["segmenter"], {o.name: o.rgba for o in followed},
+                                                        finders(followed))
         return self._segmenters[task_key]
 
     # ---------------------------------------------------------------- describe

@@ -31,7 +31,7 @@ from r2s_eval.libero.environment import WORLD_SCRIPT, requirements_hash
 from r2s_eval.policies.interface import IMAGE_PREFIX, ChunkPolicy, PolicyError, PolicySpec
 from r2s_eval.policies.sources import checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import PlannedEpisode
-from r2s_eval.rollout.candidate import _collect, _EpisodeFolder, episode_store
+from r2s_eval.rollout.store import EpisodeFolder, collect_episodes, episode_store
 from r2s_eval.rollout.loop import episode_id, video_frame_every
 from r2s_eval.utils.io import config_hash
 
@@ -122,7 +122,7 @@ def trajectory_of(record) -> pd.DataFrame:
 def keep_episode(npz: Path, planned: PlannedEpisode, store: Path, policy: str, fps: int) -> None:
     """One finished LIBERO episode into the store, as our rollouts keep theirs; the npz goes."""
     with np.load(npz) as record:
-        folder = _EpisodeFolder(store, planned, fps)
+        folder = EpisodeFolder(store, planned, fps)
         try:
             for frame in record["frames"]:
                 folder.add(frame)
@@ -233,6 +233,6 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
         if server is not None:
             server.stop()
         model.close()
-    episodes = _collect(out, store, planned)
+    episodes = collect_episodes(out, store, planned)
     log.info("LIBERO success rate %.2f over %d episodes", episodes["success"].mean(), len(episodes))
     return episodes

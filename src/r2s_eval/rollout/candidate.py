@@ -7,7 +7,8 @@ depend on how many run beside it). :func:`run_candidate` writes, into one folder
 episodes.parquet (one row per episode), videos/<id>.mp4 and trajectories/<id>.parquet. Episode
 ids are opaque hashes so no file name tells a judge which policy it is watching.
 
-Each finished episode is kept in a sibling folder (`.<folder>.episodes/`) as soon as it ends, until
+Each finished episode is kept in a sibling folder (`.<folder>.episodes/`, `r2s_eval.rollout.store`)
+as soon as it ends, until
 the whole set is done, so a job that dies (a server gone, a killed machine) resumes with the
 episodes it had not finished yet; that folder is discarded when the config, inits, world or
 policy change (not when `batch_episodes` or the thread count do: they change no result).
@@ -15,11 +16,7 @@ policy change (not when `batch_episodes` or the thread count do: they change no 
 
 from __future__ import annotations
 
-import json
 import logging
-import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +27,10 @@ from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, 
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
-from r2s_eval.rollout.video import VideoWriter
-from r2s_eval.sim import ACTION_DIM, get_task, load_world_params
+from r2s_eval.rollout.store import EpisodeFolder, collect_episodes, episode_store
+from r2s_eval.sim import get_task, load_world_params, world_robot
 from r2s_eval.sim.build import make_env
-from r2s_eval.sim.world import CONTROL_DT_S
-from r2s_eval.utils.io import atomic_dir, config_hash, file_sha256, write_json, write_parquet
+from r2s_eval.utils.io import config_hash, file_sha256
 
 log = logging.getLogger("r2s_eval.rollout")
 # Rollout settings that change no result (the workflow keeps them out of the rerun check too).
@@ -69,61 +65,6 @@ def episodes_identity(cfg: dict, policy_cfg: dict, policy, inits: str, twin: str
         parts["policy"] = policy.metadata()  # what the server says it serves, not where it runs
     # (a checkpoint's content hash is part of its config slice already)
     return config_hash(parts)
-
-
-def episode_store(out: Path, identity: str) -> Path:
-    """The sibling folder that keeps finished episodes across interrupted runs."""
-    store = out.with_name(f".{out.name}.episodes")
-    key_file = store / "identity.json"
-    if store.exists() and (not key_file.is_file() or json.loads(key_file.read_text()) != identity):
-        shutil.rmtree(store)  # made by another config or policy: nothing in it is ours
-    store.mkdir(parents=True, exist_ok=True)
-    key_file.write_text(json.dumps(identity))
-    return store
-
-
-class _EpisodeFolder:
-    """A running episode's files, in a temporary folder of the store that is renamed to the
-    episode id once the episode is whole; its video is encoded as the frames come."""
-
-    def __init__(self, store: Path, planned: PlannedEpisode, fps: int):
-        self.store, self.planned = store, planned
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{planned.episode_id}.", suffix=".tmp", dir=store))
-        self.video = VideoWriter(self.tmp / f"{planned.episode_id}.mp4", fps)
-
-    def add(self, frame: np.ndarray) -> None:
-        self.video.add(frame)
-
-    def finish(self, row: dict, trajectory: pd.DataFrame) -> None:
-        ep = self.planned.episode_id
-        self.video.close()
-        write_parquet(self.tmp / f"{ep}.parquet", trajectory)
-        write_json(self.tmp / "row.json", row)
-        os.replace(self.tmp, self.store / ep)
-
-    def abort(self) -> None:
-        self.video.abort()
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
-
-def _collect(out: Path, store: Path, planned: list[PlannedEpisode]) -> pd.DataFrame:
-    """Move the finished episodes into ``out`` (atomically) and drop the store."""
-    rows = []
-    with atomic_dir(out) as tmp:
-        (tmp / "videos").mkdir()
-        (tmp / "trajectories").mkdir()
-        for p in planned:
-            ep = p.episode_id
-            row = json.loads((store / ep / "row.json").read_text())
-            stats = row.pop("policy_stats")
-            shutil.copyfile(store / ep / f"{ep}.mp4", tmp / row["video_path"])
-            shutil.copyfile(store / ep / f"{ep}.parquet", tmp / row["trajectory_path"])
-            rows.append((row, stats))
-        episodes = pd.DataFrame([r for r, _ in rows])
-        totals = {k: sum(s[k] for _, s in rows) for k in ("steps", "model_calls", "inference_s")}
-        write_parquet(tmp / "episodes.parquet", episodes, metadata={"stage": "rollout", "policy_stats": totals})
-    shutil.rmtree(store)
-    return episodes
 
 
 def video_size(rollout: dict, arm: str) -> tuple[int, int] | None:
@@ -161,7 +102,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
         todo = [p for p in planned if not (store / p.episode_id / "row.json").is_file()]  # the rest finished before
         progress = tqdm(total=len(planned), initial=len(planned) - len(todo), desc=f"rollout {arm}/{policy}", mininterval=5)
 
-        def finished(p: PlannedEpisode, episode: EpisodeRecorder, stats: dict, folder: _EpisodeFolder) -> None:
+        def finished(p: PlannedEpisode, episode: EpisodeRecorder, stats: dict, folder: EpisodeFolder) -> None:
             ep = p.episode_id
             folder.finish({
                 "episode_id": ep, "policy": policy, "arm": arm, "task": p.task,
@@ -175,15 +116,15 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
         run_batched(
             model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
             arm=arm, chunk_size=rollout["chunk_size"], n_action_steps=rollout["n_action_steps"],
-            action_map=action_map(policy_cfg, ACTION_DIM), max_steps=rollout["max_steps"],
+            action_map=action_map(policy_cfg, world_robot(world).action_dim), max_steps=rollout["max_steps"],
             video_camera=rollout["video_camera"], video_size=video_size(rollout, arm),
-            open_episode=lambda p: _EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
+            open_episode=lambda p: EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
             batch_episodes=batch_episodes, threads=threads,
-            frame_every=video_frame_every(rollout["video_fps"], CONTROL_DT_S),
+            frame_every=video_frame_every(rollout["video_fps"], world_robot(world).control_dt_s),
         )
         progress.close()
     finally:
         model.close()
-    episodes = _collect(out, store, planned)
+    episodes = collect_episodes(out, store, planned)
     log.info("success rate %.2f over %d episodes", episodes["success"].mean(), len(episodes))
     return episodes

@@ -5,19 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from r2s_eval.sim import TabletopEnv, Task
+from r2s_eval.sim import Task
+from r2s_eval.sim.tasks import sample_initial_poses
 
 
 def sample_inits(tasks: list[Task], inits_per_task: int, seed: int) -> pd.DataFrame:
     """One row per (task, init_id, object) with a planar pose; the same for all policies."""
     rows = []
     for task_index, task in enumerate(tasks):
-        env = TabletopEnv(task, cameras=())
         rng = np.random.default_rng([seed, task_index, 7])
-        for init_id in range(inits_per_task):
-            for name, (x, y, yaw) in env.sample_initial_poses(rng).items():
+        for init_id in range(inits_per_task):  # in the nominal world: objects at their own size
+            for name, (x, y, yaw) in sample_initial_poses(task, rng).items():
                 rows.append({"task": task.key, "init_id": init_id, "object": name, "x_m": x, "y_m": y, "yaw_rad": yaw})
-        env.close()
     return pd.DataFrame(rows)
 
 

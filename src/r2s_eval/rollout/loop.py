@@ -45,8 +45,7 @@ def _record(env: TabletopEnv, step: int, obs: dict, action: np.ndarray) -> dict:
         "time_s": step * env.control_dt_s,
         "state": np.asarray(obs["observation.state"], dtype=float).tolist(),
         "action": np.asarray(action, dtype=float).tolist(),
-        "ee_pos_left": ee["left"].tolist(),
-        "ee_pos_right": ee["right"].tolist(),
+        **{f"ee_pos_{arm}": pos.tolist() for arm, pos in ee.items()},  # one column per arm of the robot
         "contact_force_n": float(env.contact_force_n()),
         "progress": float(env.task_progress()),
         "success": bool(env.is_success()),

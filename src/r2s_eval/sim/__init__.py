@@ -1,6 +1,7 @@
 """Simulated dual-arm tabletop world.
 
-Modules: ``world`` (scene assembly from ``assets/``), ``objects`` (parametric
+Modules: ``robot`` (a world's robot and camera rig, read from its config), ``world`` (scene
+assembly from them), ``objects`` (parametric
 objects), ``cameras`` (intrinsics/extrinsics/projection), ``tasks`` (registry,
 success and progress), ``env`` (``TabletopEnv``), ``params`` (``WorldParams``, the
 physics and rendering knobs of one world), ``build`` (environments from the config
@@ -13,17 +14,19 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from r2s_eval.sim.env import ACTION_DIM, TabletopEnv  # noqa: E402
-from r2s_eval.sim.params import CAMERA_NAMES, WorldParams, load_world_params  # noqa: E402
+from r2s_eval.sim.env import TabletopEnv  # noqa: E402
+from r2s_eval.sim.params import WorldParams, load_world_params  # noqa: E402
+from r2s_eval.sim.robot import Robot, bundled_robot, world_robot  # noqa: E402
 from r2s_eval.sim.tasks import TASKS, Task, get_task  # noqa: E402
 
 __all__ = [
-    "ACTION_DIM",
-    "CAMERA_NAMES",
+    "Robot",
     "TASKS",
     "Task",
     "TabletopEnv",
+    "bundled_robot",
     "WorldParams",
     "get_task",
     "load_world_params",
+    "world_robot",
 ]

@@ -7,6 +7,7 @@ import dataclasses
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.env import TabletopEnv
 from r2s_eval.sim.params import WorldParams
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import Task, get_task
 
 
@@ -40,5 +41,6 @@ def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, came
         params=params,
         image_size=image_size(world_cfg),
         cameras=tuple(world_cfg["cameras"] if cameras is None else cameras),
+        robot=world_robot(world_cfg),
         **shared,
     )

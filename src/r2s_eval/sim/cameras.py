@@ -30,6 +30,22 @@ def intrinsics_K(fovy_deg: float, height_px: int, width_px: int) -> np.ndarray:
     )
 
 
+def model_K(model: mujoco.MjModel, camera: str, height_px: int, width_px: int) -> np.ndarray:
+    """3x3 pinhole matrix of a model's camera rendered at (height_px, width_px): from its
+    intrinsics where it has them (focal length and principal point on a sensor), else its fovy."""
+    cam = model.camera(camera).id
+    sensor_w, sensor_h = model.cam_sensorsize[cam]
+    if sensor_h <= 0:
+        return intrinsics_K(float(model.cam_fovy[cam]), height_px, width_px)
+    fx, fy, px, py = model.cam_intrinsic[cam]
+    # MuJoCo's principal point is an offset from the sensor centre, positive left and up.
+    return np.array([
+        [fx / sensor_w * width_px, 0.0, (width_px - 1) / 2.0 - px / sensor_w * width_px],
+        [0.0, fy / sensor_h * height_px, (height_px - 1) / 2.0 - py / sensor_h * height_px],
+        [0.0, 0.0, 1.0],
+    ])
+
+
 def T_world_from_cam(model: mujoco.MjModel, data: mujoco.MjData, camera: str) -> np.ndarray:
     """4x4 pose of the camera (OpenCV frame) in the world, from current kinematics."""
     cam_id = model.camera(camera).id

@@ -1,35 +1,25 @@
-"""``TabletopEnv``: the simulated dual-arm tabletop world used by every stage.
+"""``TabletopEnv``: one task of a world (its robot, rig and objects) simulated for every stage.
 
-Action (14-D float, also the layout of ``observation.state``)
--------------------------------------------------------------
-=====  ======================  ===========================  =========
-index  component               joints                       dimension
-=====  ======================  ===========================  =========
-0-5    left arm joint targets  left_j1 ... left_j6 (rad)    6
-6      left gripper command    left_finger_a/_b             1
-7-12   right arm joint target  right_j1 ... right_j6 (rad)  6
-13     right gripper command   right_finger_a/_b            1
-=====  ======================  ===========================  =========
+Action and ``observation.state``: the world's dataset layout (``robot.features``, see
+``r2s_eval.sim.robot``; ``env.action_dim`` entries). The bundled world's is 14-D: per arm
+(left, right) six joint targets (rad) then a gripper command, normalised 0 = fully open (each
+jaw 0.05 m from the centre) .. 1 = fully closed, mapped linearly to the jaw target. In
+``observation.state`` the gripper entries are the *measured* opening in the same units
+(holding the cup reads about 0.3); arm entries are measured joint angles.
 
-Gripper command is normalised: 0 = fully open (each jaw 0.05 m from the
-centre), 1 = fully closed; in between maps linearly to the jaw target. In
-``observation.state`` the gripper entries are the *measured* opening in the
-same units (holding the cup reads about 0.3). Arm entries are measured joint
-angles (rad).
+Timing: ``step(action)`` holds the action (servo targets) for one control period
+(``robot.control_hz``; the bundled world: 10 Hz = 50 physics steps of 2 ms).
 
-Timing: physics step 2 ms; control at 10 Hz. ``step(action)`` holds the
-action (servo targets) for one control period = 50 physics steps.
-
-Observation: ``{"observation.state": float32[14],
-"observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera
-(``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
+Observation: ``{"observation.state": float32[action_dim],
+"observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera of the rig
+(the bundled world: ``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
 H = W = 128. Images carry the world's additive noise (twin), ``render()``
 returns clean images unless asked. A camera's noise at a control step is drawn from a generator
 keyed by (world noise seed, episode seed, step, camera), so an image is the same whether or
 not the steps before it were rendered: a loop renders only the steps a policy consumes.
 
 Frames: world x away from the robot across the table, y to the robot's
-left, z up; table top at z = 0.75 m. Object body poses refer to the centre of
+left, z up; the table top at ``robot.workspace.z_m`` (the bundled world: 0.75 m). Object body poses refer to the centre of
 the object's bottom face; planar poses ``(x_m, y_m, yaw_rad)`` (what
 ``reset`` takes and ``object_poses`` reports as ``planar``) follow the task's
 placement of each object (``objects.py``: upright, upside down, on its side).
@@ -49,10 +39,10 @@ from r2s_eval.sim import cameras as cam_geom  # noqa: E402
 from r2s_eval.sim import objects as obj_geom  # noqa: E402
 from r2s_eval.sim import world  # noqa: E402
 from r2s_eval.sim.predicates import centre_m  # noqa: E402
+from r2s_eval.sim.params import WorldParams  # noqa: E402
+from r2s_eval.sim.robot import Robot, bundled_robot  # noqa: E402
 from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
-from r2s_eval.sim.params import CAMERA_NAMES, WorldParams  # noqa: E402
 
-ACTION_DIM = 14
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
 
@@ -77,24 +67,30 @@ class TabletopEnv:
         task: str | Task = "cup_on_plate",
         params: WorldParams | None = None,
         image_size: tuple[int, int] = (128, 128),
-        cameras: tuple[str, ...] | list[str] = CAMERA_NAMES,
+        cameras: tuple[str, ...] | list[str] | None = None,
         model: mujoco.MjModel | None = None,
         renderers: dict | None = None,
+        robot: Robot | None = None,
     ):
-        """``model``: this task's compiled model in this world, to share (MuJoCo only reads a
+        """``robot``: the world's robot and rig (default: the bundled world's); ``cameras``: the
+        rig's cameras to observe (default: all). ``model``: this task's compiled model in this world, to share (MuJoCo only reads a
         model while stepping, so environments stepped side by side can share one).
         ``renderers``: renderers to share with other environments of that model that render
         from the same thread (a renderer draws any MjData of its model); whoever made the dict
         closes them."""
         self.task = get_task(task) if isinstance(task, str) else task
+        self.robot = robot or bundled_robot()
         self.params = params or WorldParams()
         self.image_size = (int(image_size[0]), int(image_size[1]))
-        self.cameras = tuple(cameras)
+        self.cameras = self.robot.camera_names if cameras is None else tuple(cameras)
         max_hw = (max(480, self.image_size[0]), max(640, self.image_size[1]))
-        self.model = model if model is not None else world.build_model(self.task.objects, self.params, max_size_hw=max_hw)
+        self.model = model if model is not None else world.build_model(
+            self.robot, self.task.objects, self.params, max_size_hw=max_hw)
         self.data = mujoco.MjData(self.model)
-        self.table_top_z_m = world.TABLE_TOP_Z_M
-        self.control_dt_s = world.CONTROL_DT_S
+        self.table_top_z_m = self.robot.workspace_z_m
+        self.control_dt_s = self.robot.control_dt_s
+        self.n_substeps = world.substeps(self.robot, self.model.opt.timestep)
+        self.action_dim = self.robot.action_dim
         self._owns_renderers = renderers is None
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {} if renderers is None else renderers
         self._noise_key = (int(self.params.noise_seed), 0)
@@ -107,48 +103,48 @@ class TabletopEnv:
 
     # ------------------------------------------------------------ indexing
     def _index_model(self) -> None:
-        m = self.model
-        self._arm_qpos_adr, self._arm_dof_adr, self._finger_qpos_adr, self._finger_dof_adr = {}, {}, {}, {}
-        self._arm_act, self._grip_act = {}, {}
-        for arm in world.ARMS:
-            joints = [m.joint(f"{arm}_{j}") for j in world.ARM_JOINTS]
-            self._arm_qpos_adr[arm] = np.array([j.qposadr[0] for j in joints])
-            self._arm_dof_adr[arm] = np.array([j.dofadr[0] for j in joints])
-            finger = m.joint(f"{arm}_finger_a")
-            self._finger_qpos_adr[arm] = int(finger.qposadr[0])
-            self._finger_dof_adr[arm] = int(finger.dofadr[0])
-            self._arm_act[arm] = np.array([m.actuator(f"{arm}_{j}").id for j in world.ARM_JOINTS])
-            self._grip_act[arm] = m.actuator(f"{arm}_gripper").id
+        m, arms = self.model, self.robot.arms
+        self._arm_qpos_adr = {a: np.array([m.joint(arm.named(j)).qposadr[0] for j in arm.joints]) for a, arm in arms.items()}
+        self._arm_dof_adr = {a: np.array([m.joint(arm.named(j)).dofadr[0] for j in arm.joints]) for a, arm in arms.items()}
+        self._arm_act = {a: np.array([m.actuator(arm.named(x)).id for x in arm.actuators]) for a, arm in arms.items()}
+        self._grip_act = {a: m.actuator(arm.named(arm.gripper.actuator)).id for a, arm in arms.items()}
+        self._grip_qpos_adr = {a: [int(m.joint(arm.named(j)).qposadr[0]) for j in arm.gripper.joints] for a, arm in arms.items()}
+        self._grip_dof_adr = {a: int(m.joint(arm.named(arm.gripper.joints[0])).dofadr[0]) for a, arm in arms.items()}
+        self._ee_site = {a: m.site(world.ee_site(a)).id for a in arms}
+        self._arm_root = {a: int(m.body_rootid[m.site_bodyid[sid]]) for a, sid in self._ee_site.items()}
         self._obj_body = {o.name: m.body(o.name).id for o in self.task.objects}
         self._obj_qpos_adr = {o.name: int(m.joint(f"{o.name}_free").qposadr[0]) for o in self.task.objects}
         self._obj_dof_adr = {o.name: int(m.joint(f"{o.name}_free").dofadr[0]) for o in self.task.objects}
         self._obj_dims = {o.name: o.scaled_dims(self.params.size_scale(o.name)) for o in self.task.objects}
 
-        # Segmentation labels, one per geom, via each geom's root body.
-        self.segmentation_names = ["background", "table", "robot_left", "robot_right", *self.task.object_names]
-        label_of_root = {m.body("table").id: 1, m.body("left_base").id: 2, m.body("right_base").id: 3}
-        label_of_root.update({self._obj_body[n]: 4 + i for i, n in enumerate(self.task.object_names)})
+        # Segmentation labels, one per geom, via each geom's root body: 0 background, 1 table,
+        # then one per arm, then the task's objects.
+        self.segmentation_names = ["background", "table", *(f"robot_{a}" for a in arms), *self.task.object_names]
+        first_object = 2 + len(arms)
+        table_root = int(m.body_rootid[m.geom_bodyid[m.geom(self.robot.table_geom).id]])
+        label_of_root = {table_root: 1, **{root: 2 + i for i, root in enumerate(self._arm_root.values())}}
+        label_of_root.update({self._obj_body[n]: first_object + i for i, n in enumerate(self.task.object_names)})
         root_of_geom = m.body_rootid[m.geom_bodyid]
         self._geom_label = np.array([label_of_root.get(int(r), 0) for r in root_of_geom], dtype=np.int32)
-        self._robot_geoms = {arm: set(np.flatnonzero(self._geom_label == 2 + i)) for i, arm in enumerate(world.ARMS)}
-        self._finger_geoms = {}
-        for arm in world.ARMS:
-            fingers = {}
-            for side in ("a", "b"):
-                body_id = m.body(f"{arm}_finger_{side}").id
-                fingers[side] = set(np.flatnonzero(m.geom_bodyid == body_id))
-            self._finger_geoms[arm] = fingers
         self._obj_geoms = {n: set(np.flatnonzero(m.geom_bodyid == b)) for n, b in self._obj_body.items()}
         # Per-geom lookup tables, so contact queries are array indexing (they run every step).
-        self._geom_is_robot = np.isin(self._geom_label, (2, 3))
+        self._geom_is_robot = (self._geom_label >= 2) & (self._geom_label < first_object)
         self._geom_object = np.full(m.ngeom, -1, dtype=np.int32)
         for i, n in enumerate(self.task.object_names):
             self._geom_object[list(self._obj_geoms[n])] = i
         self._geom_finger = np.zeros(m.ngeom, dtype=np.int32)  # 1 + 2 * arm index + (0: jaw a, 1: jaw b)
-        for i, arm in enumerate(world.ARMS):
-            for k, side in enumerate(("a", "b")):
-                self._geom_finger[list(self._finger_geoms[arm][side])] = 1 + 2 * i + k
-        self._tcp_site = {arm: m.site(f"{arm}_tcp").id for arm in world.ARMS}
+        for i, arm in enumerate(arms.values()):
+            for k, pad in enumerate(arm.gripper.pads):
+                pad_id = m.body(arm.named(pad)).id
+                in_pad = [b for b in range(m.nbody) if self._descends(b, pad_id)]
+                self._geom_finger[np.isin(m.geom_bodyid, in_pad)] = 1 + 2 * i + k
+
+    def _descends(self, body: int, ancestor: int) -> bool:
+        while body > 0:
+            if body == ancestor:
+                return True
+            body = int(self.model.body_parentid[body])
+        return False
 
     # ------------------------------------------------------------ episode
     def reset(
@@ -169,13 +165,11 @@ class TabletopEnv:
         self._noise_key = (int(self.params.noise_seed), 0 if seed is None else int(seed))
         self.steps = 0
         mujoco.mj_resetData(m, d)
-        for arm in world.ARMS:
-            q_home = world.home_arm_q(arm)
-            d.qpos[self._arm_qpos_adr[arm]] = q_home
-            d.ctrl[self._arm_act[arm]] = q_home
-            d.qpos[self._finger_qpos_adr[arm]] = world.GRIPPER_OPEN_M
-            d.qpos[self._finger_qpos_adr[arm] + 1] = world.GRIPPER_OPEN_M  # finger_b follows finger_a
-            d.ctrl[self._grip_act[arm]] = world.GRIPPER_OPEN_M
+        for name, arm in self.robot.arms.items():
+            d.qpos[self._arm_qpos_adr[name]] = arm.home
+            d.ctrl[self._arm_act[name]] = arm.home
+            d.qpos[self._grip_qpos_adr[name]] = arm.gripper.position_open
+            d.ctrl[self._grip_act[name]] = arm.gripper.ctrl_open
         missing = set(self.task.object_names) - set(object_poses)
         if missing:
             raise KeyError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
@@ -206,20 +200,20 @@ class TabletopEnv:
         after it, without the camera images when ``images`` is false (``images()`` renders them
         later in the same step, with the same pixels)."""
         self.apply_action(action)
-        mujoco.mj_step(self.model, self.data, nstep=world.N_SUBSTEPS)
+        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
         self.steps += 1
         self.max_task_progress = max(self.max_task_progress, self.task_progress())
         return self.observation(images=images)
 
     def apply_action(self, action: np.ndarray) -> None:
-        action = np.asarray(action, dtype=float).reshape(ACTION_DIM)
+        action = np.asarray(action, dtype=float).reshape(self.action_dim)
         if not np.all(np.isfinite(action)):
             raise ValueError("action contains non-finite values")
         d = self.data
-        for i, arm in enumerate(world.ARMS):
-            ctrl_range = self.model.actuator_ctrlrange[self._arm_act[arm]]
-            d.ctrl[self._arm_act[arm]] = np.clip(action[7 * i : 7 * i + 6], ctrl_range[:, 0], ctrl_range[:, 1])
-            d.ctrl[self._grip_act[arm]] = world.GRIPPER_OPEN_M * (1.0 - np.clip(action[7 * i + 6], 0.0, 1.0))
+        for name, (q, closing) in self.robot.to_model(action).items():
+            ctrl_range = self.model.actuator_ctrlrange[self._arm_act[name]]
+            d.ctrl[self._arm_act[name]] = np.clip(q, ctrl_range[:, 0], ctrl_range[:, 1])
+            d.ctrl[self._grip_act[name]] = self.robot.arms[name].gripper.ctrl(closing)
 
     @property
     def time_s(self) -> float:
@@ -227,21 +221,18 @@ class TabletopEnv:
 
     # ------------------------------------------------------------ observation
     def state(self) -> np.ndarray:
-        """Measured 14-D state, same layout as the action."""
-        out = np.empty(ACTION_DIM, dtype=np.float32)
-        for i, arm in enumerate(world.ARMS):
-            out[7 * i : 7 * i + 6] = self.data.qpos[self._arm_qpos_adr[arm]]
-            opening = self.data.qpos[self._finger_qpos_adr[arm]] / world.GRIPPER_OPEN_M
-            out[7 * i + 6] = np.clip(1.0 - opening, 0.0, 1.0)
-        return out
+        """Measured state, in the action's layout and units."""
+        d = self.data
+        return self.robot.from_model({
+            name: (d.qpos[self._arm_qpos_adr[name]], arm.gripper.closing(d.qpos[self._grip_qpos_adr[name][0]]))
+            for name, arm in self.robot.arms.items()}).astype(np.float32)
 
     def joint_velocities(self) -> np.ndarray:
-        """14-D velocities: arm joints (rad/s), grippers (normalised command units/s, + = closing)."""
-        out = np.empty(ACTION_DIM, dtype=np.float32)
-        for i, arm in enumerate(world.ARMS):
-            out[7 * i : 7 * i + 6] = self.data.qvel[self._arm_dof_adr[arm]]
-            out[7 * i + 6] = -self.data.qvel[self._finger_dof_adr[arm]] / world.GRIPPER_OPEN_M
-        return out
+        """Velocities in the action's layout (per second; grippers: closing fraction/s, + = closing)."""
+        d = self.data
+        per_arm = {name: (d.qvel[self._arm_dof_adr[name]], arm.gripper.closing_rate(d.qvel[self._grip_dof_adr[name]]))
+                   for name, arm in self.robot.arms.items()}
+        return (self.robot.from_model(per_arm, offsets=False)).astype(np.float32)
 
     def observation(self, images: bool = True) -> dict:
         obs = {"observation.state": self.state()}
@@ -278,8 +269,8 @@ class TabletopEnv:
     ):
         """RGB uint8[H, W, 3], or with ``segmentation`` (labels int32[H, W], {label: name}).
 
-        Labels: 0 background, 1 table, 2 robot_left, 3 robot_right, 4+ task objects
-        in task order (see ``segmentation_names``).
+        Labels: 0 background, 1 table, one per arm (``robot_<arm>``), then the task objects in
+        task order (see ``segmentation_names``).
         """
         size_hw = tuple(int(s) for s in (size or self.image_size))
         renderer = self._renderer(size_hw)
@@ -296,7 +287,7 @@ class TabletopEnv:
             return labels, dict(enumerate(self.segmentation_names))
         rgb = renderer.render()
         if add_noise and self.params.image_noise_std > 0:
-            rng = np.random.default_rng([*self._noise_key, self.steps, CAMERA_NAMES.index(camera)])
+            rng = np.random.default_rng([*self._noise_key, self.steps, self.robot.camera_names.index(camera)])
             rgb = add_image_noise(rgb, rng, float(self.params.image_noise_std))
         return rgb
 
@@ -304,7 +295,7 @@ class TabletopEnv:
     def camera_K(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:
         """3x3 intrinsics for ``camera`` rendered at ``size`` (H, W); OpenCV pixel convention."""
         h, w = size or self.image_size
-        return cam_geom.intrinsics_K(float(self.model.cam_fovy[self.model.camera(camera).id]), h, w)
+        return cam_geom.model_K(self.model, camera, h, w)
 
     def camera_T_world_from_cam(self, camera: str) -> np.ndarray:
         """4x4 pose of the OpenCV camera frame (x right, y down, z forward) in the world."""
@@ -361,15 +352,16 @@ class TabletopEnv:
 
     # ------------------------------------------------------------ robot
     def ee_positions(self) -> dict[str, np.ndarray]:
-        """Grasp-centre (tcp) positions of both grippers, world frame (m)."""
-        return {arm: self.data.site_xpos[sid].copy() for arm, sid in self._tcp_site.items()}
+        """Grasp-centre positions of the grippers, world frame (m)."""
+        return {arm: self.data.site_xpos[sid].copy() for arm, sid in self._ee_site.items()}
 
     def ee_rotations(self) -> dict[str, np.ndarray]:
         """3x3 gripper frames in the world (x approach, y jaw closing axis)."""
-        return {arm: self.data.site_xmat[sid].reshape(3, 3).copy() for arm, sid in self._tcp_site.items()}
+        return {arm: self.data.site_xmat[sid].reshape(3, 3).copy() for arm, sid in self._ee_site.items()}
 
     def arm_base_positions(self) -> dict[str, np.ndarray]:
-        return {arm: self.data.xpos[self.model.body(f"{arm}_base").id].copy() for arm in world.ARMS}
+        """Where each arm's model is rooted (its mount), world frame (m)."""
+        return {arm: self.data.xpos[root].copy() for arm, root in self._arm_root.items()}
 
     # ------------------------------------------------------------ contacts
     def _contacts(self):
@@ -396,7 +388,7 @@ class TabletopEnv:
         i = self.task.object_names.index(name)
         fingers = np.concatenate([self._geom_finger[g1][self._geom_object[g2] == i],
                                   self._geom_finger[g2][self._geom_object[g1] == i]])
-        for k, arm in enumerate(world.ARMS):
+        for k, arm in enumerate(self.robot.arms):
             if np.any(fingers == 1 + 2 * k) and np.any(fingers == 2 + 2 * k):
                 return arm
         return None

@@ -57,6 +57,11 @@ class ObjectSpec:
     dims: dict = field(default_factory=dict)
     mass_kg: float = 0.1
     friction: float = 1.0
+    # How it is found in a camera frame (r2s_eval.calib.segment): an explicit HSV range
+    # {hue_lo, hue_hi, sat_min, val_min} (default: around rgba), the open-vocabulary segmenter's
+    # text prompt (default: "a <name>").
+    hue: dict | None = None
+    prompt: str | None = None
 
     def scaled_dims(self, size_scale: float) -> dict:
         return {k: (v * size_scale if k.endswith("_m") else v) for k, v in self.dims.items()}

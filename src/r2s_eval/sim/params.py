@@ -13,8 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-CAMERA_NAMES = ("head_left", "head_right", "wrist_left", "wrist_right")
-
 
 @dataclass
 class WorldParams:
@@ -23,7 +21,7 @@ class WorldParams:
     friction_scale: float = 1.0
     object_mass_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
     actuator_kp_scale: float = 1.0
-    # Per arm, the 6 joints' zero offsets (rad): each servo holds its joint this far from the
+    # Per arm, its joints' zero offsets (rad): each servo holds its joint this far from the
     # commanded angle (a robot's kinematic calibration error); missing -> 0.
     joint_offset_rad: dict[str, tuple[float, ...]] = field(default_factory=dict)
     object_size_scale: dict[str, float] = field(default_factory=dict)  # missing -> 1.0
@@ -42,8 +40,8 @@ class WorldParams:
     def size_scale(self, obj: str) -> float:
         return float(self.object_size_scale.get(obj, 1.0))
 
-    def joint_offsets(self, arm: str) -> np.ndarray:
-        return np.asarray(self.joint_offset_rad.get(arm, (0.0,) * 6), dtype=float)
+    def joint_offsets(self, arm: str, n_joints: int) -> np.ndarray:
+        return np.asarray(self.joint_offset_rad.get(arm, (0.0,) * n_joints), dtype=float)
 
 
 def load_world_params(path: str | Path) -> WorldParams:

@@ -11,7 +11,10 @@ condition (``r2s_eval.sim.predicates``), both compiled here into functions of th
 
 An object (``world.objects.<name>``): ``kind`` (cup, plate, ball, block, box: the builders and
 geometry of ``objects.py``), ``rgba`` (its colour, which the colour segmenter looks for), ``dims``
-(the kind's dimensions, metres), ``mass_kg`` and optionally ``friction`` (1.0).
+(the kind's dimensions, metres), ``mass_kg``, optionally ``friction`` (1.0) and ``find``, how it is
+found in a camera frame: ``hue`` (an explicit HSV range ``{hue_lo, hue_hi, sat_min, val_min}``,
+OpenCV units; default: around ``rgba``) and ``prompt`` (the open-vocabulary segmenter's text,
+default ``"a <name>"``).
 
 A task entry (``world.tasks.<key>``)::
 
@@ -20,7 +23,7 @@ A task entry (``world.tasks.<key>``)::
       cup: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}   # + yaw_range_rad (default any yaw),
       plate: {x_range_m: [...], y_range_m: [...]}                 #   placement, relative_to
     plan: [{pick: cup}, {place_on: plate}]   # what the twin's scripted operator does (r2s_eval.twin.operator)
-    arm: nearest                             # left | right | nearest | behind_axis (default nearest)
+    arm: nearest                             # an arm of the robot | nearest | behind_axis (default nearest)
     clearance_m: 0.03                        # footprints kept this far apart at the start (default)
     success: {all: [{upright: {object: cup}}, {on_top_of: {object: cup, support: plate}}, ...]}
     progress: {objects: [cup], goal: {over: {object: cup, target: plate}}}
@@ -51,7 +54,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,13 +62,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from r2s_eval.errors import ConfigError
+from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval  # noqa: F401 (WorldError: re-exported)
 from r2s_eval.sim.objects import BUILDERS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 
 WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
 BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
-ARM_CHOICES = ("left", "right", "nearest", "behind_axis")
 # The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
 PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")
 PLAN_PRIMITIVES = ("pick", *PLACE_PRIMITIVES, "turn_upright")
@@ -120,79 +121,50 @@ class Task:
 
 
 # ---------------------------------------------------------------- reading a world
-class WorldError(ConfigError):
-    """A wrong entry of a world: ``path`` is its dotted key (``world.tasks.<key>...``)."""
-
-    def __init__(self, path: str, message: str):
-        super().__init__(f"{path}: {message}")
-        self.path, self.message = path, message
-
-
-def _fail(where: str, message: str) -> WorldError:
-    return WorldError(f"world.{where}", message)
-
-
-def _mapping(value: Any, where: str) -> dict:
-    if not isinstance(value, Mapping):
-        raise _fail(where, f"must be a mapping, got {value!r}")
-    return dict(value)
-
-
-def _keys(entry: dict, allowed: set[str], required: set[str], where: str) -> None:
-    unknown, missing = sorted(set(entry) - allowed), sorted(required - set(entry))
-    if unknown:
-        raise _fail(where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    if missing:
-        raise _fail(where, f"missing {missing}")
-
-
-def _number(value: Any, where: str, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise _fail(where, f"must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        raise _fail(where, f"must be positive, got {value!r}")
-    return value
-
-
-def _range(value: Any, where: str) -> tuple[float, float]:
-    if not isinstance(value, list | tuple) or len(value) != 2:
-        raise _fail(where, f"must be [low, high], got {value!r}")
-    low, high = (_number(v, where) for v in value)
-    if low > high:
-        raise _fail(where, f"must be [low, high] with low <= high, got {list(value)}")
-    return low, high
-
-
 def _object(name: str, entry: Any) -> ObjectSpec:
     where = f"objects.{name}"
-    entry = _mapping(entry, where)
-    _keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction"}, {"kind", "rgba", "dims", "mass_kg"}, where)
+    entry = as_mapping(entry, where)
+    check_keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction", "find"}, {"kind", "rgba", "dims", "mass_kg"}, where)
     if entry["kind"] not in BUILDERS:
-        raise _fail(f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
+        raise fail(f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
     rgba = entry["rgba"]
-    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= _number(c, f"{where}.rgba") <= 1 for c in rgba):
-        raise _fail(f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
-    dims = _mapping(entry["dims"], f"{where}.dims")
+    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= finite(c, f"{where}.rgba") <= 1 for c in rgba):
+        raise fail(f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
+    dims = as_mapping(entry["dims"], f"{where}.dims")
     for key, value in dims.items():
-        _number(value, f"{where}.dims.{key}", positive=True)
+        finite(value, f"{where}.dims.{key}", positive=True)
+    find = as_mapping(entry.get("find") or {}, f"{where}.find")
+    check_keys(find, {"hue", "prompt"}, set(), f"{where}.find")
+    hue = None
+    if "hue" in find:
+        hue = as_mapping(find["hue"], f"{where}.find.hue")
+        check_keys(hue, {"hue_lo", "hue_hi", "sat_min", "val_min"}, {"hue_lo", "hue_hi"}, f"{where}.find.hue")
+        for key, value in hue.items():
+            top = 179 if key.startswith("hue") else 255  # OpenCV's 8-bit HSV
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
+                raise fail(f"{where}.find.hue.{key}", f"must be a whole number in [0, {top}], got {value!r}")
+    prompt = find.get("prompt")
+    if prompt is not None and (not isinstance(prompt, str) or not prompt.strip()):
+        raise fail(f"{where}.find.prompt", f"must be a non-empty text, got {prompt!r}")
     return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
-                      mass_kg=_number(entry["mass_kg"], f"{where}.mass_kg", positive=True),
-                      friction=_number(entry.get("friction", 1.0), f"{where}.friction", positive=True))
+                      mass_kg=finite(entry["mass_kg"], f"{where}.mass_kg", positive=True),
+                      friction=finite(entry.get("friction", 1.0), f"{where}.friction", positive=True),
+                      hue=hue, prompt=prompt)
 
 
 def _region(entry: Any, names: list[str], name: str, where: str) -> tuple[Region, str]:
-    entry = _mapping(entry, where)
-    _keys(entry, {"x_range_m", "y_range_m", "yaw_range_rad", "relative_to", "placement"}, {"x_range_m", "y_range_m"},
+    entry = as_mapping(entry, where)
+    check_keys(entry, {"x_range_m", "y_range_m", "yaw_range_rad", "relative_to", "placement"}, {"x_range_m", "y_range_m"},
           where)
     placement = entry.get("placement", "upright")
     if placement not in PLACEMENTS:
-        raise _fail(f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
+        raise fail(f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
     parent = entry.get("relative_to")
     if parent is not None and (parent not in names or parent == name):
-        raise _fail(f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
-    yaw = _range(entry["yaw_range_rad"], f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
-    region = Region(x_range_m=_range(entry["x_range_m"], f"{where}.x_range_m"),
-                    y_range_m=_range(entry["y_range_m"], f"{where}.y_range_m"), yaw_range_rad=yaw,
+        raise fail(f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
+    yaw = interval(entry["yaw_range_rad"], f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
+    region = Region(x_range_m=interval(entry["x_range_m"], f"{where}.x_range_m"),
+                    y_range_m=interval(entry["y_range_m"], f"{where}.y_range_m"), yaw_range_rad=yaw,
                     relative_to=parent)
     return region, placement
 
@@ -201,41 +173,41 @@ def _condition(spec: Any, objects: Mapping[str, ObjectSpec], where: str):
     names = list(objects)
     strangers = sorted(condition_objects(spec) - set(names))
     if strangers:
-        raise _fail(where, f"names {strangers}, which are not objects of the task {names}")
+        raise fail(where, f"names {strangers}, which are not objects of the task {names}")
     try:
         return compile_condition(spec, where, {n: o.kind for n, o in objects.items()})
     except ConditionError as err:
-        raise _fail(err.path, err.message) from None
+        raise fail(err.path, err.message) from None
 
 
 def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...]:
     steps = value if isinstance(value, list) else []
     if not all(isinstance(s, Mapping) and len(s) == 1 for s in steps):
-        raise _fail(where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
+        raise fail(where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
     kinds = [next(iter(s)) for s in steps]
     for i, step in enumerate(steps):
         (primitive, obj), = step.items()
         if primitive not in PLAN_PRIMITIVES:
-            raise _fail(f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
+            raise fail(f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
         if obj not in names:
-            raise _fail(f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
+            raise fail(f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
     if not (kinds == ["turn_upright"] or (len(kinds) == 2 and kinds[0] == "pick" and kinds[1] in PLACE_PRIMITIVES)):
-        raise _fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; got {kinds}")
+        raise fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; got {kinds}")
     return tuple(dict(s) for s in steps)
 
 
 def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
     where = f"tasks.{key}"
-    entry = _mapping(entry, where)
-    _keys(entry, {"instruction", "start", "plan", "arm", "clearance_m", "success", "progress"},
+    entry = as_mapping(entry, where)
+    check_keys(entry, {"instruction", "start", "plan", "arm", "clearance_m", "success", "progress"},
           {"instruction", "start", "plan", "success", "progress"}, where)
     if not isinstance(entry["instruction"], str) or not entry["instruction"].strip():
-        raise _fail(f"{where}.instruction", "must be a non-empty text")
-    start = _mapping(entry["start"], f"{where}.start")
+        raise fail(f"{where}.instruction", "must be a non-empty text")
+    start = as_mapping(entry["start"], f"{where}.start")
     names = list(start)
     unknown = [n for n in names if n not in objects]
     if not names or unknown:
-        raise _fail(f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
+        raise fail(f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
     regions, placements = {}, {}
     for name in names:
         regions[name], placement = _region(start[name], names, name, f"{where}.start.{name}")
@@ -243,22 +215,22 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
             placements[name] = placement
     plan = _plan(entry["plan"], names, f"{where}.plan")
     arm = entry.get("arm", "nearest")
-    if arm not in ARM_CHOICES:
-        raise _fail(f"{where}.arm", f"must be one of {list(ARM_CHOICES)}, got {arm!r}")
+    if not isinstance(arm, str) or not arm:  # an arm of the world's robot: checked with the robot
+        raise fail(f"{where}.arm", f"must name an arm of the robot, nearest or behind_axis, got {arm!r}")
     mine = {n: objects[n] for n in names}
     success = _condition(entry["success"], mine, f"{where}.success")
-    stages = _mapping(entry["progress"], f"{where}.progress")
-    _keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, f"{where}.progress")
+    stages = as_mapping(entry["progress"], f"{where}.progress")
+    check_keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, f"{where}.progress")
     movers = stages["objects"]
     if not isinstance(movers, list) or not movers or any(m not in names for m in movers):
-        raise _fail(f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
+        raise fail(f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
     goal = _condition(stages["goal"], mine, f"{where}.progress.goal")
-    thresholds = {k: _number(stages[k], f"{where}.progress.{k}", positive=True)
+    thresholds = {k: finite(stages[k], f"{where}.progress.{k}", positive=True)
                   for k in ("reach_m", "lift_m") if k in stages}
     return Task(
         key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
         success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm,
-        clearance_m=_number(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
+        clearance_m=finite(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
         placements=placements, success_condition=entry["success"], progress_stages=stages,
     )
 
@@ -266,10 +238,10 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
 def load_tasks(world: Mapping) -> dict[str, Task]:
     """The tasks of a world (the ``world`` config group's ``objects`` and ``tasks``), checked: a
     wrong entry is a ``WorldError`` naming its key."""
-    objects = {str(n): _object(str(n), e) for n, e in _mapping(world.get("objects"), "objects").items()}
-    tasks = {str(k): _task(str(k), e, objects) for k, e in _mapping(world.get("tasks"), "tasks").items()}
+    objects = {str(n): _object(str(n), e) for n, e in as_mapping(world.get("objects"), "objects").items()}
+    tasks = {str(k): _task(str(k), e, objects) for k, e in as_mapping(world.get("tasks"), "tasks").items()}
     if not tasks:
-        raise _fail("tasks", "must list at least one task")
+        raise fail("tasks", "must list at least one task")
     return tasks
 
 

@@ -1,12 +1,12 @@
-"""Scene assembly: table + two arms + head cameras + task objects -> MjModel.
+"""Scene assembly from a world's robot and rig (``r2s_eval.sim.robot``) plus task objects -> MjModel.
 
-The MJCF lives in ``assets/`` (``tabletop.xml`` and ``arm.xml``); this module
-attaches the arm twice, adds the task objects and applies ``WorldParams``.
+The scene file holds the table, lights and fixed cameras; each arm's model is attached at its
+mount with the prefix ``<arm>_``; the rig's cameras are renamed, placed, aimed and given their
+intrinsics; the task objects are added as free bodies; ``WorldParams`` perturbs the result.
+The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 """
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -14,76 +14,172 @@ import numpy as np
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.objects import ObjectSpec, add_object
 from r2s_eval.sim.params import WorldParams
+from r2s_eval.sim.reading import WorldError, fail
+from r2s_eval.sim.robot import Arm, RigCamera, Robot
 
-ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
-
-TABLE_TOP_Z_M = 0.75
-PHYSICS_DT_S = 0.002
-CONTROL_DT_S = 0.1  # 10 Hz control; each action is held for 50 physics steps
-N_SUBSTEPS = int(round(CONTROL_DT_S / PHYSICS_DT_S))
-GRIPPER_OPEN_M = 0.05  # per-jaw opening at command 0 (fully open)
-
-ARMS = ("left", "right")
-ARM_JOINTS = ("j1", "j2", "j3", "j4", "j5", "j6")
-# The cameras both head cameras are aimed at (centre of the workspace, on the table).
-HEAD_TARGET_WORLD_M = np.array([-0.03, 0.0, TABLE_TOP_Z_M])
-
-# Home pose of the left arm (rad): gripper pointing down above the table near
-# its own side. The right arm mirrors it across the x-z plane, which flips the
-# sign of the joints that turn about z (j1) or x (j4, j6).
-HOME_LEFT_Q_RAD = np.array([0.0, -0.2, 0.8, 0.0, 0.97, 0.0])
-_MIRROR_SIGNS = np.array([-1.0, 1.0, 1.0, -1.0, 1.0, -1.0])
+EE_SITE_GROUP = 5  # a site group no renderer shows by default
 
 
-def home_arm_q(arm: str) -> np.ndarray:
-    return HOME_LEFT_Q_RAD.copy() if arm == "left" else HOME_LEFT_Q_RAD * _MIRROR_SIGNS
+def ee_site(arm: str) -> str:
+    """The site the world adds at an arm's grasp centre, axes (approach, jaw, third)."""
+    return f"{arm}_ee"
 
 
-def build_robot_spec() -> mujoco.MjSpec:
-    """Table, head, lights and both arms (no task objects)."""
-    spec = mujoco.MjSpec.from_file(str(ASSETS_DIR / "tabletop.xml"))
-    for arm in ARMS:
-        arm_spec = mujoco.MjSpec.from_file(str(ASSETS_DIR / "arm.xml"))
-        spec.attach(arm_spec, prefix=f"{arm}_", frame=spec.frame(f"{arm}_mount"))
-        spec.camera(f"{arm}_wrist").name = f"wrist_{arm}"
-    for name in ("head_left", "head_right"):
-        cam = spec.camera(name)
-        head_pos_world_m = np.asarray(spec.body("head").pos) + np.asarray(cam.pos)
-        cam.quat = cam_geom.look_at_quat_wxyz(head_pos_world_m, HEAD_TARGET_WORLD_M)
+def _yaw_quat(yaw_deg: float) -> np.ndarray:
+    half = 0.5 * np.deg2rad(yaw_deg)
+    return np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+
+
+def _quat_of(R: np.ndarray) -> np.ndarray:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.asarray(R, float).flatten())
+    return quat
+
+
+def _rot_of(quat) -> np.ndarray:
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, float))
+    return R.reshape(3, 3)
+
+
+def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
+    where = f"world.robot.arms.{arm.name}"
+    if arm.mount_frame is not None:
+        frame = spec.frame(arm.mount_frame)
+        if frame is None:
+            raise WorldError(f"{where}.mount.frame", f"the scene {spec.modelname!r} has no frame {arm.mount_frame!r}")
+    else:
+        frame = spec.worldbody.add_frame(pos=list(arm.mount_pos), quat=list(_yaw_quat(arm.mount_yaw_deg)))
+    spec.attach(mujoco.MjSpec.from_file(str(arm.model)), prefix=f"{arm.name}_", frame=frame)
+    for local in arm.joints:
+        if spec.joint(arm.named(local)) is None:
+            raise WorldError(f"{where}.joints", f"{arm.model.name} has no joint {local!r}")
+    if arm.servo is not None:
+        kp, kv = arm.servo
+        for actuator in list(spec.actuators):
+            if actuator.target in {arm.named(j) for j in arm.joints}:
+                spec.delete(actuator)
+        for local, actuator in zip(arm.joints, arm.actuators):
+            joint = spec.joint(arm.named(local))
+            servo = spec.add_actuator(name=arm.named(actuator), target=arm.named(local),
+                                      trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            servo.set_to_position(kp=kp, kv=kv)
+            servo.ctrlrange = joint.range
+            servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    for local in (*arm.actuators, arm.gripper.actuator):
+        if spec.actuator(arm.named(local)) is None:
+            raise WorldError(f"{where}.actuators" if local in arm.actuators else f"{where}.gripper.actuator",
+                             f"{arm.model.name} has no actuator {local!r}")
+    for joint in arm.gripper.joints:
+        if spec.joint(arm.named(joint)) is None:
+            raise WorldError(f"{where}.gripper.joint", f"{arm.model.name} has no joint {joint!r}")
+    for pad in arm.gripper.pads:
+        if spec.body(arm.named(pad)) is None:
+            raise WorldError(f"{where}.gripper.pads", f"{arm.model.name} has no body {pad!r}")
+    site = spec.site(arm.named(arm.ee_site))
+    if site is None:
+        raise WorldError(f"{where}.ee.site", f"{arm.model.name} has no site {arm.ee_site!r}")
+    site.parent.add_site(name=ee_site(arm.name), pos=site.pos, quat=_quat_of(_rot_of(site.quat) @ arm.ee_rotation),
+                         group=EE_SITE_GROUP)
+    if arm.gravity_compensation:  # every body of the arm's model (attached with its prefix)
+        for body in spec.bodies:
+            if body.name.startswith(arm.named("")):
+                body.gravcomp = 1.0
+
+
+def _rest_frame(body: mujoco.MjsBody) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation, position) of ``body`` in the world at the model's rest pose (no joints moved)."""
+    R, p = np.eye(3), np.zeros(3)
+    while body is not None and body.name != "world":
+        R_body = _rot_of(body.quat)
+        R, p = R_body @ R, np.asarray(body.pos, float) + R_body @ p
+        body = body.parent
+    return R, p
+
+
+def _place_camera(spec: mujoco.MjSpec, robot: Robot, cam: RigCamera) -> None:
+    where = f"world.rig.{cam.name}"
+    if cam.camera is not None:
+        model_name = robot.arms[cam.arm].named(cam.camera) if cam.arm else cam.camera
+        mj_cam = spec.camera(model_name)
+        if mj_cam is None:
+            known = sorted(c.name for c in spec.cameras)
+            raise WorldError(f"{where}.camera", f"the model has no camera {model_name!r}; its cameras: {known}")
+        if spec.camera(cam.name) is not None and model_name != cam.name:
+            raise WorldError(where, f"the model already has a camera called {cam.name!r}")
+        mj_cam.name = cam.name
+    else:
+        body = spec.worldbody if cam.body == "world" else spec.body(cam.body)
+        if body is None:
+            raise WorldError(f"{where}.body", f"the model has no body {cam.body!r}")
+        mj_cam = body.add_camera(name=cam.name, pos=list(cam.pos))
+    if cam.look_at is not None:
+        R_parent, p_parent = _rest_frame(mj_cam.parent)
+        quat = cam_geom.look_at_quat_wxyz(p_parent + R_parent @ np.asarray(mj_cam.pos), np.asarray(cam.look_at))
+        mj_cam.quat = quat if np.array_equal(R_parent, np.eye(3)) else _quat_of(R_parent.T @ _rot_of(quat))
+    if cam.fovy_deg is not None:
+        mj_cam.fovy = cam.fovy_deg
+    if cam.intrinsics is not None:
+        k = cam.intrinsics
+        size = [k["width"], k["height"]]
+        mj_cam.resolution = [int(k["width"]), int(k["height"])]
+        mj_cam.sensor_size = size  # one length unit per pixel
+        mj_cam.focal_pixel = [k["fx"], k["fy"]]
+        # MuJoCo's principal point is an offset from the sensor centre, positive left and up.
+        mj_cam.principal_pixel = [(k["width"] - 1) / 2 - k["cx"], (k["height"] - 1) / 2 - k["cy"]]
+
+
+def build_robot_spec(robot: Robot) -> mujoco.MjSpec:
+    """Scene, arms and camera rig (no task objects)."""
+    spec = mujoco.MjSpec.from_file(str(robot.scene))
+    if spec.geom(robot.table_geom) is None:
+        raise WorldError("world.robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}")
+    for arm in robot.arms.values():
+        _attach_arm(spec, arm)
+    for cam in robot.rig.values():
+        _place_camera(spec, robot, cam)
     return spec
 
 
-def _apply_render_params(spec: mujoco.MjSpec, params: WorldParams, max_size_hw) -> None:
+def substeps(robot: Robot, timestep_s: float) -> int:
+    """Physics steps per control period; the control period must be whole timesteps."""
+    n = robot.control_dt_s / timestep_s
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise fail("robot.control_hz", f"{robot.control_hz:g} Hz is not a whole number of "
+                                       f"{timestep_s:g} s physics steps")
+    return int(round(n))
+
+
+def _apply_render_params(spec: mujoco.MjSpec, robot: Robot, params: WorldParams, max_size_hw) -> None:
     spec.visual.global_.offheight = max(spec.visual.global_.offheight, int(max_size_hw[0]))
     spec.visual.global_.offwidth = max(spec.visual.global_.offwidth, int(max_size_hw[1]))
     for light in spec.lights:
         light.diffuse = np.clip(np.asarray(light.diffuse) * params.light_intensity_scale, 0, 1)
         direction = np.asarray(light.dir) + np.asarray(params.light_dir_offset)
         light.dir = direction / np.linalg.norm(direction)
-    table = spec.geom("table_top")
+    table = spec.geom(robot.table_geom)
     table.rgba = np.clip(np.r_[np.asarray(table.rgba[:3]) + params.table_rgb_offset, 1.0], 0, 1)
     for cam in spec.cameras:
         # Offsets are expressed in the camera's own frame (mount error).
         dpos = np.asarray(params.camera_pos_offset_m.get(cam.name, (0.0, 0.0, 0.0)))
         drot = params.camera_rot_offset_rad.get(cam.name, (0.0, 0.0, 0.0))
         quat = np.asarray(cam.quat, float)
-        R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, quat)
-        cam.pos = np.asarray(cam.pos) + R.reshape(3, 3) @ dpos
+        cam.pos = np.asarray(cam.pos) + _rot_of(quat) @ dpos
         new_quat = np.zeros(4)
         mujoco.mju_mulQuat(new_quat, quat, cam_geom.small_rotation_quat_wxyz(drot))
         cam.quat = new_quat
 
 
-def _apply_physics_params(model: mujoco.MjModel, params: WorldParams, objects) -> None:
+def _apply_physics_params(model: mujoco.MjModel, robot: Robot, params: WorldParams, objects) -> None:
     model.geom_friction[:, 0] *= params.friction_scale
     model.actuator_gainprm[:, 0] *= params.actuator_kp_scale
     model.actuator_biasprm[:, 1] *= params.actuator_kp_scale
-    for arm, offsets in params.joint_offset_rad.items():
-        for joint, offset in zip(ARM_JOINTS, offsets, strict=True):
+    for name, offsets in params.joint_offset_rad.items():
+        arm = robot.arms[name]
+        for actuator, offset in zip(arm.actuators, offsets, strict=True):
             # A position servo's force is kp * (ctrl - q) + bias0: bias0 = kp * offset holds the
             # joint at ctrl + offset.
-            act = model.actuator(f"{arm}_{joint}").id
+            act = model.actuator(arm.named(actuator)).id
             model.actuator_biasprm[act, 0] = model.actuator_gainprm[act, 0] * float(offset)
     for obj in objects:
         body_id = model.body(obj.name).id
@@ -95,19 +191,19 @@ def _apply_physics_params(model: mujoco.MjModel, params: WorldParams, objects) -
 
 
 def build_model(
-    objects: tuple[ObjectSpec, ...], params: WorldParams, max_size_hw=(480, 640)
+    robot: Robot, objects: tuple[ObjectSpec, ...], params: WorldParams, max_size_hw=(480, 640)
 ) -> mujoco.MjModel:
     """Compile the full scene for ``objects`` under ``params``."""
-    spec = build_robot_spec()
-    # Wrist cameras are attached with the arms; re-read their quats for offsets.
-    _apply_render_params(spec, params, max_size_hw)
+    spec = build_robot_spec(robot)
+    _apply_render_params(spec, robot, params, max_size_hw)
     for obj in objects:
         add_object(spec, obj, params.size_scale(obj.name), params.object_rgb_offset.get(obj.name, (0, 0, 0)))
+    substeps(robot, spec.option.timestep)
     model = spec.compile()
-    _apply_physics_params(model, params, objects)
+    _apply_physics_params(model, robot, params, objects)
     return model
 
 
-def build_robot_model() -> mujoco.MjModel:
+def build_robot_model(robot: Robot) -> mujoco.MjModel:
     """Robot-only model (no free objects), used for inverse kinematics."""
-    return build_robot_spec().compile()
+    return build_robot_spec(robot).compile()

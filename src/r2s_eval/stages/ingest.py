@@ -3,23 +3,22 @@
 from __future__ import annotations
 
 from r2s_eval.data import IngestSpec, ingest_dataset
-from r2s_eval.sim.env import ACTION_DIM
-from r2s_eval.sim.world import CONTROL_DT_S
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
 
-READS = ("world.cameras", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("world.cameras", "world.robot", "world.rig", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("instructions",)  # the rule adds {task: instruction} of the tasks evaluated
 
 
 def main(args) -> None:
     cfg = args.cfg
     ingest = cfg["ingest"]
+    robot = world_robot({"robot": cfg["world.robot"], "rig": cfg["world.rig"], "cameras": cfg["world.cameras"]})
     spec = IngestSpec(
         cameras=list(cfg["world.cameras"]),
-        state_dim=ACTION_DIM,
-        action_dim=ACTION_DIM,
-        fps=round(1 / CONTROL_DT_S),
+        feature_names=robot.feature_names,
+        fps=round(robot.control_hz),
         tasks={instruction: key for key, instruction in cfg["instructions"].items()},
         first_frame_camera=cfg["calib.camera"],
         min_length=ingest["min_length"],

@@ -11,8 +11,7 @@ from tqdm import tqdm
 
 from r2s_eval.data import ACTION_KEY, DatasetRecorder, episode_frames, lerobot_features, open_metadata
 from r2s_eval.replay import replay_episode
-from r2s_eval.sim.env import ACTION_DIM
-from r2s_eval.sim.world import CONTROL_DT_S
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages import _cli
 from r2s_eval.sim.build import make_env
 from r2s_eval.utils.io import write_parquet
@@ -34,7 +33,8 @@ def main(args) -> None:
         (world["image_height"], world["image_width"]),
     )
     envs, rows = {}, []
-    with DatasetRecorder(args.out_dataset, "local/replay", round(1 / CONTROL_DT_S), features, "r2s_dual_arm_sim",
+    robot = world_robot(world)
+    with DatasetRecorder(args.out_dataset, "local/replay", round(robot.control_hz), features, f"{robot.type}_sim",
                          video=replay["video"]) as rec:
         for ep in tqdm(index.itertuples(), total=len(index), desc="replay", mininterval=5):
             if ep.task not in envs:
@@ -46,8 +46,9 @@ def main(args) -> None:
             poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in est.itertuples()}
             symmetry = {r.object: int(r.yaw_symmetry) for r in est.itertuples()}
             actions = np.stack(episode_frames(args.dataset, meta, ep.episode_index)[ACTION_KEY].to_numpy())
-            if actions.shape[1] != ACTION_DIM:
-                raise DataError(f"episode {ep.episode_index}: actions have {actions.shape[1]} dims, expected {ACTION_DIM}")
+            if actions.shape[1] != robot.action_dim:
+                raise DataError(f"episode {ep.episode_index}: actions have {actions.shape[1]} dims, the world's robot "
+                                f"takes {robot.action_dim}")
             started = time.perf_counter()
             rng = np.random.default_rng([cfg["seed"], int(ep.episode_index)])
             result = replay_episode(

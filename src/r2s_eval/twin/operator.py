@@ -73,7 +73,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim import world
-from r2s_eval.sim.env import ACTION_DIM, TabletopEnv
+from r2s_eval.sim.env import TabletopEnv
+from r2s_eval.sim.robot import Robot
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import height_m, support_top_m
 from r2s_eval.sim.predicates import centre_m
@@ -128,39 +129,48 @@ def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
     return np.column_stack([[0.0, 0.0, -1.0], [-s, c, 0.0], [c, s, 0.0]])
 
 
-class ArmIK:
-    """Differential IK for one arm on a robot-only model (objects do not matter for kinematics)."""
+_ROBOT_MODELS: dict[int, tuple[Robot, object]] = {}
 
-    def __init__(self, arm: str, q_init_14: np.ndarray):
-        self.arm = arm
-        self.model = world.build_robot_model()
+
+def robot_model(robot: Robot):
+    """The robot-only model of ``robot`` (objects do not matter for kinematics), compiled once."""
+    if id(robot) not in _ROBOT_MODELS:
+        _ROBOT_MODELS[id(robot)] = (robot, world.build_robot_model(robot))  # holds robot: its id stays its own
+    return _ROBOT_MODELS[id(robot)][1]
+
+
+class ArmIK:
+    """Differential IK for one arm on the robot-only model, steering the arm's grasp-centre site."""
+
+    def __init__(self, robot: Robot, arm: str, q_init: dict[str, np.ndarray]):
+        self.arm, self.robot = arm, robot
+        self.model = robot_model(robot)
         self.configuration = mink.Configuration(self.model)
         self.frame_task = mink.FrameTask(
-            frame_name=f"{arm}_tcp", frame_type="site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3
+            frame_name=world.ee_site(arm), frame_type="site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3
         )
         self.posture_task = mink.PostureTask(self.model, cost=1e-3)
         self.limits = [mink.ConfigurationLimit(self.model)]
-        self._qadr = {
-            a: np.array([self.model.joint(f"{a}_{j}").qposadr[0] for j in world.ARM_JOINTS]) for a in world.ARMS
-        }
+        self._qadr = {name: np.array([self.model.joint(a.named(j)).qposadr[0] for j in a.joints])
+                      for name, a in robot.arms.items()}
         q = self.configuration.q.copy()
-        for i, a in enumerate(world.ARMS):
-            q[self._qadr[a]] = q_init_14[7 * i : 7 * i + 6]
+        for name in robot.arms:
+            q[self._qadr[name]] = q_init[name]
         self.configuration.update(q)
         home = q.copy()
-        for a in world.ARMS:
-            home[self._qadr[a]] = world.home_arm_q(a)
+        for name, a in robot.arms.items():
+            home[self._qadr[name]] = a.home
         self.posture_task.set_target(home)
 
     def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        T = self.configuration.get_transform_frame_to_world(f"{self.arm}_tcp", "site").as_matrix()
+        T = self.configuration.get_transform_frame_to_world(world.ee_site(self.arm), "site").as_matrix()
         return T[:3, 3].copy(), T[:3, :3].copy()
 
     def solve(self, pos_world_m: np.ndarray, R_world: np.ndarray, iterations: int) -> np.ndarray:
-        """Move the commanded configuration toward the target; returns the arm's 6 joint targets."""
+        """Move the commanded configuration toward the target; returns the arm's joint targets."""
         target = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(R_world), np.asarray(pos_world_m))
         self.frame_task.set_target(target)
-        dt = world.CONTROL_DT_S
+        dt = self.robot.control_dt_s
         for _ in range(iterations):
             vel = mink.solve_ik(
                 self.configuration, [self.frame_task, self.posture_task], dt, solver="daqp", damping=1e-3,
@@ -196,8 +206,11 @@ class ScriptedOperator:
         return height_m(self.task.object(name).kind, self.env.object_dims(name))
 
     def _choose_arm(self) -> str:
-        if self.task.arm in world.ARMS:
+        arms = list(self.env.robot.arms)
+        if self.task.arm in arms:
             return self.task.arm
+        if self.task.arm not in ("nearest", "behind_axis"):
+            raise ConfigError(f"world.tasks.{self.task.key}.arm: {self.task.arm!r} is not an arm of the robot {arms}")
         bases = self.env.arm_base_positions()
         if self.task.arm == "behind_axis":  # the arm from whose side the object's axis points away
             name = self.task.manipulated
@@ -209,9 +222,9 @@ class ScriptedOperator:
                 reach = xy - bases[arm][:2]
                 return float(axis @ reach / np.linalg.norm(reach))
 
-            return max(world.ARMS, key=alignment)
+            return max(arms, key=alignment)
         mid_y = np.mean([centre_m(self.env, n)[1] for n in self.task.object_names])
-        return min(world.ARMS, key=lambda a: abs(bases[a][1] - mid_y))
+        return min(arms, key=lambda a: abs(bases[a][1] - mid_y))
 
     def _grasp_yaw(self) -> float:
         """Approach yaw of the top-down hand (its jaws close across it).
@@ -267,20 +280,22 @@ class ScriptedOperator:
         return self._action.copy()
 
     def _start(self, state: np.ndarray) -> None:
-        self._ik = ArmIK(self.arm, state)
+        robot = self.env.robot
+        measured = robot.to_model(state)
+        self._ik = ArmIK(robot, self.arm, {name: q for name, (q, _) in measured.items()})
         self._cmd_pos, _ = self._ik.tcp_pose()
         self._R_cmd = top_down_rotation(self._grasp_yaw())
-        self._action = np.zeros(ACTION_DIM)
-        for i, a in enumerate(world.ARMS):
-            self._action[7 * i : 7 * i + 6] = state[7 * i : 7 * i + 6] if a == self.arm else world.home_arm_q(a)
-            self._action[7 * i + 6] = 0.0
-        self._arm_slice = slice(7 * world.ARMS.index(self.arm), 7 * world.ARMS.index(self.arm) + 6)
-        self._grip_index = 7 * world.ARMS.index(self.arm) + 6
+        # Commands per arm in model units (joint targets, gripper closing): the operator's arm from
+        # where it is, the others held at home with their grippers open.
+        self._command = {name: (measured[name][0].copy() if name == self.arm else arm.home.copy(), 0.0)
+                         for name, arm in robot.arms.items()}
         # A person at the controls sees where the gripper really is and aims accordingly: the
         # commands make up for the arm's joint offsets, so the recorded joint targets are off
         # by them (what action replay in a nominal simulation then has to absorb).
-        self._joint_offsets = self.env.params.joint_offsets(self.arm)
-        self._action[self._arm_slice] -= self._joint_offsets
+        self._joint_offsets = self.env.params.joint_offsets(self.arm, len(robot.arms[self.arm].joints))
+        q, grip = self._command[self.arm]
+        self._command[self.arm] = (q - self._joint_offsets, grip)
+        self._action = robot.from_model(self._command)
 
     def _next_segment(self) -> bool:
         while not self._queue:
@@ -306,22 +321,22 @@ class ScriptedOperator:
         self._segment_steps += 1
         delta = seg.pos_world_m - self._cmd_pos
         dist = float(np.linalg.norm(delta))
-        max_step = seg.speed_m_s * world.CONTROL_DT_S
+        max_step = seg.speed_m_s * self.env.control_dt_s
         self._cmd_pos = seg.pos_world_m.copy() if dist <= max_step else self._cmd_pos + delta / dist * max_step
         turned = True
         if seg.R_world is not None:
             rotvec = Rotation.from_matrix(seg.R_world @ self._R_cmd.T).as_rotvec()
             angle = float(np.linalg.norm(rotvec))
-            max_turn = self.cfg.turn_speed_rad_s * world.CONTROL_DT_S
+            max_turn = self.cfg.turn_speed_rad_s * self.env.control_dt_s
             if angle > max_turn:
                 rotvec *= max_turn / angle
                 turned = False
             self._R_cmd = Rotation.from_rotvec(rotvec).as_matrix() @ self._R_cmd
         rate = self.cfg.gripper_rate_per_step
         self._gripper_cmd += float(np.clip(seg.gripper - self._gripper_cmd, -rate, rate))
-        self._action[self._arm_slice] = (self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
-                                         - self._joint_offsets)
-        self._action[self._grip_index] = self._gripper_cmd
+        self._command[self.arm] = (self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
+                                   - self._joint_offsets, self._gripper_cmd)
+        self._action = self.env.robot.from_model(self._command)
         arrived = dist <= max_step and turned and abs(seg.gripper - self._gripper_cmd) < 1e-9
         if arrived and seg.settle_m is not None:  # the arm lags its command: wait until it is there
             arrived = float(np.linalg.norm(self.env.ee_positions()[self.arm] - self._cmd_pos)) <= seg.settle_m
@@ -414,9 +429,9 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     return [pregrasp, approach, close, lift, carry, lower, release, retreat]
 
 
-def _jaw_cmd(jaw_opening_m: float) -> float:
+def _jaw_cmd(op: ScriptedOperator, jaw_opening_m: float) -> float:
     """Gripper command that opens each jaw ``jaw_opening_m`` from the centre."""
-    return float(np.clip(1.0 - jaw_opening_m / world.GRIPPER_OPEN_M, 0.0, 1.0))
+    return float(np.clip(1.0 - jaw_opening_m / op.env.robot.arms[op.arm].gripper.jaw_open_m, 0.0, 1.0))
 
 
 def _centre_xy(op: ScriptedOperator, name: str) -> np.ndarray:
@@ -435,7 +450,7 @@ def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator]
         # tcp slightly above the centre keeps the fingertips off the table; jaws pre-shaped.
         dims = env.object_dims(name)
         half_width = dims["radius_m"] if kind == "ball" else dims["size_m"] / 2
-        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(half_width + cfg.preshape_margin_m)
+        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
     raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind} ({name}) from above; "
                       f"it picks cups, balls and blocks")
 

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from r2s_eval.sim.tasks import bundled_world
-from r2s_eval.sim.params import CAMERA_NAMES, WorldParams
-from r2s_eval.sim.world import ARM_JOINTS, ARMS
+from r2s_eval.sim.params import WorldParams
+from r2s_eval.sim.robot import Robot, bundled_robot
 
 # Every object of the bundled suite (the twin perturbs each physical object once, whichever
 # task it appears in).
@@ -70,10 +70,13 @@ def sample_twin_params(
     rng: np.random.Generator,
     magnitudes: TwinMagnitudes | None = None,
     object_names: tuple[str, ...] = ALL_OBJECT_NAMES,
-    camera_names: tuple[str, ...] = CAMERA_NAMES,
+    robot: Robot | None = None,
 ) -> WorldParams:
-    """Draw one perturbed world. Same rng state -> same parameters."""
+    """Draw one perturbed world of ``robot`` (default: the bundled world's). Same rng state -> same
+    parameters."""
     m = magnitudes or TwinMagnitudes()
+    robot = robot or bundled_robot()
+    camera_names = robot.camera_names
 
     def u(half_width: float, size=None):
         return rng.uniform(-half_width, half_width, size)
@@ -95,11 +98,12 @@ def sample_twin_params(
         image_noise_std=float(rng.uniform(0.0, m.image_noise_std_max)),
         noise_seed=int(rng.integers(0, 2**31 - 1)),
         # Drawn last, so the draws above are what they were before this parameter existed.
-        joint_offset_rad={arm: tuple(float(x) for x in u(m.joint_offset_rad, len(ARM_JOINTS))) for arm in ARMS},
+        joint_offset_rad={name: tuple(float(x) for x in u(m.joint_offset_rad, len(arm.joints)))
+                          for name, arm in robot.arms.items()},
     )
 
 
-def twin_world(twin_cfg: dict, object_names) -> dict:
+def twin_world(twin_cfg: dict, object_names, robot: Robot | None = None) -> dict:
     """The twin stage's record: the magnitudes and the world drawn from ``twin_cfg["seed"]``
     (``twin_cfg``: the ``real.twin`` config group).
 
@@ -108,5 +112,5 @@ def twin_world(twin_cfg: dict, object_names) -> dict:
     """
     magnitudes = TwinMagnitudes(**(twin_cfg.get("magnitudes") or {}))
     objects = sorted(object_names)
-    params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), CAMERA_NAMES)
+    params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), robot)
     return {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)}

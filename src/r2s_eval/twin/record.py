@@ -19,12 +19,10 @@ from r2s_eval.data import DatasetRecorder, lerobot_features
 from r2s_eval.errors import R2SError
 from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.sim.build import image_size, make_env
-from r2s_eval.sim.world import ARM_JOINTS, ARMS, CONTROL_DT_S
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.twin.operator import OperatorConfig, make_operator, run_episode
 
 log = logging.getLogger("r2s_eval.teleop")
-
-JOINT_NAMES = [f"{arm}_{j}" for arm in ARMS for j in (*ARM_JOINTS, "gripper")]
 
 
 def truth_rows(episode_index: int, task: str, env: TabletopEnv, initial: dict) -> list[dict]:
@@ -47,9 +45,11 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
     ``teleop``, ``world``, ``suite``: those config groups; ``seed``: the experiment's seed.
     """
     operator_cfg = OperatorConfig(**(teleop.get("operator") or {}))
-    features = lerobot_features(JOINT_NAMES, JOINT_NAMES, world["cameras"], image_size(world))
+    robot = world_robot(world)
+    names = robot.feature_names
+    features = lerobot_features(names, names, world["cameras"], image_size(world))
     truth, attempts = [], []
-    with DatasetRecorder(dataset, "local/teleop", round(1 / CONTROL_DT_S), features, "r2s_dual_arm",
+    with DatasetRecorder(dataset, "local/teleop", round(robot.control_hz), features, robot.type,
                          video=teleop["video"]) as rec:
         for task_index, task in enumerate(tasks):
             env = make_env(task, world, params, suite_cfg=suite)

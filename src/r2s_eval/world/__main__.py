@@ -3,7 +3,8 @@
     python -m r2s_eval.world [NAME] [--dataset DIR] [--experiment demo] [--out reports/world_preview]
 
 NAME is a world of the ``world`` config group (``conf/world/<NAME>.yaml``; default: the
-experiment's, ``tabletop``). The experiment is composed with it and checked like any run: a wrong
+experiment's, ``tabletop``), shown with all its tasks from their own start regions. The experiment
+is composed with it and checked like any run: a wrong
 entry stops with one line naming the key and the file that set it. Writes ``starts.png`` (every
 camera at a sampled start of each task, the start poses drawn in) and, with ``--dataset`` (a
 LeRobotDataset v3), ``dataset.png``: per task, its first episode's first frame of each camera
@@ -15,6 +16,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import yaml
+
 from r2s_eval.config import compose_config
 from r2s_eval.stages import _cli
 from r2s_eval.world.preview import preview
@@ -23,7 +26,12 @@ CONF_DIR = Path(__file__).resolve().parents[3] / "conf"
 
 
 def main(args: argparse.Namespace) -> None:
-    cfg = compose_config(CONF_DIR, args.experiment, [f"world={args.world}"] if args.world else [])
+    overrides = []
+    if args.world:  # the named world's own tasks and start regions (the experiment's are for its own world)
+        world_file = CONF_DIR / "world" / f"{args.world}.yaml"
+        tasks = list((yaml.safe_load(world_file.read_text()) or {}).get("tasks") or {}) if world_file.is_file() else []
+        overrides = [f"world={args.world}"] + (["suite=world", f"tasks=[{','.join(tasks)}]"] if tasks else [])
+    cfg = compose_config(CONF_DIR, args.experiment, overrides)
     world = cfg["world"]
     size = args.size or (int(world["image_height"]), int(world["image_width"]))
     out = preview(world, args.out, args.cameras or world["cameras"], tuple(size), args.seed, args.dataset, cfg["calib"])

@@ -21,7 +21,7 @@ from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.data.contract import read_metadata, scan_video
 from r2s_eval.data.dataset import camera_key
 from r2s_eval.errors import DataError
-from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim import Robot, TabletopEnv, world_robot
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, world_tasks
@@ -65,12 +65,12 @@ def _grid(rows: list[list[np.ndarray]]) -> np.ndarray:
     return np.vstack(padded)
 
 
-def render_starts(tasks: Mapping[str, Task], cameras: Sequence[str], size_hw: tuple[int, int], seed: int
-                  ) -> np.ndarray:
+def render_starts(tasks: Mapping[str, Task], cameras: Sequence[str], size_hw: tuple[int, int], seed: int,
+                  robot: Robot | None = None) -> np.ndarray:
     """One row per task, one image per camera: the task at a start sampled from its regions."""
     rows = []
     for i, (key, task) in enumerate(tasks.items()):
-        env = TabletopEnv(task, image_size=size_hw, cameras=cameras)
+        env = TabletopEnv(task, image_size=size_hw, cameras=cameras, robot=robot)
         try:
             poses = env.sample_initial_poses(np.random.default_rng([seed, i]))
             env.reset(object_poses=poses, settle=False, observe=False)
@@ -143,7 +143,7 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
             real = frames[episode, cam]
             factor = max(1, -(-MIN_SHOWN_PX // real.shape[0]))
             shown = cv2.resize(real, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
-            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,))  # the world's own task
+            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,), robot=world_robot(world))
             try:
                 env.reset(object_poses=poses, settle=False, observe=False)
                 row += [_labelled(_draw_poses(shown, env, cam, poses), f"{key} ep {episode}: {cam}, recorded"),
@@ -160,7 +160,7 @@ def preview(world: dict, out: str | Path, cameras: Sequence[str], size_hw: tuple
     tasks = world_tasks(world)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    starts = render_starts(tasks, cameras, size_hw, seed)
+    starts = render_starts(tasks, cameras, size_hw, seed, world_robot(world))
     cv2.imwrite(str(out / "starts.png"), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
     if dataset is not None:
         side = dataset_beside_sim(tasks, dataset, cameras, calib, world)

@@ -1,0 +1,53 @@
+"""Reading a world file: the error that names a wrong entry by its key, and the checks its
+readers (``tasks``, ``robot``) share."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from r2s_eval.errors import ConfigError
+
+
+class WorldError(ConfigError):
+    """A wrong entry of a world: ``path`` is its dotted key (``world.tasks.<key>...``)."""
+
+    def __init__(self, path: str, message: str):
+        super().__init__(f"{path}: {message}")
+        self.path, self.message = path, message
+
+
+def fail(where: str, message: str) -> WorldError:
+    return WorldError(f"world.{where}", message)
+
+
+def as_mapping(value: Any, where: str) -> dict:
+    if not isinstance(value, Mapping):
+        raise fail(where, f"must be a mapping, got {value!r}")
+    return dict(value)
+
+
+def check_keys(entry: dict, allowed: set[str], required: set[str], where: str) -> None:
+    unknown, missing = sorted(set(entry) - allowed), sorted(required - set(entry))
+    if unknown:
+        raise fail(where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    if missing:
+        raise fail(where, f"missing {missing}")
+
+
+def finite(value: Any, where: str, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise fail(where, f"must be a finite number, got {value!r}")
+    if positive and value <= 0:
+        raise fail(where, f"must be positive, got {value!r}")
+    return value
+
+
+def interval(value: Any, where: str) -> tuple[float, float]:
+    if not isinstance(value, list | tuple) or len(value) != 2:
+        raise fail(where, f"must be [low, high], got {value!r}")
+    low, high = (finite(v, where) for v in value)
+    if low > high:
+        raise fail(where, f"must be [low, high] with low <= high, got {list(value)}")
+    return low, high

@@ -1,0 +1,449 @@
+"""The robot and the camera rig of a world, read from its config (``world.robot``, ``world.rig``).
+
+Everything the simulation needs to know about a lab's robot is data here: which model file, where
+each arm stands, which of its joints and actuators the dataset records and commands (in which units),
+its grippers, the end-effector frames the scripted operator steers, and the control rate.
+
+``world.robot``::
+
+    type: r2s_dual_arm                # optional: the datasets' robot_type (LeRobot's info.json)
+    scene: assets/tabletop.xml        # table, lights, fixed cameras (a model reference, below)
+    workspace: {z_m: 0.75, geom: table_top}  # the table plane (objects rest on it, first frames
+                                      #   are back-projected onto it) and the scene's table geom
+    control_hz: 10                    # the dataset's fps; each action is held for one period
+    arms:                             # in the order the default dataset layout lists them
+      left:
+        model: assets/arm.xml         # attached with the prefix "<arm>_"
+        mount: {frame: left_mount}    # a frame of the scene, or {pos: [x, y, z], yaw_deg: 0}
+        joints: [j1, j2, j3, j4, j5, j6]
+        actuators: [j1, ...]          # position actuators of those joints (default: same names)
+        servo: {kp: 400, kv: 40}      # optional: replace the joints' actuators with position
+                                      #   servos of this gain (for torque-controlled models)
+        gravity_compensation: false   # optional: compensate gravity on the arm's bodies
+        home: [0.0, -0.2, ...]        # joint targets at reset (model units)
+        gripper:
+          actuator: gripper
+          ctrl: {open: 0.05, closed: 0.0}      # actuator command fully open / fully closed
+          joint: finger_a                      # the joint whose position measures the opening (or a
+                                               #   list: all set open at reset, the first measures)
+          position: {open: 0.05, closed: 0.0}  # that joint's position fully open / closed
+          jaw_open_m: 0.05            # each jaw's distance from the grasp centre when open
+          pads: [finger_a, finger_b]  # the two jaws' bodies (a grasp is contact with both)
+        ee: {site: tcp, approach: +x, jaw: +y}  # grasp-centre site; its axes along the approach
+                                      #   direction and the jaws' closing axis
+    features:                         # optional: the dataset's observation.state / action entries
+      - {name: left_j1, arm: left, joint: j1, scale: 1.0, offset: 0.0}
+      - {name: left_gripper, arm: left, gripper: true}
+
+A model reference is a path (relative to the repository, or absolute) or
+``{package: <python package>, resource: <path inside it>}`` for a model shipped in an installed
+package. A feature's value converts to model units as ``scale * value + offset`` (a joint in
+degrees: ``scale: 0.017453``); a gripper feature's model unit is the closing fraction (0 open,
+1 closed). Without ``features`` the layout is, arm by arm, ``<arm>_<joint>`` then ``<arm>_gripper``
+in model units. Every joint and gripper of every arm is named by exactly one feature.
+
+``world.rig`` ties each camera name (the dataset's ``observation.images.<name>``) to a camera::
+
+    head_left: {camera: head_left, look_at: [-0.03, 0.0, 0.75]}   # a camera of the scene, re-aimed
+    wrist_left: {camera: wrist, arm: left}                        # a camera of an arm's model
+    front: {body: world, pos: [0.6, 0, 1.3], look_at: [0, 0, 0.75], fovy_deg: 45}  # placed here
+    # any entry: intrinsics: {fx: 520, fy: 520, cx: 319.5, cy: 239.5, width: 640, height: 480}
+
+Intrinsics follow OpenCV (pixels, principal point at the pixel-centre convention of
+``r2s_eval.sim.cameras``); they scale with the rendered image size.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.resources
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+AXES = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
+
+
+@dataclass(frozen=True)
+class Gripper:
+    actuator: str
+    ctrl_open: float
+    ctrl_closed: float
+    joints: tuple[str, ...]  # set open at reset; the first measures the opening
+    position_open: float
+    position_closed: float
+    jaw_open_m: float
+    pads: tuple[str, str]
+
+    def ctrl(self, closing: float) -> float:
+        """Actuator command for a closing fraction (0 open, 1 closed)."""
+        return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+
+    def closing(self, position: float) -> float:
+        """Closing fraction measured from the gripper joint's position."""
+        return np.clip(1.0 - (position - self.position_closed) / (self.position_open - self.position_closed), 0.0, 1.0)
+
+    def closing_rate(self, velocity: float) -> float:
+        """Closing fraction per second from the gripper joint's velocity (+ = closing)."""
+        return velocity / (self.position_closed - self.position_open)
+
+
+@dataclass(frozen=True)
+class Arm:
+    name: str
+    model: Path
+    mount_frame: str | None
+    mount_pos: tuple[float, float, float]
+    mount_yaw_deg: float
+    joints: tuple[str, ...]
+    actuators: tuple[str, ...]
+    servo: tuple[float, float] | None  # (kp, kv)
+    gravity_compensation: bool
+    home: np.ndarray
+    gripper: Gripper
+    ee_site: str
+    ee_rotation: np.ndarray  # columns: the site frame's approach, jaw and third axes
+
+    def named(self, local: str) -> str:
+        """The model's name of one of this arm's elements (attached with the arm's prefix)."""
+        return f"{self.name}_{local}"
+
+
+@dataclass(frozen=True)
+class Feature:
+    name: str
+    arm: str
+    joint: str | None  # None: the arm's gripper
+    scale: float
+    offset: float
+
+
+@dataclass(frozen=True)
+class RigCamera:
+    name: str
+    camera: str | None  # a camera of the scene or, with `arm`, of that arm's model
+    arm: str | None
+    body: str | None  # where a camera placed by the world hangs
+    pos: tuple[float, float, float] | None
+    look_at: tuple[float, float, float] | None
+    fovy_deg: float | None
+    intrinsics: dict[str, float] | None  # fx, fy, cx, cy at width x height (OpenCV, pixels)
+
+
+@dataclass(frozen=True)
+class Robot:
+    type: str
+    scene: Path
+    workspace_z_m: float
+    table_geom: str
+    control_hz: float
+    arms: dict[str, Arm]
+    features: tuple[Feature, ...]
+    rig: dict[str, RigCamera]
+
+    @property
+    def control_dt_s(self) -> float:
+        return 1.0 / self.control_hz
+
+    @property
+    def feature_names(self) -> list[str]:
+        return [f.name for f in self.features]
+
+    @property
+    def action_dim(self) -> int:
+        return len(self.features)
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        return tuple(self.rig)
+
+    def home_targets(self) -> dict[str, tuple[np.ndarray, float]]:
+        """Per arm, the joint targets and the (open) gripper closing at reset."""
+        return {name: (arm.home.copy(), 0.0) for name, arm in self.arms.items()}
+
+    def to_model(self, vector) -> dict[str, tuple[np.ndarray, float]]:
+        """A dataset-layout vector -> per arm (joint values, gripper closing), model units."""
+        values = np.asarray(vector, dtype=float).reshape(self.action_dim)
+        out = {name: (np.zeros(len(arm.joints)), 0.0) for name, arm in self.arms.items()}
+        for value, f in zip(values, self.features):
+            q, grip = out[f.arm]
+            model_value = f.scale * value + f.offset
+            if f.joint is None:
+                out[f.arm] = (q, model_value)
+            else:
+                q[self.arms[f.arm].joints.index(f.joint)] = model_value
+        return out
+
+    def from_model(self, per_arm: Mapping[str, tuple[np.ndarray, float]], offsets: bool = True) -> np.ndarray:
+        """Per arm (joint values, gripper closing) in model units -> a dataset-layout vector
+        (``offsets=False``: rates, which scale but do not shift)."""
+        out = np.empty(self.action_dim)
+        for i, f in enumerate(self.features):
+            q, grip = per_arm[f.arm]
+            model_value = grip if f.joint is None else q[self.arms[f.arm].joints.index(f.joint)]
+            out[i] = (model_value - (f.offset if offsets else 0.0)) / f.scale
+        return out
+
+    def slices(self, arm: str) -> tuple[list[int], int]:
+        """Indices of ``arm``'s joints (in its joint order) and of its gripper in the dataset layout."""
+        joints = [next(i for i, f in enumerate(self.features) if f.arm == arm and f.joint == j)
+                  for j in self.arms[arm].joints]
+        return joints, next(i for i, f in enumerate(self.features) if f.arm == arm and f.joint is None)
+
+
+# ---------------------------------------------------------------- reading
+def model_path(ref: Any, where: str) -> Path:
+    """The file a model reference names (a path, or ``{package, resource}``); it must exist."""
+    if isinstance(ref, Mapping):
+        check_keys(dict(ref), {"package", "resource"}, {"package", "resource"}, where)
+        try:
+            root = importlib.resources.files(str(ref["package"]))
+        except ModuleNotFoundError:
+            raise fail(f"{where}.package", f"package {ref['package']!r} is not installed") from None
+        path = Path(str(root / str(ref["resource"])))
+    elif isinstance(ref, str) and ref:
+        path = Path(ref) if Path(ref).is_absolute() else REPO_ROOT / ref
+    else:
+        raise fail(where, f"must be a path or {{package, resource}}, got {ref!r}")
+    if not path.is_file():
+        raise fail(where, f"no such model file: {path}")
+    return path
+
+
+def _vector(value: Any, where: str, length: int | None = None) -> tuple[float, ...]:
+    if not isinstance(value, list | tuple) or (length is not None and len(value) != length):
+        raise fail(where, f"must be a list of {length or 'some'} numbers, got {value!r}")
+    return tuple(float(finite(v, where)) for v in value)
+
+
+def _names(value: Any, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list | tuple) or not value or not all(isinstance(v, str) and v for v in value):
+        raise fail(where, f"must be a non-empty list of names, got {value!r}")
+    if len(set(value)) != len(value):
+        raise fail(where, f"names something twice: {list(value)}")
+    return tuple(value)
+
+
+def _pair(value: Any, where: str) -> tuple[float, float]:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"open", "closed"}, {"open", "closed"}, where)
+    opened, closed = float(finite(entry["open"], f"{where}.open")), float(finite(entry["closed"], f"{where}.closed"))
+    if opened == closed:
+        raise fail(where, f"open and closed must differ, got {opened} for both")
+    return opened, closed
+
+
+def _ee_rotation(entry: dict, where: str) -> np.ndarray:
+    approach, jaw = entry.get("approach", "+x"), entry.get("jaw", "+y")
+    for key, axis in (("approach", approach), ("jaw", jaw)):
+        if axis not in AXES:
+            raise fail(f"{where}.{key}", f"must be one of {sorted(AXES)}, got {axis!r}")
+    if AXES[approach] == AXES[jaw]:
+        raise fail(where, f"approach and jaw must be different axes, got {approach} and {jaw}")
+    a, j = np.eye(3)[AXES[approach]], np.eye(3)[AXES[jaw]]
+    a, j = (-a if approach[0] == "-" else a), (-j if jaw[0] == "-" else j)
+    return np.column_stack([a, j, np.cross(a, j)])
+
+
+def _gripper(value: Any, where: str) -> Gripper:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"},
+               {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"}, where)
+    pads = _names(entry["pads"], f"{where}.pads")
+    if len(pads) != 2:
+        raise fail(f"{where}.pads", f"must name the two jaws' bodies, got {list(pads)}")
+    return Gripper(actuator=str(entry["actuator"]), ctrl_open=_pair(entry["ctrl"], f"{where}.ctrl")[0],
+                   ctrl_closed=_pair(entry["ctrl"], f"{where}.ctrl")[1],
+                   joints=_names([entry["joint"]] if isinstance(entry["joint"], str) else entry["joint"], f"{where}.joint"),
+                   position_open=_pair(entry["position"], f"{where}.position")[0],
+                   position_closed=_pair(entry["position"], f"{where}.position")[1],
+                   jaw_open_m=float(finite(entry["jaw_open_m"], f"{where}.jaw_open_m", positive=True)), pads=pads)
+
+
+def _arm(name: str, value: Any) -> Arm:
+    where = f"robot.arms.{name}"
+    entry = as_mapping(value, where)
+    check_keys(entry, {"model", "mount", "joints", "actuators", "servo", "gravity_compensation", "home", "gripper", "ee"},
+               {"model", "mount", "joints", "home", "gripper", "ee"}, where)
+    joints = _names(entry["joints"], f"{where}.joints")
+    actuators = _names(entry.get("actuators", list(joints)), f"{where}.actuators")
+    if len(actuators) != len(joints):
+        raise fail(f"{where}.actuators", f"must name one actuator per joint ({len(joints)}), got {list(actuators)}")
+    mount = as_mapping(entry["mount"], f"{where}.mount")
+    if "frame" in mount:
+        check_keys(mount, {"frame"}, {"frame"}, f"{where}.mount")
+    else:
+        check_keys(mount, {"pos", "yaw_deg"}, {"pos"}, f"{where}.mount")
+    servo = None
+    if entry.get("servo") is not None:
+        gains = as_mapping(entry["servo"], f"{where}.servo")
+        check_keys(gains, {"kp", "kv"}, {"kp", "kv"}, f"{where}.servo")
+        servo = (float(finite(gains["kp"], f"{where}.servo.kp", positive=True)),
+                 float(finite(gains["kv"], f"{where}.servo.kv")))
+    ee = as_mapping(entry["ee"], f"{where}.ee")
+    check_keys(ee, {"site", "approach", "jaw"}, {"site"}, f"{where}.ee")
+    return Arm(
+        name=name, model=model_path(entry["model"], f"{where}.model"), mount_frame=mount.get("frame"),
+        mount_pos=_vector(mount.get("pos", (0.0, 0.0, 0.0)), f"{where}.mount.pos", 3),
+        mount_yaw_deg=float(finite(mount.get("yaw_deg", 0.0), f"{where}.mount.yaw_deg")), joints=joints,
+        actuators=actuators, servo=servo, gravity_compensation=bool(entry.get("gravity_compensation", False)),
+        home=np.array(_vector(entry["home"], f"{where}.home", len(joints))),
+        gripper=_gripper(entry["gripper"], f"{where}.gripper"), ee_site=str(ee["site"]),
+        ee_rotation=_ee_rotation(ee, f"{where}.ee"),
+    )
+
+
+def _features(value: Any, arms: dict[str, Arm]) -> tuple[Feature, ...]:
+    if value is None:
+        return tuple(Feature(f"{a}_{j or 'gripper'}", a, j, 1.0, 0.0) for a, arm in arms.items()
+                     for j in (*arm.joints, None))
+    if not isinstance(value, list) or not value:
+        raise fail("robot.features", f"must be a list of {{name, arm, joint | gripper}} entries, got {value!r}")
+    features, seen = [], {}
+    for i, raw in enumerate(value):
+        where = f"robot.features[{i}]"
+        entry = as_mapping(raw, where)
+        check_keys(entry, {"name", "arm", "joint", "gripper", "scale", "offset"}, {"name", "arm"}, where)
+        if entry["arm"] not in arms:
+            raise fail(f"{where}.arm", f"must be an arm of the robot {list(arms)}, got {entry['arm']!r}")
+        arm = arms[entry["arm"]]
+        if ("joint" in entry) == bool(entry.get("gripper")):
+            raise fail(where, "must name a joint or say gripper: true (one of the two)")
+        joint = entry.get("joint")
+        if joint is not None and joint not in arm.joints:
+            raise fail(f"{where}.joint", f"must be a joint of arm {arm.name} {list(arm.joints)}, got {joint!r}")
+        target = (arm.name, joint)
+        if target in seen:
+            raise fail(where, f"maps to {arm.name} {joint or 'gripper'}, which {seen[target]} maps to already")
+        seen[target] = f"robot.features[{i}]"
+        scale = float(finite(entry.get("scale", 1.0), f"{where}.scale"))
+        if scale == 0:
+            raise fail(f"{where}.scale", "must not be 0")
+        features.append(Feature(str(entry["name"]), arm.name, joint, scale, float(finite(entry.get("offset", 0.0), f"{where}.offset"))))
+    names = [f.name for f in features]
+    if len(set(names)) != len(names):
+        raise fail("robot.features", f"names a feature twice: {names}")
+    uncovered = [f"{a} {j or 'gripper'}" for a, arm in arms.items() for j in (*arm.joints, None) if (a, j) not in seen]
+    if uncovered:
+        raise fail("robot.features", f"no feature maps to {uncovered}: every joint and gripper needs one")
+    return tuple(features)
+
+
+def _rig_camera(name: str, value: Any, arms: dict[str, Arm]) -> RigCamera:
+    where = f"rig.{name}"
+    entry = as_mapping(value, where)
+    check_keys(entry, {"camera", "arm", "body", "pos", "look_at", "fovy_deg", "intrinsics"}, set(), where)
+    if ("camera" in entry) == ("body" in entry):
+        raise fail(where, "must name a model's camera (camera, with arm for an arm's) or place one (body, pos)")
+    if "arm" in entry and entry["arm"] not in arms:
+        raise fail(f"{where}.arm", f"must be an arm of the robot {list(arms)}, got {entry['arm']!r}")
+    if "body" in entry and "pos" not in entry:
+        raise fail(where, "a camera placed on a body needs its pos")
+    if "body" in entry and "look_at" not in entry:
+        raise fail(where, "a camera placed on a body needs look_at (where it points)")
+    intrinsics = None
+    if entry.get("intrinsics") is not None:
+        intrinsics = _intrinsics(entry["intrinsics"], f"{where}.intrinsics")
+        if "fovy_deg" in entry:
+            raise fail(where, "give intrinsics or fovy_deg, not both")
+    fovy = entry.get("fovy_deg")
+    if fovy is not None and not 0 < finite(fovy, f"{where}.fovy_deg") < 180:
+        raise fail(f"{where}.fovy_deg", f"must be in (0, 180), got {fovy!r}")
+    if "body" in entry and fovy is None and intrinsics is None:
+        raise fail(where, "a camera placed on a body needs fovy_deg or intrinsics")
+    return RigCamera(
+        name=name, camera=entry.get("camera"), arm=entry.get("arm"), body=entry.get("body"),
+        pos=_vector(entry["pos"], f"{where}.pos", 3) if "pos" in entry else None,
+        look_at=_vector(entry["look_at"], f"{where}.look_at", 3) if "look_at" in entry else None,
+        fovy_deg=None if fovy is None else float(fovy), intrinsics=intrinsics,
+    )
+
+
+def _intrinsics(value: Any, where: str) -> dict[str, float]:
+    entry = as_mapping(value, where)
+    keys = {"fx", "fy", "cx", "cy", "width", "height"}
+    check_keys(entry, keys, keys, where)
+    out = {k: float(finite(entry[k], f"{where}.{k}", positive=True)) for k in sorted(keys)}
+    for size, centre in (("width", "cx"), ("height", "cy")):
+        if out[size] != int(out[size]):
+            raise fail(f"{where}.{size}", f"must be a whole number of pixels, got {entry[size]!r}")
+        if not 0 <= out[centre] <= out[size] - 1:
+            raise fail(f"{where}.{centre}", f"must lie inside the {int(out['width'])}x{int(out['height'])} image "
+                                            f"(0..{out[size] - 1:g}), got {entry[centre]!r}")
+    return out
+
+
+def load_robot(world: Mapping) -> Robot:
+    """The robot and camera rig of ``world`` (a ``world`` config slice), checked: a wrong entry is a
+    ``WorldError`` naming its key. Names inside the model files are checked when it is compiled
+    (``r2s_eval.sim.world.check_model``)."""
+    entry = as_mapping(world.get("robot"), "robot")
+    check_keys(entry, {"type", "scene", "workspace", "control_hz", "arms", "features"},
+               {"scene", "workspace", "control_hz", "arms"}, "robot")
+    workspace = as_mapping(entry["workspace"], "robot.workspace")
+    check_keys(workspace, {"z_m", "geom"}, {"z_m", "geom"}, "robot.workspace")
+    arms_entry = as_mapping(entry["arms"], "robot.arms")
+    if not arms_entry:
+        raise fail("robot.arms", "must list at least one arm")
+    arms = {str(n): _arm(str(n), v) for n, v in arms_entry.items()}
+    rig = {str(n): _rig_camera(str(n), v, arms) for n, v in as_mapping(world.get("rig"), "rig").items()}
+    missing = [c for c in world.get("cameras") or () if c not in rig]
+    if missing:
+        raise fail("cameras", f"records {missing}, which the rig {sorted(rig)} does not place")
+    return Robot(
+        type=str(entry.get("type", "robot")), scene=model_path(entry["scene"], "robot.scene"),
+        workspace_z_m=float(finite(workspace["z_m"], "robot.workspace.z_m")), table_geom=str(workspace["geom"]),
+        control_hz=float(finite(entry["control_hz"], "robot.control_hz", positive=True)),
+        arms=arms, features=_features(entry.get("features"), arms), rig=rig,
+    )
+
+
+_LOADED: dict[str, Robot] = {}
+
+
+def world_robot(world: Mapping) -> Robot:
+    """The robot of ``world`` (a ``world`` config slice), read once per content."""
+    key = json.dumps({k: world.get(k) for k in ("robot", "rig", "cameras")}, sort_keys=True, default=str)
+    if key not in _LOADED:
+        _LOADED[key] = load_robot(world)
+    return _LOADED[key]
+
+
+@functools.cache
+def bundled_robot() -> Robot:
+    from r2s_eval.sim.tasks import bundled_world
+
+    return world_robot(bundled_world())
+
+
+__all__ = ["Arm", "Feature", "Gripper", "RigCamera", "Robot", "WorldError", "bundled_robot", "load_robot",
+           "load_world", "model_path", "world_robot"]
+
+
+def load_world(world: Mapping) -> tuple[Robot, dict]:
+    """The robot and the tasks of ``world`` (a ``world`` config slice), checked against each other
+    and against the model files: the joints, actuators, sites, bodies and cameras the robot and rig
+    name are the model's, a task's arm is one of the robot's, and its start regions leave room for
+    its objects."""
+    from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
+    from r2s_eval.sim.world import build_robot_spec, substeps
+
+    robot, tasks = world_robot(world), world_tasks(world)
+    substeps(robot, build_robot_spec(robot).option.timestep)  # the names given are the model's
+    for key, task in tasks.items():
+        if task.arm not in (*robot.arms, "nearest", "behind_axis"):
+            raise fail(f"tasks.{key}.arm", f"must be an arm of the robot {list(robot.arms)}, nearest or behind_axis, "
+                                           f"got {task.arm!r}")
+        try:
+            sample_initial_poses(task, np.random.default_rng(0))
+        except RuntimeError:
+            raise fail(f"tasks.{key}.start", f"leaves no room: no draw of 1000 keeps the objects' footprints "
+                                             f"{task.clearance_m:g} m apart (regions overlap too much)") from None
+    return robot, tasks

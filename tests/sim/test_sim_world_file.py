@@ -58,7 +58,7 @@ def _broken(old: str, new: str) -> dict:
      r"world\.tasks\.cup_on_plate\.success\.all\[1\]\.on_top_of: unknown parameter\(s\) \['surface'\]; missing \['support'\]"),
     ("- on_top_of: {object: cup, support: plate}", "- inside: {object: cup, container: plate}",
      r"world\.tasks\.cup_on_plate\.success\.all\[1\]\.inside: container 'plate' is a plate; inside is defined for "
-     r"\['cup', 'box'\]"),
+     r"\['cup', 'box', 'mesh'\]"),
     ("mass_kg: 0.25", "mass_kg: -0.25", r"world\.objects\.plate\.mass_kg: must be positive, got -0\.25"),
     ("mass_kg: 0.25", "mass_kg: .nan", r"world\.objects\.plate\.mass_kg: must be a finite number, got nan"),
     ("kind: plate", "kind: saucer", r"world\.objects\.plate\.kind: must be one of \["),

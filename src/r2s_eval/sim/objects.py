@@ -18,6 +18,10 @@ ball   solid sphere (body frame at its lowest point). dims: radius_m
 block  solid cube. dims: size_m (edge length)
 box    open-top rectangular tray: a floor plus four walls.
        dims: length_m (outer, body x), width_m (outer, body y), height_m, wall_m, floor_m
+mesh   a scanned object: its surface from a mesh file (``r2s_eval.sim.meshes``), body frame at
+       the centre of its bounding box's bottom face; for collisions the surface's convex hull,
+       or convex parts (a CoACD decomposition) that let a concave object (a bowl, a mug) hold
+       things. dims (read off the mesh): half_x_m, half_y_m, height_m
 
 Placements
 ----------
@@ -40,9 +44,13 @@ on_side        +pi/2 about body y (less the  base radius, shifted -height_m/2 al
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+
+if TYPE_CHECKING:
+    from r2s_eval.sim.meshes import MeshShape
 
 _OBJECT_CONTACT = dict(contype=1, conaffinity=3, condim=4)
 
@@ -62,6 +70,8 @@ class ObjectSpec:
     # text prompt (default: "a <name>").
     hue: dict | None = None
     prompt: str | None = None
+    shape: MeshShape | None = field(default=None, compare=False, repr=False)  # a mesh kind's surface and parts
+    symmetry: int | None = None  # yaw symmetry where the world gives it (a mesh's; default: its kind's)
 
     def scaled_dims(self, size_scale: float) -> dict:
         return {k: (v * size_scale if k.endswith("_m") else v) for k, v in self.dims.items()}
@@ -72,7 +82,7 @@ PLACEMENTS = ("upright", "upside_down", "on_side")
 # Yaw symmetry of each object kind about the vertical axis (0: rotationally symmetric,
 # n: looks the same after 2*pi/n). A cup lying on its side has none (1): its opening
 # points one way.
-YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2}
+YAW_SYMMETRY = {"cup": 0, "plate": 0, "ball": 0, "block": 4, "box": 2, "mesh": 1}
 PLACEMENT_YAW_SYMMETRY = {("cup", "on_side"): 1}
 
 
@@ -91,6 +101,8 @@ def footprint_radius_m(kind: str, dims: dict, placement: str = "upright") -> flo
         return dims["size_m"] / np.sqrt(2)
     if kind == "box":
         return float(np.hypot(dims["length_m"], dims["width_m"]) / 2)
+    if kind == "mesh":
+        return float(np.hypot(dims["half_x_m"], dims["half_y_m"]))
     raise KeyError(f"unknown object kind {kind!r}")
 
 
@@ -271,6 +283,7 @@ def add_box(body, obj: ObjectSpec, dims: dict, rgba) -> None:
 
 
 BUILDERS = {"cup": add_cup, "plate": add_plate, "ball": add_ball, "block": add_block, "box": add_box}
+KINDS = (*BUILDERS, "mesh")  # a mesh is built from its file (r2s_eval.sim.meshes)
 
 
 def add_object(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, rgb_offset) -> None:
@@ -280,4 +293,9 @@ def add_object(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, rgb_offs
     body.pos = [0.0, 0.0, 1.0]  # placed properly at reset
     body.add_freejoint().name = f"{obj.name}_free"
     rgba = np.clip(np.r_[np.asarray(obj.rgba[:3]) + np.asarray(rgb_offset), obj.rgba[3]], 0, 1)
+    if obj.kind == "mesh":
+        from r2s_eval.sim.meshes import add_mesh_geoms
+
+        add_mesh_geoms(spec, body, obj, size_scale, rgba, _OBJECT_CONTACT)
+        return
     BUILDERS[obj.kind](body, obj, obj.scaled_dims(size_scale), rgba)

@@ -151,14 +151,27 @@ def _footprint(scene: Scene, name: str) -> tuple[np.ndarray, list[np.ndarray]]:
         corners, R = _block_corners_world(scene, name)
         axes = [R[:2, k] / np.linalg.norm(R[:2, k]) for k in range(3) if np.linalg.norm(R[:2, k]) > 0.3]
         return corners[:, :2], axes  # a flat block has two horizontal face normals
-    if kind == "box":
-        s, dims = scene.object_state(name), scene.object_dims(name)
+    if kind in ("box", "mesh"):
+        s = scene.object_state(name)
         R = rotation(s["quat_wxyz"])
         axes = [R[:2, 0] / np.linalg.norm(R[:2, 0]), R[:2, 1] / np.linalg.norm(R[:2, 1])]
         signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], float)
-        half = np.array([dims["length_m"], dims["width_m"]]) / 2
-        return s["pos_world_m"][:2] + (signs * half) @ np.array(axes), axes
-    raise ValueError(f"apart: no footprint for a {kind} ({name}); blocks and boxes have one")
+        return s["pos_world_m"][:2] + (signs * _half_extent(scene, name)) @ np.array(axes), axes
+    raise ValueError(f"apart: no footprint for a {kind} ({name}); blocks, boxes and meshes have one")
+
+
+def _half_extent(scene: Scene, name: str) -> np.ndarray:
+    """Half the footprint's sides along the body x and y axes (a box, a mesh's bounding box)."""
+    dims = scene.object_dims(name)
+    if "half_x_m" in dims:
+        return np.array([dims["half_x_m"], dims["half_y_m"]])
+    return np.array([dims["length_m"], dims["width_m"]]) / 2
+
+
+def _in_bounds(scene: Scene, point_world_m: np.ndarray, mesh: str, inset_m: float = 0.0) -> tuple[np.ndarray, bool]:
+    """A point in a mesh object's frame, and whether it lies within its footprint (less ``inset_m``)."""
+    p = local(scene, mesh, point_world_m)
+    return p, bool(np.all(np.abs(p[:2]) < _half_extent(scene, mesh) - inset_m))
 
 
 def _in_cup(scene: Scene, name: str, cup: str) -> dict:
@@ -227,7 +240,10 @@ def on_top_of(scene: Scene, object: str, support: str, tolerance_m: float = REST
     if kind == "block":
         p, size = _on_block(scene, object, support)
         return bool(max(abs(p[0]), abs(p[1])) < size / 2 - inset_m and abs(p[2] - size) < tolerance_m)
-    raise ValueError(f"on_top_of: a {kind} ({support}) has no top face defined; plates and blocks have")
+    if kind == "mesh":  # on the top of its bounding box
+        p, within = _in_bounds(scene, scene.object_state(object)["pos_world_m"], support, inset_m)
+        return bool(within and abs(p[2] - scene.object_dims(support)["height_m"]) < tolerance_m)
+    raise ValueError(f"on_top_of: a {kind} ({support}) has no top face defined; plates, blocks and meshes have")
 
 
 def inside(scene: Scene, object: str, container: str) -> bool:
@@ -238,7 +254,10 @@ def inside(scene: Scene, object: str, container: str) -> bool:
     if kind == "box":
         p, within = _in_box(scene, object, container)
         return bool(within and 0 < p[2] < scene.object_dims(container)["height_m"])
-    raise ValueError(f"inside: a {kind} ({container}) is not a container; cups and boxes are")
+    if kind == "mesh":  # a concave scan (a bowl): the centre within its bounding box
+        p, within = _in_bounds(scene, centre_m(scene, object), container)
+        return bool(within and 0 < p[2] < scene.object_dims(container)["height_m"])
+    raise ValueError(f"inside: a {kind} ({container}) is not a container; cups, boxes and meshes are")
 
 
 def covered_by(scene: Scene, object: str, cover: str, margin_m: float = COVER_MARGIN_M) -> bool:
@@ -265,7 +284,11 @@ def over(scene: Scene, object: str, target: str, tolerance_m: float = RESTING_TO
     if kind == "block":
         p, size = _on_block(scene, object, target)
         return bool(max(abs(p[0]), abs(p[1])) < size / 2 and p[2] > size - tolerance_m)
-    raise ValueError(f"over: 'over a {kind}' ({target}) is not defined; plates, cups, boxes, blocks, and a cup over a ball")
+    if kind == "mesh":  # above its bottom, within its footprint (over a bowl's opening, or its top)
+        p, within = _in_bounds(scene, centre_m(scene, object), target)
+        return bool(within and p[2] > 0)
+    raise ValueError(f"over: 'over a {kind}' ({target}) is not defined; plates, cups, boxes, blocks, meshes, "
+                     f"and a cup over a ball")
 
 
 def apart(scene: Scene, object: str, other: str) -> bool:
@@ -303,11 +326,11 @@ PREDICATES: dict[str, Callable[..., bool]] = {
 COMBINATORS = ("all", "any", "not")
 # The object kinds a predicate's geometry is defined for, per parameter (checked when a world is read).
 SUPPORTED_KINDS: dict[str, dict[str, tuple[str, ...]]] = {
-    "on_top_of": {"support": ("plate", "block")},
-    "inside": {"container": ("cup", "box")},
+    "on_top_of": {"support": ("plate", "block", "mesh")},
+    "inside": {"container": ("cup", "box", "mesh")},
     "covered_by": {"cover": ("cup",)},
-    "over": {"target": ("plate", "cup", "box", "block", "ball")},
-    "apart": {"object": ("block", "box"), "other": ("block", "box")},
+    "over": {"target": ("plate", "cup", "box", "block", "ball", "mesh")},
+    "apart": {"object": ("block", "box", "mesh"), "other": ("block", "box", "mesh")},
 }
 # The parameters that name objects (a task's condition may name only its own objects).
 OBJECT_PARAMS = ("object", "support", "container", "cover", "target", "other")

@@ -3,8 +3,10 @@ readers (``tasks``, ``robot``) share."""
 
 from __future__ import annotations
 
+import importlib.resources
 import math
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from r2s_eval.errors import ConfigError
@@ -51,3 +53,25 @@ def interval(value: Any, where: str) -> tuple[float, float]:
     if low > high:
         raise fail(where, f"must be [low, high] with low <= high, got {list(value)}")
     return low, high
+
+
+REPO_ROOT = Path(__file__).resolve().parents[3]
+
+
+def file_path(ref: Any, where: str, what: str = "file") -> Path:
+    """The file a world names: a path (relative to the repository, or absolute) or
+    ``{package, resource}``, a file shipped inside an installed package; it must exist."""
+    if isinstance(ref, Mapping):
+        check_keys(dict(ref), {"package", "resource"}, {"package", "resource"}, where)
+        try:
+            root = importlib.resources.files(str(ref["package"]))
+        except ModuleNotFoundError:
+            raise fail(f"{where}.package", f"package {ref['package']!r} is not installed") from None
+        path = Path(str(root / str(ref["resource"])))
+    elif isinstance(ref, str) and ref:
+        path = Path(ref) if Path(ref).is_absolute() else REPO_ROOT / ref
+    else:
+        raise fail(where, f"must be a path or {{package, resource}}, got {ref!r}")
+    if not path.is_file():
+        raise fail(where, f"no such {what}: {path}")
+    return path

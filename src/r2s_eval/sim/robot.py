@@ -56,7 +56,6 @@ Intrinsics follow OpenCV (pixels, principal point at the pixel-centre convention
 from __future__ import annotations
 
 import functools
-import importlib.resources
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -65,9 +64,8 @@ from typing import Any
 
 import numpy as np
 
-from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite
+from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, file_path, finite
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
 AXES = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
 
 
@@ -200,21 +198,8 @@ class Robot:
 
 # ---------------------------------------------------------------- reading
 def model_path(ref: Any, where: str) -> Path:
-    """The file a model reference names (a path, or ``{package, resource}``); it must exist."""
-    if isinstance(ref, Mapping):
-        check_keys(dict(ref), {"package", "resource"}, {"package", "resource"}, where)
-        try:
-            root = importlib.resources.files(str(ref["package"]))
-        except ModuleNotFoundError:
-            raise fail(f"{where}.package", f"package {ref['package']!r} is not installed") from None
-        path = Path(str(root / str(ref["resource"])))
-    elif isinstance(ref, str) and ref:
-        path = Path(ref) if Path(ref).is_absolute() else REPO_ROOT / ref
-    else:
-        raise fail(where, f"must be a path or {{package, resource}}, got {ref!r}")
-    if not path.is_file():
-        raise fail(where, f"no such model file: {path}")
-    return path
+    """The model file a reference names (a path, or ``{package, resource}``); it must exist."""
+    return file_path(ref, where, "model file")
 
 
 def _vector(value: Any, where: str, length: int | None = None) -> tuple[float, ...]:

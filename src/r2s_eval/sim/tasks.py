@@ -10,7 +10,7 @@ condition (``r2s_eval.sim.predicates``), both compiled here into functions of th
   the env also keeps the running maximum over an episode.
 
 An object (``world.objects.<name>``): ``kind`` (cup, plate, ball, block, box: the builders and
-geometry of ``objects.py``), ``rgba`` (its colour, which the colour segmenter looks for), ``dims``
+geometry of ``objects.py``; or mesh, a scanned object read from its file, ``meshes.py``), ``rgba`` (its colour, which the colour segmenter looks for), ``dims``
 (the kind's dimensions, metres), ``mass_kg``, optionally ``friction`` (1.0) and ``find``, how it is
 found in a camera frame: ``hue`` (an explicit HSV range ``{hue_lo, hue_hi, sat_min, val_min}``,
 OpenCV units; default: around ``rgba``) and ``prompt`` (the open-vocabulary segmenter's text,
@@ -63,7 +63,8 @@ import numpy as np
 import yaml
 
 from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval  # noqa: F401 (WorldError: re-exported)
-from r2s_eval.sim.objects import BUILDERS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.meshes import load_shape, mesh_entry_keys, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 
 WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
@@ -117,20 +118,26 @@ class Task:
 
     def yaw_symmetry(self, name: str) -> int:
         """Yaw symmetry of the object in its start placement (``objects.yaw_symmetry``)."""
-        return yaw_symmetry(self.object(name).kind, self.placement(name))
+        obj = self.object(name)
+        return obj.symmetry if obj.symmetry is not None else yaw_symmetry(obj.kind, self.placement(name))
 
 
 # ---------------------------------------------------------------- reading a world
 def _object(name: str, entry: Any) -> ObjectSpec:
     where = f"objects.{name}"
     entry = as_mapping(entry, where)
-    check_keys(entry, {"kind", "rgba", "dims", "mass_kg", "friction", "find"}, {"kind", "rgba", "dims", "mass_kg"}, where)
-    if entry["kind"] not in BUILDERS:
-        raise fail(f"{where}.kind", f"must be one of {sorted(BUILDERS)}, got {entry['kind']!r}")
+    if entry.get("kind") not in KINDS:
+        raise fail(f"{where}.kind", f"must be one of {sorted(KINDS)}, got {entry.get('kind')!r}")
+    common = {"kind", "rgba", "mass_kg", "friction", "find"}
+    if entry["kind"] == "mesh":  # a scanned object: its dimensions are its mesh's
+        check_keys(entry, common | mesh_entry_keys(), {"kind", "rgba", "mass_kg", "mesh"}, where)
+    else:
+        check_keys(entry, common | {"dims"}, {"kind", "rgba", "dims", "mass_kg"}, where)
     rgba = entry["rgba"]
     if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= finite(c, f"{where}.rgba") <= 1 for c in rgba):
         raise fail(f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
-    dims = as_mapping(entry["dims"], f"{where}.dims")
+    shape = load_shape(entry, where) if entry["kind"] == "mesh" else None
+    dims = shape.dims() if shape is not None else as_mapping(entry["dims"], f"{where}.dims")
     for key, value in dims.items():
         finite(value, f"{where}.dims.{key}", positive=True)
     find = as_mapping(entry.get("find") or {}, f"{where}.find")
@@ -149,7 +156,7 @@ def _object(name: str, entry: Any) -> ObjectSpec:
     return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
                       mass_kg=finite(entry["mass_kg"], f"{where}.mass_kg", positive=True),
                       friction=finite(entry.get("friction", 1.0), f"{where}.friction", positive=True),
-                      hue=hue, prompt=prompt)
+                      hue=hue, prompt=prompt, shape=shape, symmetry=yaw_symmetry_of(entry, where))
 
 
 def _region(entry: Any, names: list[str], name: str, where: str) -> tuple[Region, str]:
@@ -211,6 +218,9 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
     regions, placements = {}, {}
     for name in names:
         regions[name], placement = _region(start[name], names, name, f"{where}.start.{name}")
+        if placement != "upright" and objects[name].kind == "mesh":
+            raise fail(f"{where}.start.{name}.placement", f"a mesh object starts upright (as its file stands), "
+                                                          f"got {placement!r}")
         if placement != "upright":
             placements[name] = placement
     plan = _plan(entry["plan"], names, f"{where}.plan")

@@ -451,8 +451,12 @@ def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator]
         dims = env.object_dims(name)
         half_width = dims["radius_m"] if kind == "ball" else dims["size_m"] / 2
         return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
+    if kind == "mesh":  # like a block, from above, the jaws pre-shaped wider than its footprint
+        dims = env.object_dims(name)
+        half_width = max(dims["half_x_m"], dims["half_y_m"])
+        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
     raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind} ({name}) from above; "
-                      f"it picks cups, balls and blocks")
+                      f"it picks cups, balls, blocks and meshes")
 
 
 def _place_on(op: ScriptedOperator, held: str, support: str) -> Callable[[ScriptedOperator], np.ndarray]:

@@ -34,6 +34,8 @@ import numpy as np
 from r2s_eval.sim.reading import as_mapping, check_keys, fail, file_path, finite
 
 COLLISION_GROUP = 3  # collision parts are not drawn (renderers show groups 0-2)
+MESH_KEYS = {"mesh", "collision", "yaw_symmetry"}  # a mesh object's keys besides the common ones
+COACD_SETTINGS = {"threshold", "max_convex_hull", "preprocess_resolution", "resolution", "mcts_iterations", "mcts_nodes"}
 
 
 @dataclass(frozen=True)
@@ -68,13 +70,14 @@ def _decompose(vertices: np.ndarray, faces: np.ndarray, settings: dict) -> tuple
     import coacd
 
     coacd.set_log_level("error")
-    parts = coacd.run_coacd(coacd.Mesh(vertices, faces), seed=0, **settings)
+    parts = tuple((np.asarray(v, float), np.asarray(f, np.int64))
+                  for v, f in coacd.run_coacd(coacd.Mesh(vertices, faces), seed=0, **settings))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, n=len(parts), **{f"v{i}": v for i, (v, _) in enumerate(parts)},
              **{f"f{i}": f for i, (_, f) in enumerate(parts)})
     os.replace(tmp, path)
-    return tuple((np.asarray(v, float), np.asarray(f, np.int64)) for v, f in parts)
+    return parts
 
 
 def load_shape(entry: Mapping, where: str) -> MeshShape:
@@ -107,12 +110,11 @@ def load_shape(entry: Mapping, where: str) -> MeshShape:
     if collision == "hull":
         parts = ()
     else:
-        settings = as_mapping(as_mapping(collision, f"{where}.collision").get("coacd", {}), f"{where}.collision.coacd")
-        check_keys(as_mapping(collision, f"{where}.collision"), {"coacd"}, {"coacd"}, f"{where}.collision")
-        check_keys(settings, {"threshold", "max_convex_hull", "preprocess_resolution", "resolution", "mcts_iterations",
-                              "mcts_nodes"}, set(),
-                   f"{where}.collision.coacd")
-        parts = _decompose(vertices, faces, {k: v for k, v in sorted(settings.items())})
+        decomposition = as_mapping(collision, f"{where}.collision")
+        check_keys(decomposition, {"coacd"}, {"coacd"}, f"{where}.collision")
+        settings = as_mapping(decomposition["coacd"] or {}, f"{where}.collision.coacd")
+        check_keys(settings, COACD_SETTINGS, set(), f"{where}.collision.coacd")
+        parts = _decompose(vertices, faces, settings)
     return MeshShape(vertices=vertices, faces=faces, texcoords=texcoords, texture=texture, parts=parts)
 
 
@@ -147,11 +149,6 @@ def add_mesh_geoms(spec: mujoco.MjSpec, body: mujoco.MjsBody, obj, scale: float,
                       friction=[obj.friction, 0.01, 0.001], contype=contact["contype"],
                       conaffinity=contact["conaffinity"], condim=contact["condim"], group=COLLISION_GROUP,
                       name=f"{obj.name}_part{i}")
-
-
-def mesh_entry_keys() -> set[str]:
-    """The keys a ``kind: mesh`` object entry may have besides the common ones."""
-    return {"mesh", "collision", "yaw_symmetry"}
 
 
 def yaw_symmetry_of(entry: Mapping[str, Any], where: str) -> int | None:

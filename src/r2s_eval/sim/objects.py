@@ -157,7 +157,7 @@ def placement_quat(placement: str, yaw_rad: float, kind: str = "", dims: dict | 
         base = np.array([np.cos(pitch / 2), 0.0, np.sin(pitch / 2), 0.0])
     else:
         raise ValueError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
-    return _quat_mul(_yaw_quat(yaw_rad), base)
+    return _quat_mul(yaw_quat(yaw_rad), base)
 
 
 def placement_origin_m(kind: str, dims: dict, placement: str, x_m: float, y_m: float, yaw_rad: float,
@@ -206,7 +206,8 @@ def _add_geom(body, size, pos, rgba, mass_kg, friction, geom_type, quat=None, na
     return geom
 
 
-def _yaw_quat(yaw_rad: float) -> np.ndarray:
+def yaw_quat(yaw_rad: float) -> np.ndarray:
+    """Rotation (wxyz) about world z by ``yaw_rad``."""
     return np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
 
 
@@ -219,7 +220,7 @@ def _ring_of_boxes(body, name, radius_m, n, half_radial_m, half_height_m, z_cent
         angle = 2 * np.pi * i / n
         pos = [radius_m * np.cos(angle), radius_m * np.sin(angle), z_centre_m]
         _add_geom(body, [half_radial_m, half_tangential_m, half_height_m], pos, rgba,
-                  mass_kg / n, friction, mujoco.mjtGeom.mjGEOM_BOX, quat=_quat_mul(_yaw_quat(angle), lean),
+                  mass_kg / n, friction, mujoco.mjtGeom.mjGEOM_BOX, quat=_quat_mul(yaw_quat(angle), lean),
                   name=f"{name}_wall{i}")
 
 

@@ -166,34 +166,39 @@ class Robot:
         """Per arm, the joint targets and the (open) gripper closing at reset."""
         return {name: (arm.home.copy(), 0.0) for name, arm in self.arms.items()}
 
+    @functools.cached_property
+    def _slots(self) -> tuple[tuple[str, int | None], ...]:
+        """Per feature, its arm and its joint's index in that arm (None: the gripper), looked up
+        once: the conversions below run every control step."""
+        return tuple((f.arm, None if f.joint is None else self.arms[f.arm].joints.index(f.joint)) for f in self.features)
+
     def to_model(self, vector) -> dict[str, tuple[np.ndarray, float]]:
         """A dataset-layout vector -> per arm (joint values, gripper closing), model units."""
         values = np.asarray(vector, dtype=float).reshape(self.action_dim)
-        out = {name: (np.zeros(len(arm.joints)), 0.0) for name, arm in self.arms.items()}
-        for value, f in zip(values, self.features):
-            q, grip = out[f.arm]
+        joints = {name: np.zeros(len(arm.joints)) for name, arm in self.arms.items()}
+        grips = dict.fromkeys(self.arms, 0.0)
+        for value, f, (arm, index) in zip(values, self.features, self._slots):
             model_value = f.scale * value + f.offset
-            if f.joint is None:
-                out[f.arm] = (q, model_value)
+            if index is None:
+                grips[arm] = model_value
             else:
-                q[self.arms[f.arm].joints.index(f.joint)] = model_value
-        return out
+                joints[arm][index] = model_value
+        return {name: (joints[name], grips[name]) for name in self.arms}
 
     def from_model(self, per_arm: Mapping[str, tuple[np.ndarray, float]], offsets: bool = True) -> np.ndarray:
         """Per arm (joint values, gripper closing) in model units -> a dataset-layout vector
         (``offsets=False``: rates, which scale but do not shift)."""
         out = np.empty(self.action_dim)
-        for i, f in enumerate(self.features):
-            q, grip = per_arm[f.arm]
-            model_value = grip if f.joint is None else q[self.arms[f.arm].joints.index(f.joint)]
+        for i, (f, (arm, index)) in enumerate(zip(self.features, self._slots)):
+            q, grip = per_arm[arm]
+            model_value = grip if index is None else q[index]
             out[i] = (model_value - (f.offset if offsets else 0.0)) / f.scale
         return out
 
     def slices(self, arm: str) -> tuple[list[int], int]:
         """Indices of ``arm``'s joints (in its joint order) and of its gripper in the dataset layout."""
-        joints = [next(i for i, f in enumerate(self.features) if f.arm == arm and f.joint == j)
-                  for j in self.arms[arm].joints]
-        return joints, next(i for i, f in enumerate(self.features) if f.arm == arm and f.joint is None)
+        joints = sorted((index, i) for i, (a, index) in enumerate(self._slots) if a == arm and index is not None)
+        return [i for _, i in joints], next(i for i, (a, index) in enumerate(self._slots) if a == arm and index is None)
 
 
 # ---------------------------------------------------------------- reading
@@ -244,11 +249,12 @@ def _gripper(value: Any, where: str) -> Gripper:
     pads = _names(entry["pads"], f"{where}.pads")
     if len(pads) != 2:
         raise fail(f"{where}.pads", f"must name the two jaws' bodies, got {list(pads)}")
-    return Gripper(actuator=str(entry["actuator"]), ctrl_open=_pair(entry["ctrl"], f"{where}.ctrl")[0],
-                   ctrl_closed=_pair(entry["ctrl"], f"{where}.ctrl")[1],
-                   joints=_names([entry["joint"]] if isinstance(entry["joint"], str) else entry["joint"], f"{where}.joint"),
-                   position_open=_pair(entry["position"], f"{where}.position")[0],
-                   position_closed=_pair(entry["position"], f"{where}.position")[1],
+    ctrl_open, ctrl_closed = _pair(entry["ctrl"], f"{where}.ctrl")
+    position_open, position_closed = _pair(entry["position"], f"{where}.position")
+    joints = [entry["joint"]] if isinstance(entry["joint"], str) else entry["joint"]
+    return Gripper(actuator=str(entry["actuator"]), ctrl_open=ctrl_open, ctrl_closed=ctrl_closed,
+                   joints=_names(joints, f"{where}.joint"), position_open=position_open,
+                   position_closed=position_closed,
                    jaw_open_m=float(finite(entry["jaw_open_m"], f"{where}.jaw_open_m", positive=True)), pads=pads)
 
 

@@ -64,7 +64,7 @@ import yaml
 
 from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval  # noqa: F401 (WorldError: re-exported)
 from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
-from r2s_eval.sim.meshes import load_shape, mesh_entry_keys, yaw_symmetry_of
+from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 
 WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
@@ -130,7 +130,7 @@ def _object(name: str, entry: Any) -> ObjectSpec:
         raise fail(f"{where}.kind", f"must be one of {sorted(KINDS)}, got {entry.get('kind')!r}")
     common = {"kind", "rgba", "mass_kg", "friction", "find"}
     if entry["kind"] == "mesh":  # a scanned object: its dimensions are its mesh's
-        check_keys(entry, common | mesh_entry_keys(), {"kind", "rgba", "mass_kg", "mesh"}, where)
+        check_keys(entry, common | MESH_KEYS, {"kind", "rgba", "mass_kg", "mesh"}, where)
     else:
         check_keys(entry, common | {"dims"}, {"kind", "rgba", "dims", "mass_kg"}, where)
     rgba = entry["rgba"]

@@ -12,9 +12,9 @@ import mujoco
 import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
-from r2s_eval.sim.objects import ObjectSpec, add_object
+from r2s_eval.sim.objects import ObjectSpec, add_object, yaw_quat
 from r2s_eval.sim.params import WorldParams
-from r2s_eval.sim.reading import WorldError, fail
+from r2s_eval.sim.reading import fail
 from r2s_eval.sim.robot import Arm, RigCamera, Robot
 
 EE_SITE_GROUP = 5  # a site group no renderer shows by default
@@ -23,11 +23,6 @@ EE_SITE_GROUP = 5  # a site group no renderer shows by default
 def ee_site(arm: str) -> str:
     """The site the world adds at an arm's grasp centre, axes (approach, jaw, third)."""
     return f"{arm}_ee"
-
-
-def _yaw_quat(yaw_deg: float) -> np.ndarray:
-    half = 0.5 * np.deg2rad(yaw_deg)
-    return np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
 
 
 def _quat_of(R: np.ndarray) -> np.ndarray:
@@ -43,17 +38,17 @@ def _rot_of(quat) -> np.ndarray:
 
 
 def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
-    where = f"world.robot.arms.{arm.name}"
+    where = f"robot.arms.{arm.name}"
     if arm.mount_frame is not None:
         frame = spec.frame(arm.mount_frame)
         if frame is None:
-            raise WorldError(f"{where}.mount.frame", f"the scene {spec.modelname!r} has no frame {arm.mount_frame!r}")
+            raise fail(f"{where}.mount.frame", f"the scene {spec.modelname!r} has no frame {arm.mount_frame!r}")
     else:
-        frame = spec.worldbody.add_frame(pos=list(arm.mount_pos), quat=list(_yaw_quat(arm.mount_yaw_deg)))
+        frame = spec.worldbody.add_frame(pos=list(arm.mount_pos), quat=list(yaw_quat(np.deg2rad(arm.mount_yaw_deg))))
     spec.attach(mujoco.MjSpec.from_file(str(arm.model)), prefix=f"{arm.name}_", frame=frame)
     for local in arm.joints:
         if spec.joint(arm.named(local)) is None:
-            raise WorldError(f"{where}.joints", f"{arm.model.name} has no joint {local!r}")
+            raise fail(f"{where}.joints", f"{arm.model.name} has no joint {local!r}")
     if arm.servo is not None:
         kp, kv = arm.servo
         for actuator in list(spec.actuators):
@@ -68,17 +63,17 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
             servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
     for local in (*arm.actuators, arm.gripper.actuator):
         if spec.actuator(arm.named(local)) is None:
-            raise WorldError(f"{where}.actuators" if local in arm.actuators else f"{where}.gripper.actuator",
+            raise fail(f"{where}.actuators" if local in arm.actuators else f"{where}.gripper.actuator",
                              f"{arm.model.name} has no actuator {local!r}")
     for joint in arm.gripper.joints:
         if spec.joint(arm.named(joint)) is None:
-            raise WorldError(f"{where}.gripper.joint", f"{arm.model.name} has no joint {joint!r}")
+            raise fail(f"{where}.gripper.joint", f"{arm.model.name} has no joint {joint!r}")
     for pad in arm.gripper.pads:
         if spec.body(arm.named(pad)) is None:
-            raise WorldError(f"{where}.gripper.pads", f"{arm.model.name} has no body {pad!r}")
+            raise fail(f"{where}.gripper.pads", f"{arm.model.name} has no body {pad!r}")
     site = spec.site(arm.named(arm.ee_site))
     if site is None:
-        raise WorldError(f"{where}.ee.site", f"{arm.model.name} has no site {arm.ee_site!r}")
+        raise fail(f"{where}.ee.site", f"{arm.model.name} has no site {arm.ee_site!r}")
     site.parent.add_site(name=ee_site(arm.name), pos=site.pos, quat=_quat_of(_rot_of(site.quat) @ arm.ee_rotation),
                          group=EE_SITE_GROUP)
     if arm.gravity_compensation:  # every body of the arm's model (attached with its prefix)
@@ -98,20 +93,20 @@ def _rest_frame(body: mujoco.MjsBody) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _place_camera(spec: mujoco.MjSpec, robot: Robot, cam: RigCamera) -> None:
-    where = f"world.rig.{cam.name}"
+    where = f"rig.{cam.name}"
     if cam.camera is not None:
         model_name = robot.arms[cam.arm].named(cam.camera) if cam.arm else cam.camera
         mj_cam = spec.camera(model_name)
         if mj_cam is None:
             known = sorted(c.name for c in spec.cameras)
-            raise WorldError(f"{where}.camera", f"the model has no camera {model_name!r}; its cameras: {known}")
+            raise fail(f"{where}.camera", f"the model has no camera {model_name!r}; its cameras: {known}")
         if spec.camera(cam.name) is not None and model_name != cam.name:
-            raise WorldError(where, f"the model already has a camera called {cam.name!r}")
+            raise fail(where, f"the model already has a camera called {cam.name!r}")
         mj_cam.name = cam.name
     else:
         body = spec.worldbody if cam.body == "world" else spec.body(cam.body)
         if body is None:
-            raise WorldError(f"{where}.body", f"the model has no body {cam.body!r}")
+            raise fail(f"{where}.body", f"the model has no body {cam.body!r}")
         mj_cam = body.add_camera(name=cam.name, pos=list(cam.pos))
     if cam.look_at is not None:
         R_parent, p_parent = _rest_frame(mj_cam.parent)
@@ -133,7 +128,7 @@ def build_robot_spec(robot: Robot) -> mujoco.MjSpec:
     """Scene, arms and camera rig (no task objects)."""
     spec = mujoco.MjSpec.from_file(str(robot.scene))
     if spec.geom(robot.table_geom) is None:
-        raise WorldError("world.robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}")
+        raise fail("robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}")
     for arm in robot.arms.values():
         _attach_arm(spec, arm)
     for cam in robot.rig.values():

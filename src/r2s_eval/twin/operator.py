@@ -285,16 +285,14 @@ class ScriptedOperator:
         self._ik = ArmIK(robot, self.arm, {name: q for name, (q, _) in measured.items()})
         self._cmd_pos, _ = self._ik.tcp_pose()
         self._R_cmd = top_down_rotation(self._grasp_yaw())
-        # Commands per arm in model units (joint targets, gripper closing): the operator's arm from
-        # where it is, the others held at home with their grippers open.
-        self._command = {name: (measured[name][0].copy() if name == self.arm else arm.home.copy(), 0.0)
-                         for name, arm in robot.arms.items()}
-        # A person at the controls sees where the gripper really is and aims accordingly: the
-        # commands make up for the arm's joint offsets, so the recorded joint targets are off
-        # by them (what action replay in a nominal simulation then has to absorb).
+        # Commands per arm in model units (joint targets, gripper closing): the others held at home
+        # with their grippers open, the operator's arm from where it is. A person at the controls
+        # sees where the gripper really is and aims accordingly: the commands make up for the
+        # arm's joint offsets, so the recorded joint targets are off by them (what action replay
+        # in a nominal simulation then has to absorb).
         self._joint_offsets = self.env.params.joint_offsets(self.arm, len(robot.arms[self.arm].joints))
-        q, grip = self._command[self.arm]
-        self._command[self.arm] = (q - self._joint_offsets, grip)
+        self._command = robot.home_targets()
+        self._command[self.arm] = (measured[self.arm][0] - self._joint_offsets, 0.0)
         self._action = robot.from_model(self._command)
 
     def _next_segment(self) -> bool:
@@ -446,14 +444,16 @@ def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator]
         return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m - 0.005), 0.0
     if kind == "cup":  # round its wall, near the table
         return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m), 0.0
-    if kind in ("ball", "block"):
-        # tcp slightly above the centre keeps the fingertips off the table; jaws pre-shaped.
+    if kind in ("ball", "block", "mesh"):
+        # tcp slightly above the centre keeps the fingertips off the table; jaws pre-shaped wider
+        # than the object (a mesh: than its bounding box's larger side).
         dims = env.object_dims(name)
-        half_width = dims["radius_m"] if kind == "ball" else dims["size_m"] / 2
-        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
-    if kind == "mesh":  # like a block, from above, the jaws pre-shaped wider than its footprint
-        dims = env.object_dims(name)
-        half_width = max(dims["half_x_m"], dims["half_y_m"])
+        if kind == "ball":
+            half_width = dims["radius_m"]
+        elif kind == "block":
+            half_width = dims["size_m"] / 2
+        else:
+            half_width = max(dims["half_x_m"], dims["half_y_m"])
         return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
     raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind} ({name}) from above; "
                       f"it picks cups, balls, blocks and meshes")

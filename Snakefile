@@ -29,6 +29,12 @@ include: "workflow/rules/judge.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/report.smk"
+
+
+if not LIBERO:
+
+    include: "workflow/rules/fidelity.smk"  # the same checkpoint in both worlds, the ablation
+
 include: "workflow/rules/annotate.smk"
 
 

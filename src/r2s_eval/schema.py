@@ -274,11 +274,18 @@ class Calibration:
 
 
 @dataclass
+class Joints:
+    estimate: bool
+    iterations: PositiveInt
+
+
+@dataclass
 class Calib:
     camera: Camera
     segmenter: Annotated[dict, Tagged("type", {"hsv": HsvSegmenter, "grounded_sam": GroundedSamSegmenter})]
     refine: Refine
     calibration: Calibration
+    joints: Joints
 
 
 @dataclass
@@ -392,6 +399,11 @@ class HardwareEffort(Figure):
 
 
 @dataclass
+class FidelityReport(Figure):
+    decimals: Count
+
+
+@dataclass
 class CaseStudy(Figure):
     outcomes: Annotated[list[Literal["success", "failure", "any"]], NonEmpty()]
     rank: Count
@@ -417,6 +429,7 @@ class Report:
     bt_convergence: BtConvergence
     overall_ranking: OverallRanking
     hardware_effort: HardwareEffort
+    fidelity: FidelityReport
     case_study: CaseStudy
     results_browser: ResultsBrowser
 
@@ -424,6 +437,23 @@ class Report:
 @dataclass
 class Annotate:
     n_pairs: PositiveInt
+
+
+def _perturbation_families() -> list[str]:
+    from r2s_eval.twin.perturb import ALL_FAMILIES, PERTURBATION_FAMILIES
+
+    return [*PERTURBATION_FAMILIES, ALL_FAMILIES]
+
+
+@dataclass
+class Ablation:
+    policies: list[str]  # candidates trained here
+    families: Annotated[list[Annotated[str, OneOf(_perturbation_families)]], NonEmpty()]
+
+
+@dataclass
+class Fidelity:
+    ablation: Ablation
 
 
 LiberoCamera = Literal["agentview", "robot0_eye_in_hand"]
@@ -489,6 +519,7 @@ class TrainedPolicy:
     decay_lr: NonNegative | None = optional(_POLICY_DEFAULTS)
     ema_decay: Level | None = optional(_POLICY_DEFAULTS)
     betas: tuple[Beta, Beta] | None = optional(_POLICY_DEFAULTS)
+    seeds: PositiveInt = optional(_POLICY_DEFAULTS)
 
 
 @dataclass
@@ -544,6 +575,7 @@ class Config:
     stats: Stats
     report: Report
     annotate: Annotate
+    fidelity: Fidelity
     libero: Libero | None = optional("LIBERO experiments compose it (conf/libero); the real-to-sim setting has none")
 
 
@@ -749,6 +781,14 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("rollout.n_action_steps", f"must be <= rollout.chunk_size ({rollout['chunk_size']})"))
     trained = {name: p for name, entry in cfg["policies"].items()
                if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server")}
+    for i, name in enumerate(cfg["fidelity"]["ablation"]["policies"]):
+        if name not in trained:
+            problems.append(Problem(f"fidelity.ablation.policies[{i}]", f"must be a candidate trained here "
+                                                                         f"{sorted(trained)}, got {name!r}"))
+    if cfg["fidelity"]["ablation"]["policies"] and real["source"] != "twin":
+        problems.append(Problem("fidelity.ablation.policies", "needs real.source twin: the ablation takes the "
+                                                              "twin's perturbations away one family at a time "
+                                                              "(set fidelity.ablation.policies=[] for your own data)"))
     for name, policy in trained.items():  # an external candidate's needs are checked when it is opened
         cameras = [k.removeprefix("observation.images.") for k in policy["image_keys"]]
         missing = [c for c in cameras if c not in world["cameras"]]
@@ -948,7 +988,8 @@ def suggest(path: str, known: Sequence[str]) -> str | None:
 
 # What the LIBERO setting never reads: its protocol is libero.* (the receding horizon and the
 # model's device, rollout.chunk_size / n_action_steps / device, are shared with real-to-sim).
-LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "rollout.inits_per_task",
+LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "fidelity",
+                 "rollout.inits_per_task",
                  "rollout.real_inits_per_task", "rollout.max_steps", "rollout.batch_episodes", "rollout.model_batch",
                  "rollout.video_camera", "rollout.video_size", "rollout.real_video_size", "rollout.video_fps")
 

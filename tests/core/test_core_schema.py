@@ -26,7 +26,7 @@ def _edit(path: Path, old: str, new: str) -> None:
     path.write_text(text.replace(old, new, 1))
 
 
-@pytest.mark.parametrize("experiment", ["smoke", "demo", "paper"])
+@pytest.mark.parametrize("experiment", ["smoke", "demo", "paper", "fidelity"])
 def test_every_experiment_composes_and_validates(experiment):
     cfg = compose_config(CONF, experiment)
     validate_config(cfg)  # the returned dict is the validated one; checking it again is a no-op
@@ -151,7 +151,7 @@ def test_a_missing_group_option_is_a_config_error():
 def test_every_group_has_a_schema():
     top = {p for p in known_paths() if "." not in p}
     assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
-            "compare", "stats", "report", "annotate", "tasks", "seed", "libero"} == top
+            "compare", "stats", "report", "annotate", "fidelity", "tasks", "seed", "libero"} == top
 
 
 def _problem_lines(err: pytest.ExceptionInfo) -> list[str]:
@@ -220,7 +220,8 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
     from r2s_eval.config import missing_inputs
 
     data, trials = tmp_path / "my_teleop", tmp_path / "trials.csv"
-    cfg = compose_config(CONF, "smoke", ["real=dataset", f"real.dataset_root={data}", f"real.reference_csv={trials}"])
+    cfg = compose_config(CONF, "smoke", ["real=dataset", f"real.dataset_root={data}", f"real.reference_csv={trials}",
+                                         "fidelity.ablation.policies=[]"])
     with pytest.raises(ConfigError) as err:
         missing_inputs(cfg)
     assert _problem_lines(err) == [
@@ -231,3 +232,16 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
     trials.write_text("policy,task,trials,successes\n")
     missing_inputs(cfg)  # both there: nothing to say
     missing_inputs(compose_config(CONF, "smoke"))  # the twin's own recording is made by the run
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (["fidelity.ablation.policies=[nope]"], r"fidelity.ablation.policies\[0\].*must be a candidate trained here"),
+    (["fidelity.ablation.families=[colour]"], r"fidelity.ablation.families\[0\].*must be one of"),
+    (["fidelity.ablation.policies=[act]", "real.source=dataset", "real.dataset_root=x", "real.reference_csv=y.csv"],
+     "needs real.source twin"),
+    (["+policies.act.seeds=0"], r"policies.act.seeds .*must be in \[1, inf\]"),
+    (["calib.joints.iterations=0"], r"calib.joints.iterations"),
+])
+def test_fidelity_settings_are_checked(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        compose_config(CONF, "smoke", overrides)

@@ -9,6 +9,9 @@ import subprocess
 import pandas as pd
 import pytest
 
+from r2s_eval.report.fidelity import fidelity_table
+from r2s_eval.stats.fidelity import cross_evaluation
+
 from r2s_eval.report import (
     bt_scores_table,
     judge_card_table,
@@ -152,7 +155,16 @@ def all_tables(make_fit) -> list[str]:
         realsim_table({"kinematic": validation(0.5, 0.6, 0.1, 6.0)}, {"kinematic": {"a_share_same_outcome": 0.5}}),
         bt_scores_table(fits, {"a_1": 0.8, "b": 0.2}),
         judge_card_table({"kinematic": CARD, "vlm_judge": {}}),
+        fidelity_table(fidelity_report()),
     ]
+
+
+def fidelity_report() -> dict:
+    def counts(successes):
+        return pd.DataFrame({"policy": ["a_1"], "task": ["cup_on_plate"], "successes": [successes], "trials": [10]})
+
+    worlds = {"R_real": counts(6), "R_sim": counts(5), "S_sim": counts(4), "S_real": counts(3)}
+    return {"cross": cross_evaluation(worlds, level=0.95, n_boot=50, seed=0)}
 
 
 def test_tables_structure(make_fit):

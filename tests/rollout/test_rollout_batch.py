@@ -76,7 +76,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 def _run(out: Path, inits: Path, act: Path, twin: Path | None, **batching) -> dict[str, bytes]:
     deterministic_torch(1)
     run_candidate(out, policy="act", arm="real" if twin else "sim", seed=SEED, rollout=ROLLOUT, world=WORLD,
-                  policy_cfg={"type": "act"}, inits=str(inits), twin=str(twin) if twin else None,
+                  policy_cfg={"type": "act"}, inits=str(inits), world_params=str(twin) if twin else None,
                   trained_dir=str(act), **batching)
     return _files(out)
 
@@ -153,7 +153,7 @@ def _run_image_policy(monkeypatch, out: Path, inits: Path, policy: ImagePolicy, 
                       rollout: dict = ROLLOUT, twin: Path | None = None, **batching) -> pd.DataFrame:
     monkeypatch.setattr(candidate, "open_policy", lambda *args, **kwargs: policy)
     return run_candidate(out, policy="image", arm=arm, seed=SEED, rollout=rollout, world=WORLD,
-                         policy_cfg={"type": "server"}, inits=str(inits), twin=str(twin) if twin else None,
+                         policy_cfg={"type": "server"}, inits=str(inits), world_params=str(twin) if twin else None,
                          **batching)
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.twin import TwinMagnitudes, sample_twin_params
+from r2s_eval.twin.perturb import PERTURBATION_FAMILIES, without_family
 
 POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 
@@ -143,3 +144,16 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
     last_command = np.asarray(steps[-1][1])[joints]
     np.testing.assert_allclose(env.state()[joints] - last_command, twin_params.joint_offsets(arm, len(joints)), atol=5e-3)
     env.close()
+
+
+def test_taking_a_family_away_gives_it_the_calibrated_sims_values():
+    twin = sample_twin_params(np.random.default_rng(3))
+    sim = WorldParams(joint_offset_rad={arm: tuple(0.5 * np.asarray(v)) for arm, v in twin.joint_offset_rad.items()})
+    every = {f.name for f in dataclasses.fields(WorldParams)} - {"noise_seed"}
+    assert {f for names in PERTURBATION_FAMILIES.values() for f in names} == every  # each field in one family
+    joints = without_family(twin, sim, "joints")
+    assert joints.joint_offset_rad == sim.joint_offset_rad
+    assert dataclasses.replace(joints, joint_offset_rad=twin.joint_offset_rad) == twin
+    assert without_family(twin, sim, "all") == dataclasses.replace(sim, noise_seed=twin.noise_seed)
+    with pytest.raises(ValueError, match="unknown perturbation family 'colour'"):
+        without_family(twin, sim, "colour")

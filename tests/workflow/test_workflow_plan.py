@@ -41,7 +41,7 @@ def test_failed_ingest_lets_no_training_run(tmp_path):
     reference = tmp_path / "reference.csv"
     reference.write_text("policy,task,trials,successes\n")
     overrides = ["real=dataset", f"real.dataset_root='{data}'",
-                 f"real.reference_csv='{reference}'"]
+                 f"real.reference_csv='{reference}'", "fidelity.ablation.policies=[]"]
     run = tmp_path / "run"
     targets = ("results/train/real/act", "results/train/sim/act")
 

@@ -86,7 +86,7 @@ def test_slurm_profile_plans_the_paper_in_tens_of_jobs(tmp_path):
     policies = {wc["policy"] for rule, wc, _ in jobs if rule == "train"}
     assert len([1 for rule, _, _ in jobs if rule == "rollout"]) == 2 * len(policies) >= 8
     for rule, _, requests in jobs:
-        gpu_stage = rule in {"train", "rollout"}  # VLAs on cuda; the vLLM judges are a service
+        gpu_stage = rule in {"train", "rollout", "cross_rollout"}  # VLAs on cuda; the vLLM judges are a service
         assert requests.get("gpu", "0") == ("1" if gpu_stage else "0"), rule
         assert requests["slurm_partition"] == ("gpu" if gpu_stage else "cpu"), rule
         assert requests["slurm_account"] == "my_lab"

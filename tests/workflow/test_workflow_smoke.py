@@ -94,12 +94,12 @@ def test_second_invocation_plans_nothing(smoke_run):
 
 
 def test_statistics_change_reruns_only_fit_onward(smoke_run):
-    # The judge audit's share intervals and the world report's gap intervals use the same bootstrap
-    # settings, so both rerun too; nothing upstream of the fit does.
+    # The judge audit's share intervals and the world and fidelity reports' gap intervals use the
+    # same bootstrap settings, so they rerun too; nothing upstream of the fit does.
     proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
     assert rules == {"fit", "validate", "realsim_table", "judge_audit", "judge_card_table", "results_browser",
-                     "world_report", *FIT_REPORTS}, rules
+                     "world_report", "fidelity", *FIT_REPORTS}, rules
 
 
 def test_judge_change_reruns_describe_onward(smoke_run):
@@ -119,8 +119,11 @@ def test_policy_change_reruns_only_that_policy(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["policies.act_weak.lr=0.0002"])
     jobs = planned_jobs(proc.stdout)
     per_policy = {(rule, wc.get("policy")) for rule, wc in jobs if "policy" in wc}
-    # Its rollouts are described again, the other policies' descriptions are kept.
-    assert per_policy == {("train", "act_weak"), ("rollout", "act_weak"), ("describe", "act_weak")}, per_policy
+    # Its rollouts are described again, the other policies' descriptions are kept; its checkpoints
+    # are crossed into the other world again, and its second training seed (the smoke's
+    # policies.act_weak.seeds) trained and rolled out again.
+    assert per_policy == {(rule, "act_weak") for rule in ("train", "rollout", "describe", "cross_rollout",
+                                                          "train_replicate", "seed_rollout")}, per_policy
     assert not {rule for rule, _ in jobs} & {"twin", "teleop", "ingest", "init_estimate", "replay", "rollout_inits"}
 
 

@@ -118,7 +118,15 @@ def stage_params(stage, **provided):
 
 
 def policy_params(wildcards):
-    return stage_params("train", policy=CFG["policies"][wildcards.policy], name=wildcards.policy)
+    replicate = int(getattr(wildcards, "replicate", 0))
+    # How many seeds are trained changes no single training.
+    policy = {k: v for k, v in CFG["policies"][wildcards.policy].items() if k != "seeds"}
+    return stage_params("train", policy=policy, name=wildcards.policy, **({"replicate": replicate} if replicate else {}))
+
+
+def seeds_of(policy):
+    """How many trainings per arm `policy` gets (its `seeds`; 1 unless set)."""
+    return int(CFG["policies"][policy].get("seeds", 1))
 
 
 class Untracked:
@@ -152,10 +160,6 @@ def candidate_transport(policy, arm):
         return Untracked({})
     source = for_arm(EXTERNAL[policy], arm)
     return Untracked({k: v for k, v in source.items() if k not in result_identity(source)})
-
-
-def rollout_policy_cfg(wildcards):
-    return candidate_identity(wildcards.policy, wildcards.arm)
 
 
 def rollout_transport(wildcards):

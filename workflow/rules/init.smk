@@ -45,6 +45,25 @@ rule init_estimate:
         " --frames {input.frames} --offsets {input.offsets} --out {output} --log {log}"
 
 
+# The robot's joint offsets, fitted on the recordings' own states and actions: the calibrated
+# sim's world parameters, which replay and every sim rollout build their simulation with.
+rule calib_joints:
+    priority: SIM_CHAIN_PRIORITY
+    input:
+        dataset=REAL_DATASET,
+        index="results/ingest/episodes.parquet",
+        estimates="results/init/estimates.parquet",
+    output:
+        "results/calib/world_params.json",
+    params:
+        cfg=stage_params("calib_joints"),
+    log:
+        "logs/calib_joints.log",
+    shell:
+        "{PY} -m r2s_eval.stages.calib_joints --cfg {params.cfg:q} --dataset {input.dataset}"
+        " --index {input.index} --estimates {input.estimates} --out {output} --log {log}"
+
+
 if TWIN:
 
     # Scores the estimates of the test episodes against the twin's true poses; nothing

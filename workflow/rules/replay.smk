@@ -6,6 +6,7 @@ rule replay:
         dataset=REAL_DATASET,
         index="results/ingest/episodes.parquet",
         estimates="results/init/estimates.parquet",
+        world="results/calib/world_params.json",
     output:
         dataset=directory("results/replay/dataset"),
         log_table="results/replay/log.parquet",
@@ -15,7 +16,8 @@ rule replay:
         "logs/replay.log",
     shell:
         "{PY} -m r2s_eval.stages.replay --cfg {params.cfg:q} --dataset {input.dataset}"
-        " --index {input.index} --estimates {input.estimates} --out-dataset {output.dataset}"
+        " --index {input.index} --estimates {input.estimates} --world-params {input.world}"
+        " --out-dataset {output.dataset}"
         " --out-log {output.log_table} --log {log}"
 
 
@@ -32,6 +34,7 @@ if TWIN:
             estimates="results/init/estimates.parquet",
             reference="results/reference/success.parquet",
             rollouts=expand("results/rollout/sim/{policy}", policy=POLICIES),
+            fidelity="results/fidelity/report.json",
         output:
             "results/world/report.json",
         params:
@@ -41,4 +44,4 @@ if TWIN:
         shell:
             "{PY} -m r2s_eval.stages.world_report --cfg {params.cfg:q} --truth {input.truth} --errors {input.errors}"
             " --replay {input.replay} --estimates {input.estimates} --reference {input.reference}"
-            " --rollouts {input.rollouts} --out {output} --log {log}"
+            " --rollouts {input.rollouts} --fidelity {input.fidelity} --out {output} --log {log}"

@@ -18,6 +18,9 @@ SHARED_REPORTS = [
     *expand("reports/case_study_{judge}.{ext}", judge=JUDGES, ext=FIGURE_EXTS),
     "reports/index.html",
 ]
+# The perturbation ablation (workflow/rules/fidelity.smk) runs with the twin, for the policies named.
+ABLATION_POLICIES = [] if LIBERO or not TWIN else CFG["fidelity"]["ablation"]["policies"]
+FIDELITY_FIGURE = expand("reports/fidelity_ablation.{ext}", ext=FIGURE_EXTS) if ABLATION_POLICIES else []
 if LIBERO:
     REPORTS = ["reports/libero_table.tex", *SHARED_REPORTS]
 else:
@@ -26,6 +29,8 @@ else:
         "reports/realsim_success_table.tex",
         "reports/realsim_table.tex",
         *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
+        "reports/fidelity_table.tex",
+        *FIDELITY_FIGURE,
         *SHARED_REPORTS,
     ]
 

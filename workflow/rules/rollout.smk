@@ -11,12 +11,14 @@ rule rollout_inits:
         "{PY} -m r2s_eval.stages.rollout_inits --cfg {params.cfg:q} --out {output} --log {log}"
 
 
+# Each arm's world: the calibrated sim's parameters (calib_joints), or the twin's.
+WORLD_PARAMS = {"sim": "results/calib/world_params.json", "real": "results/real/twin_params.json"}
+
+
 def rollout_inputs(wildcards):
-    inputs = {"inits": "results/rollout/inits.parquet"}
+    inputs = {"inits": "results/rollout/inits.parquet", "world": WORLD_PARAMS[wildcards.arm]}
     if wildcards.policy in TRAINED:
         inputs["policy"] = f"results/train/{wildcards.arm}/{wildcards.policy}"
-    if wildcards.arm == "real":
-        inputs["twin"] = "results/real/twin_params.json"
     return inputs
 
 
@@ -26,11 +28,18 @@ ROLLOUT_UNTRACKED = ("batch_episodes",)
 
 
 def rollout_params(wildcards):
-    cfg = stage_cfg("rollout", arm=wildcards.arm, policy=wildcards.policy, policy_cfg=rollout_policy_cfg(wildcards))
+    return rollout_cfg_json(wildcards.arm, wildcards.policy)
+
+
+def rollout_cfg_json(arm, policy, trained_on=None):
+    """The rollout stage's --cfg for `policy` on `arm`; `trained_on`: the arm whose data trained
+    the checkpoint, where it is the other one (fidelity.smk's cross-evaluations)."""
+    provided = {} if trained_on is None else {"trained_on": trained_on}
+    cfg = stage_cfg("rollout", arm=arm, policy=policy, policy_cfg=candidate_identity(policy, arm), **provided)
     # real_inits_per_task and real_video_size are read by the real arm only, video_size by the
     # sim arm only: a change must not rerun the other arm's rollouts.
     by_arm = {"sim": ("real_inits_per_task", "real_video_size"), "real": ("video_size",)}
-    untracked = ROLLOUT_UNTRACKED + by_arm[wildcards.arm]
+    untracked = ROLLOUT_UNTRACKED + by_arm[arm]
     cfg["rollout"] = {k: v for k, v in cfg["rollout"].items() if k not in untracked}
     return to_json(cfg)
 
@@ -44,7 +53,6 @@ rule rollout:
     params:
         cfg=rollout_params,
         trained=lambda w, input: f"--policy {input.policy}" if "policy" in input.keys() else "",
-        twin=lambda w, input: f"--twin {input.twin}" if "twin" in input.keys() else "",
         transport=rollout_transport,
         batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
     # Model calls on one thread (the stage pins torch's); physics, rendering (llvmpipe
@@ -54,7 +62,7 @@ rule rollout:
         "logs/rollout/{arm}/{policy}.log",
     shell:
         "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q}"
-        " {params.trained} --inits {input.inits} {params.twin} --transport {params.transport:q}"
+        " {params.trained} --inits {input.inits} --world-params {input.world} --transport {params.transport:q}"
         " --batch-episodes {params.batch_episodes} --threads {threads} --out {output} --log {log}"
 
 

@@ -34,3 +34,25 @@ rule train:
     shell:
         "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.train --cfg {params.cfg:q}"
         " --dataset {input.dataset} {params.index} --out {output} --threads {threads} --log {log}"
+
+
+# A candidate's further training seeds (policies.<name>.seeds > 1), for the fidelity report's
+# spread of success over trainings; replicate 0 is the candidate itself (results/train/).
+rule train_replicate:
+    wildcard_constraints:
+        policy="|".join(TRAINED) or "(?!)",
+        replicate=r"[1-9]\d*",
+    input:
+        unpack(train_inputs),
+    output:
+        directory("results/seeds/train/{arm}/{policy}/{replicate}"),
+    params:
+        cfg=policy_params,
+        index=train_index_arg,
+    priority: train_priority
+    threads: 1
+    log:
+        "logs/seeds/train/{arm}/{policy}/{replicate}.log",
+    shell:
+        "OMP_NUM_THREADS={threads} {PY} -m r2s_eval.stages.train --cfg {params.cfg:q}"
+        " --dataset {input.dataset} {params.index} --out {output} --threads {threads} --log {log}"

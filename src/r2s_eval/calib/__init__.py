@@ -1,8 +1,10 @@
-"""Real-to-sim calibration: initial object poses from a first camera frame, per-task offsets.
+"""Real-to-sim calibration: initial object poses from a first camera frame, per-task offsets,
+and the robot's joint offsets.
 
 ``scene`` (the calibrated sim as the estimator sees it: object geometry, camera model, mask and
-image renderers) and ``episodes`` (estimates for a dataset's episodes) build on ``r2s_eval.sim``
-and are imported from their modules, so this package itself loads no simulator.
+image renderers), ``episodes`` (estimates for a dataset's episodes) and ``joints`` (joint offsets
+from the recordings' replay residuals) build on ``r2s_eval.sim`` and are imported from their
+modules, so this package itself loads no simulator.
 """
 
 from r2s_eval.calib.estimate import (

@@ -84,6 +84,9 @@ TOP_LEVEL_DEFAULTS: dict[str, Any] = {
     "decay_lr": None,  # cosine: final learning rate (None: lr / 10)
     "ema_decay": None,  # None: no EMA; else the checkpoint holds the EMA weights
     "betas": None,  # None: the optimiser preset's
+    # Trainings per arm with different seeds: the first is the candidate; the others measure the
+    # spread of real and sim success that training alone causes (results/fidelity/report.json).
+    "seeds": 1,
 }
 
 # The fine-tuning recipe (the method's tables for pi0 / pi0.5), the defaults of every VLA type.
@@ -224,6 +227,8 @@ def _validate_training_keys(cfg: dict) -> None:
         if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
             raise PolicyConfigError(f"{where}: 'betas' must be two numbers in [0, 1), got {cfg['betas']}")
         cfg["betas"] = betas
+    if isinstance(cfg["seeds"], bool) or not isinstance(cfg["seeds"], int) or cfg["seeds"] < 1:
+        raise PolicyConfigError(f"{where}: 'seeds' must be a whole number >= 1, got {cfg['seeds']!r}")
     if cfg["grad_clip_norm"] is not None and float(cfg["grad_clip_norm"]) <= 0:
         raise PolicyConfigError(f"{where}: 'grad_clip_norm' must be positive or None, got {cfg['grad_clip_norm']}")
 

@@ -33,6 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
+from r2s_eval.report.fidelity import part_sentence
 from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
 from r2s_eval.utils.io import read_json
 
@@ -141,6 +142,14 @@ def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.Data
     return {"targets": TARGETS, "tasks": tasks, "realsim_gap": summary, "init_s_per_episode": init_s_per_episode}
 
 
+def fidelity_summary(fidelity: dict) -> dict:
+    """What the world report shows of the fidelity report: each part of the real-sim gap
+    (summaries, not cells), the same-policy agreement and the joint offsets against the twin's."""
+    parts = {name: {k: v for k, v in part.items() if k != "cells_gap_pp"}
+             for name, part in fidelity["cross"]["parts"].items()}
+    return {"parts": parts, "agreement": fidelity["cross"]["agreement"], "joints": fidelity["joints"]}
+
+
 def _fmt(value, spec: str) -> str:
     width = int("".join(c for c in spec.split(".")[0] if c.isdigit()) or 0)
     return "-".rjust(width) if value is None else format(value, spec)
@@ -202,4 +211,13 @@ def format_table(report: dict) -> str:
             f"largest {summary['max_abs_gap_pp']:.1f} pp; trials per cell: real {summary['real_trials_per_cell']}, "
             f"sim {summary['sim_trials_per_cell']} ({100 * summary['ci_level']:g}% intervals: Wilson per rate, "
             f"Newcombe per gap, {summary['interval']})")
+    fidelity = report.get("fidelity")
+    if fidelity:
+        lines += ["", "the gap split (same checkpoint in both worlds; reports/fidelity_table.tex):"]
+        lines += [f"  {part_sentence(name, part)}" for name, part in fidelity["parts"].items() if part.get("cells")]
+        for arm, j in fidelity["joints"]["arms"].items():
+            line = f"  joint offsets {arm} (deg): estimated {[round(v, 2) for v in j['estimated_deg']]}"
+            if j["truth_deg"] is not None:
+                line += f", twin {[round(v, 2) for v in j['truth_deg']]}"
+            lines.append(line)
     return "\n".join(lines)

@@ -55,10 +55,11 @@ def planned_episodes(inits: pd.DataFrame, arm: str, policy: str, seed: int) -> l
     return planned
 
 
-def episodes_identity(cfg: dict, policy_cfg: dict, policy, inits: str, twin: str | None, trained_dir: str | None) -> str:
+def episodes_identity(cfg: dict, policy_cfg: dict, policy, inits: str, world_params: str | None,
+                      trained_dir: str | None) -> str:
     """What the finished episodes depend on: config (``cfg``: everything the job was configured
     with), inits, world, and the policy's content."""
-    parts = {"cfg": cfg, "inits": file_sha256(inits), "twin": file_sha256(twin) if twin else None}
+    parts = {"cfg": cfg, "inits": file_sha256(inits), "twin": file_sha256(world_params) if world_params else None}
     if not is_external(policy_cfg):
         parts["policy"] = checkpoint_hash(trained_dir)
     elif policy_cfg["type"] == "server":
@@ -74,11 +75,13 @@ def video_size(rollout: dict, arm: str) -> tuple[int, int] | None:
 
 
 def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict, world: dict, policy_cfg: dict,
-                  inits: str, twin: str | None = None, trained_dir: str | None = None,
+                  inits: str, world_params: str | None = None, trained_on: str | None = None,
+                  trained_dir: str | None = None,
                   transport: dict | None = None, batch_episodes: int = 1, threads: int = 1) -> pd.DataFrame:
     """Roll out candidate ``policy`` from every init of ``inits`` (a parquet of rollout_inits)
-    on ``arm``, in the world ``twin`` (world parameters; ``None``: nominal), into ``out``;
-    returns the episode table.
+    on ``arm``, in the world ``world_params`` (a world-parameter JSON: the calibrated sim's or the
+    twin's; ``None``: nominal), into ``out``; returns the episode table. ``trained_on``: the arm
+    whose data trained the checkpoint, where it is not ``arm`` (a cross-evaluation: its rows say so).
 
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
     ``policy_cfg``: what decides the candidate's rollouts; ``trained_dir``: its folder when
@@ -89,13 +92,15 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     """
     rollout = {k: v for k, v in rollout.items() if k not in UNTRACKED}
     cfg = {"arm": arm, "policy": policy, "policy_cfg": policy_cfg, "rollout": rollout, "seed": seed, "world": world}
-    params = load_world_params(twin) if twin else None
+    if trained_on is not None:
+        cfg["trained_on"] = trained_on
+    params = load_world_params(world_params) if world_params else None
     table = select_inits(pd.read_parquet(inits), arm, rollout.get("real_inits_per_task"))
     source = {**policy_cfg, **(transport or {})}
     model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"),
                         call_batch=rollout["model_batch"])
     try:
-        store = episode_store(out, episodes_identity(cfg, policy_cfg, model, inits, twin, trained_dir))
+        store = episode_store(out, episodes_identity(cfg, policy_cfg, model, inits, world_params, trained_dir))
         # Render only what the policy looks at: the other cameras cost time and change nothing.
         cameras = [k.removeprefix("observation.images.") for k in model.spec.cameras]
         planned = planned_episodes(table, arm, policy, seed)
@@ -104,8 +109,9 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
 
         def finished(p: PlannedEpisode, episode: EpisodeRecorder, stats: dict, folder: EpisodeFolder) -> None:
             ep = p.episode_id
+            cross = {} if trained_on is None else {"trained_on": trained_on}
             folder.finish({
-                "episode_id": ep, "policy": policy, "arm": arm, "task": p.task,
+                "episode_id": ep, "policy": policy, "arm": arm, **cross, "task": p.task,
                 "instruction": get_task(p.task, world).instruction, "init_id": p.init_id, "seed": p.seed,
                 "success": bool(episode.success), "length": len(episode.rows),
                 "video_path": f"videos/{ep}.mp4", "trajectory_path": f"trajectories/{ep}.parquet",

@@ -1,4 +1,4 @@
-"""Stage: replay every teleop episode in the calibrated sim and record the successes."""
+"""Stage: replay every teleop episode in the calibrated sim (``--world-params``) and record the successes."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from r2s_eval.data import ACTION_KEY, DatasetRecorder, episode_frames, lerobot_features, open_metadata
 from r2s_eval.replay import replay_episode
+from r2s_eval.sim import load_world_params
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages import _cli
 from r2s_eval.sim.build import make_env
@@ -32,13 +33,13 @@ def main(args) -> None:
         meta.features["observation.state"]["names"], meta.features[ACTION_KEY]["names"], world["cameras"],
         (world["image_height"], world["image_width"]),
     )
-    envs, rows = {}, []
+    params, envs, rows = load_world_params(args.world_params), {}, []
     robot = world_robot(world)
     with DatasetRecorder(args.out_dataset, "local/replay", round(robot.control_hz), features, f"{robot.type}_sim",
                          video=replay["video"]) as rec:
         for ep in tqdm(index.itertuples(), total=len(index), desc="replay", mininterval=5):
             if ep.task not in envs:
-                envs[ep.task] = make_env(ep.task, world)
+                envs[ep.task] = make_env(ep.task, world, params)
             env = envs[ep.task]
             est = estimates[estimates["episode_index"] == ep.episode_index]
             if est.empty:
@@ -51,10 +52,8 @@ def main(args) -> None:
                                 f"takes {robot.action_dim}")
             started = time.perf_counter()
             rng = np.random.default_rng([cfg["seed"], int(ep.episode_index)])
-            result = replay_episode(
-                env, actions, poses, rng, max_attempts=replay["max_attempts"], perturb_xy_m=replay["perturb_xy_m"],
-                perturb_yaw_rad=replay["perturb_yaw_rad"], seed=int(ep.episode_index), yaw_symmetry=symmetry,
-            )
+            window = {k: replay[k] for k in ("max_attempts", "perturb_xy_m", "perturb_yaw_rad")}
+            result = replay_episode(env, actions, poses, rng, seed=int(ep.episode_index), yaw_symmetry=symmetry, **window)
             sim_index = rec.submit_episode(result.frames, ep.instruction) if result.success else -1
             row = {"episode_index": int(ep.episode_index), "task": ep.task, "success": result.success,
                    "attempts": result.attempts, "sim_episode_index": sim_index,
@@ -74,6 +73,7 @@ if __name__ == "__main__":
     p.add_argument("--dataset", required=True)
     p.add_argument("--index", required=True)
     p.add_argument("--estimates", required=True)
+    p.add_argument("--world-params", required=True, help="the calibrated sim's world parameters (calib_joints)")
     p.add_argument("--out-dataset", required=True)
     p.add_argument("--out-log", required=True)
     _cli.run(main, p)

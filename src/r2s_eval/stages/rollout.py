@@ -1,6 +1,8 @@
 """Stage: closed-loop rollouts of one candidate on one arm (sim, or the real side).
 
-The candidate is a policy trained here, a checkpoint folder, or a policy server. Writes, into one
+The candidate is a policy trained here, a checkpoint folder, or a policy server. The arm's world
+is built with ``--world-params`` (the calibrated sim's, or the twin's); ``trained_on`` (a
+cross-evaluation) names the arm whose data trained the checkpoint when it is the other one. Writes, into one
 folder: episodes.parquet (one row per episode), videos/<id>.mp4 and trajectories/<id>.parquet; a
 stage that dies resumes with the episodes it had not finished (``r2s_eval.rollout.candidate``).
 """
@@ -15,7 +17,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
 READS = ("rollout", "world", "seed")  # config paths the --cfg slice holds (see _reads.py)
-PROVIDED = ("arm", "policy", "policy_cfg")  # keys the rule adds for this job
+PROVIDED = ("arm", "policy", "policy_cfg", "trained_on")  # keys the rule adds for this job
 
 
 def main(args) -> None:
@@ -28,7 +30,7 @@ def main(args) -> None:
     # not make Snakemake rerun the stage.
     run_candidate(Path(args.out), policy=cfg["policy"], arm=cfg["arm"], seed=cfg["seed"],
                   rollout=cfg["rollout"], world=cfg["world"], policy_cfg=cfg["policy_cfg"], inits=args.inits,
-                  twin=args.twin, trained_dir=args.policy, transport=json.loads(args.transport or "{}"),
+                  world_params=args.world_params, trained_on=cfg.get("trained_on"), trained_dir=args.policy, transport=json.loads(args.transport or "{}"),
                   batch_episodes=args.batch_episodes, threads=args.threads)
 
 
@@ -36,7 +38,7 @@ if __name__ == "__main__":
     p = _cli.parser(__doc__)
     p.add_argument("--policy", help="trained policy folder (candidates trained here)")
     p.add_argument("--inits", required=True)
-    p.add_argument("--twin", help="world parameters of the real side (the reality twin)")
+    p.add_argument("--world-params", help="the arm's world parameters (the calibrated sim's, or the twin's)")
     p.add_argument("--transport", help="JSON: where a checkpoint or server is (path, host, port, ...)")
     p.add_argument("--batch-episodes", type=int, default=1, help="episodes stepped side by side")
     p.add_argument("--threads", type=int, default=1, help="worker threads for physics, rendering and video")

@@ -1,7 +1,11 @@
-"""Stage: fine-tune one candidate policy on one dataset (real -> pi^R, replayed sim -> pi^S)."""
+"""Stage: fine-tune one candidate policy on one dataset (real -> pi^R, replayed sim -> pi^S).
+
+``replicate`` k > 0 (the policy's ``seeds``) trains the same candidate again from a seed of its
+own, to measure what training alone moves."""
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 
 from r2s_eval.policies import train_policy
@@ -9,7 +13,13 @@ from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
 READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
-PROVIDED = ("policy", "name")  # keys the rule adds for this job
+PROVIDED = ("policy", "name", "replicate")  # keys the rule adds for this job
+
+
+def training_seed(seed: int, replicate: int) -> int:
+    """The experiment's seed for the candidate itself (replicate 0); one drawn from both for
+    each further replicate."""
+    return seed if replicate == 0 else int(np.random.SeedSequence([seed, replicate]).generate_state(1)[0])
 
 
 def main(args) -> None:
@@ -20,7 +30,7 @@ def main(args) -> None:
     episodes = None
     if args.episodes_index:
         episodes = [int(e) for e in pd.read_parquet(args.episodes_index, columns=["episode_index"])["episode_index"]]
-    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), device=device,
+    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=training_seed(int(args.cfg["seed"]), int(args.cfg.get("replicate", 0))), device=device,
                  episodes=episodes)
 
 

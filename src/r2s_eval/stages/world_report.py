@@ -22,10 +22,10 @@ import json
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.world import DEFAULT_REPORT, build_report, format_table, saved_table
+from r2s_eval.report.world import DEFAULT_REPORT, build_report, fidelity_summary, format_table, saved_table
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
-from r2s_eval.utils.io import read_parquet_metadata, write_json
+from r2s_eval.utils.io import read_json, read_parquet_metadata, write_json
 
 READS = ("stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds (see _reads.py)
 BUILD_INPUTS = ("cfg", "truth", "errors", "replay")  # what building the report needs
@@ -53,6 +53,8 @@ def main(args: argparse.Namespace) -> None:
     report = build_report(attempts, errors, replay_log, init_s, reference=reference, sim_episodes=sim_episodes,
                           level=float(args.cfg["stats.ci_level"]), n_boot=int(args.cfg["stats.n_boot"]),
                           seed=int(args.cfg["seed"]))
+    if args.fidelity:
+        report["fidelity"] = fidelity_summary(read_json(args.fidelity))
     print(format_table(report))
     if args.out:
         write_json(args.out, report, provenance=True)
@@ -68,6 +70,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--estimates", help="init estimates (for the per-episode estimation cost)")
     p.add_argument("--reference", help="reference success table (the real side), for the real-sim gap")
     p.add_argument("--rollouts", nargs="*", default=[], help="sim rollout folders, one per policy, for the gap")
+    p.add_argument("--fidelity", help="the fidelity report: the gap's calibration and training parts, joint offsets")
     p.add_argument("--out", help="write the report as JSON here")
     return p
 

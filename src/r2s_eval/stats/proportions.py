@@ -43,21 +43,34 @@ def newcombe_difference(successes_a: int, trials_a: int, successes_b: int, trial
     return float(low), float(high)
 
 
+def success_counts(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Episodes (policy, task, success) -> a success table (policy, task, successes, trials)."""
+    return (episodes.assign(success=episodes["success"].astype(bool))
+            .groupby(["policy", "task"], as_index=False)["success"].agg(successes="sum", trials="size"))
+
+
 def success_gap_cells(reference: pd.DataFrame, sim_episodes: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
     """One row per (policy, task) that both sides have: real and sim successes and trials, the
     rates with Wilson intervals, and ``gap = sim - real`` with Newcombe's interval (fractions).
 
     ``reference``: the reference success table (policy, task, trials, successes); ``sim_episodes``:
     sim rollout episodes (policy, task, success)."""
-    for name, table, columns in (("reference success table", reference, ["policy", "task", "trials", "successes"]),
-                                 ("sim rollout episodes", sim_episodes, ["policy", "task", "success"])):
-        lacking = [c for c in columns if c not in table.columns]
+    lacking = [c for c in ["policy", "task", "success"] if c not in sim_episodes.columns]
+    if lacking:
+        raise DataError(f"sim rollout episodes lack columns {lacking}")
+    return count_gap_cells(reference, success_counts(sim_episodes), level)
+
+
+def count_gap_cells(real: pd.DataFrame, sim: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
+    """`success_gap_cells` of two success tables (policy, task, trials, successes): ``real`` is
+    subtracted from ``sim`` (whichever worlds they come from)."""
+    for name, table in (("reference success table", real), ("success table", sim)):
+        lacking = [c for c in ["policy", "task", "trials", "successes"] if c not in table.columns]
         if lacking:
             raise DataError(f"{name} lacks columns {lacking}")
-    real = reference.groupby(["policy", "task"])[["successes", "trials"]].sum()
-    sim = (sim_episodes.assign(success=sim_episodes["success"].astype(bool))
-           .groupby(["policy", "task"])["success"].agg(successes="sum", trials="size"))
-    cells = real.join(sim, lsuffix="_real", rsuffix="_sim", how="inner")
+    cells = (real.groupby(["policy", "task"])[["successes", "trials"]].sum()
+             .join(sim.groupby(["policy", "task"])[["successes", "trials"]].sum(),
+                   lsuffix="_real", rsuffix="_sim", how="inner"))
     rows = []
     for (policy, task), c in cells.iterrows():
         s_real, n_real, s_sim, n_sim = (int(c[k]) for k in ("successes_real", "trials_real", "successes_sim", "trials_sim"))

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.robot import Robot, bundled_robot
@@ -114,3 +115,28 @@ def twin_world(twin_cfg: dict, object_names, robot: Robot | None = None) -> dict
     objects = sorted(object_names)
     params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), robot)
     return {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)}
+
+
+# The twin's perturbations grouped as a lab would name what its simulation gets wrong; each
+# field of WorldParams belongs to one family (noise_seed only seeds the noise).
+PERTURBATION_FAMILIES = {
+    "camera": ("camera_pos_offset_m", "camera_rot_offset_rad"),
+    "appearance": ("light_intensity_scale", "light_dir_offset", "object_rgb_offset", "table_rgb_offset"),
+    "physics": ("friction_scale", "object_mass_scale", "actuator_kp_scale"),
+    "joints": ("joint_offset_rad",),
+    "noise": ("image_noise_std",),
+    "sizes": ("object_size_scale",),
+}
+ALL_FAMILIES = "all"  # every family at once: the twin becomes the calibrated sim
+
+
+def without_family(twin: WorldParams, sim: WorldParams, family: str) -> WorldParams:
+    """The twin with one family's gap to the calibrated sim taken away: that family's fields
+    take the sim's values (nominal, or what the calibration estimated); ``all``: the sim itself
+    (with the twin's noise seed)."""
+    if family != ALL_FAMILIES and family not in PERTURBATION_FAMILIES:
+        raise ConfigError(f"unknown perturbation family {family!r}: one of "
+                         f"{[*PERTURBATION_FAMILIES, ALL_FAMILIES]}")
+    fields = ([f for names in PERTURBATION_FAMILIES.values() for f in names] if family == ALL_FAMILIES
+              else PERTURBATION_FAMILIES[family])
+    return dataclasses.replace(twin, **{f: getattr(sim, f) for f in fields})

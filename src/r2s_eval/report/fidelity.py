@@ -1,0 +1,200 @@
+"""The fidelity report: the same checkpoint in both worlds, the joint calibration against the
+twin's truth, what each perturbation family costs, and the spread over training seeds.
+
+Its JSON layout (``results/fidelity/report.json``, built by ``r2s_eval.stages.fidelity``)::
+
+    {"cross": r2s_eval.stats.fidelity.cross_evaluation(...),
+     "joints": {"estimated": bool, "arms": {arm: {"estimated_deg": [...], "truth_deg": [...] | null,
+                                                "error_deg": [...] | null}}},
+     "ablation": [{"policy", "family", "successes", "trials", "rate", "ci", "full_twin_rate",
+                   "cost_pp", "cost_ci_pp"}],
+     "seeds": r2s_eval.stats.fidelity.seed_spread(...)}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from r2s_eval.report.figures import _figure, _rc
+from r2s_eval.report.tables import DASH, _row, _tabular, latex_escape
+from r2s_eval.stats.fidelity import cross_evaluation, seed_spread
+from r2s_eval.stats.proportions import newcombe_difference, success_counts, wilson_interval
+
+WORLD_LABELS = {"R_real": r"$\pi^R$ real", "R_sim": r"$\pi^R$ sim", "S_sim": r"$\pi^S$ sim", "S_real": r"$\pi^S$ real"}
+
+
+def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataFrame, cross_real: pd.DataFrame | None,
+                 ablated: Mapping[str, pd.DataFrame], seed_episodes: Mapping[tuple[str, int], pd.DataFrame],
+                 calibrated: Mapping, truth: Mapping | None, level: float, n_boot: int, seed) -> dict:
+    """The report (module docstring) from the reference success table (R_real), episode tables
+    (pi^S in the sim, pi^R in the sim, pi^S on the real side; ``ablated``: family -> pi^S's episodes
+    in the twin without it; ``seed_episodes``: (world, replicate) -> a further seed's episodes),
+    the calibrated sim's world-parameter record and the twin's true joint offsets."""
+    worlds = {"R_real": reference, "R_sim": success_counts(cross_sim), "S_sim": success_counts(sim),
+              "S_real": None if cross_real is None else success_counts(cross_real)}
+    seeds: dict[str, dict[int, pd.DataFrame]] = {}
+    for (world, replicate), episodes in seed_episodes.items():
+        seeds.setdefault(world, {})[replicate] = success_counts(episodes)
+    for world, tables in seeds.items():  # replicate 0 is the candidate itself, for the policies with more seeds
+        trained = set().union(*(t["policy"] for t in tables.values()))
+        tables[0] = worlds[world][worlds[world]["policy"].isin(trained)]
+    return {
+        "cross": cross_evaluation(worlds, level, n_boot, seed),
+        "joints": joint_report(calibrated.get("joints", {}).get("offsets_rad"), truth),
+        "ablation": ablation_rows(ablated, cross_real, level),
+        "seeds": seed_spread(seeds),
+    }
+
+
+def sim_rates(report: Mapping) -> dict[str, float]:
+    """pi^S's pooled success in the sim per policy (the ablation figure's reference line)."""
+    pooled: dict[str, list[int]] = {}
+    for c in report["cross"]["cells"]:
+        if "S_sim" in c:
+            s, n = pooled.setdefault(c["policy"], [0, 0]), c["S_sim"]
+            s[0], s[1] = s[0] + n["successes"], s[1] + n["trials"]
+    return {policy: s / n for policy, (s, n) in pooled.items()}
+
+
+def joint_report(estimated: Mapping | None, truth: Mapping | None) -> dict:
+    """Per arm, the estimated joint offsets against the twin's (when there is one), in degrees."""
+    if not estimated:
+        return {"estimated": False, "arms": {}}
+    arms = {}
+    for arm, values in estimated.items():
+        est = np.rad2deg(np.asarray(values, float))
+        true = None if truth is None or arm not in truth else np.rad2deg(np.asarray(truth[arm], float))
+        arms[arm] = {"estimated_deg": est.tolist(), "truth_deg": None if true is None else true.tolist(),
+                     "error_deg": None if true is None else (est - true).tolist()}
+    return {"estimated": True, "arms": arms}
+
+
+def ablation_rows(ablated: Mapping[str, pd.DataFrame], full_twin: pd.DataFrame | None, level: float) -> list[dict]:
+    """Per (policy, family): pi^S's success in the twin with that family taken away, and what the
+    family costs (that rate minus the full twin's, Newcombe interval). ``ablated``: family ->
+    episodes (policy, success) rolled out there; ``full_twin``: pi^S's episodes in the twin."""
+    rows = []
+    for family, episodes in ablated.items():
+        for policy, outcome in episodes.groupby("policy")["success"]:
+            s, n = int(outcome.sum()), int(outcome.size)
+            row = {"policy": policy, "family": family, "successes": s, "trials": n, "rate": s / n,
+                   "ci": list(wilson_interval(s, n, level)), "full_twin_rate": None, "cost_pp": None, "cost_ci_pp": None}
+            if full_twin is not None:
+                base = full_twin.loc[full_twin["policy"] == policy, "success"]
+                if len(base):
+                    s0, n0 = int(base.sum()), int(base.size)
+                    low, high = newcombe_difference(s, n, s0, n0, level)
+                    row.update(full_twin_rate=s0 / n0, cost_pp=100 * (s / n - s0 / n0), cost_ci_pp=[100 * low, 100 * high])
+            rows.append(row)
+    return sorted(rows, key=lambda r: (r["policy"], r["family"]))
+
+
+def _rate(cell: Mapping | None, decimals: int) -> str:
+    return DASH if cell is None else f"{100 * cell['rate']:.{decimals}f}"
+
+
+def _gap(part: Mapping | None, policy: str, task: str, decimals: int) -> str:
+    for c in (part or {}).get("cells_gap_pp", []):
+        if c["policy"] == policy and c["task"] == task:
+            return f"{c['gap_pp']:+.{decimals}f} [{c['ci_pp'][0]:+.{decimals}f}, {c['ci_pp'][1]:+.{decimals}f}]"
+    return DASH
+
+
+def fidelity_table(report: Mapping, decimals: int = 1) -> str:
+    """LaTeX: per task and policy, success of each checkpoint in each world (%) and the gap's
+    calibration and training parts (pp, with intervals); under it each part's mean |gap|."""
+    cross = report["cross"]
+    parts = cross["parts"]
+    worlds = [w for w in WORLD_LABELS if any(w in c for c in cross["cells"])]
+    header = [_row(["Task", "Policy", *[WORLD_LABELS[w] for w in worlds], "Calibration (pp)", "Training (pp)"])]
+    body = [_row([latex_escape(c["task"]), latex_escape(c["policy"]), *[_rate(c.get(w), decimals) for w in worlds],
+                  _gap(parts.get("calibration"), c["policy"], c["task"], decimals),
+                  _gap(parts.get("training"), c["policy"], c["task"], decimals)]) for c in cross["cells"]]
+    notes = [latex_part_sentence(name, summary, decimals) for name, summary in parts.items() if summary.get("cells")]
+    level = 100 * cross["ci_level"]
+    notes.append(f"Calibration: $\\pi^R$ sim $-$ $\\pi^R$ real (same weights); training: $\\pi^S$ sim $-$ $\\pi^R$ sim "
+                 f"(same world); {level:g}\\% Newcombe intervals per cell, percentile bootstrap for means.")
+    return _tabular("ll" + "r" * len(worlds) + "rr", header, body, notes=notes)
+
+
+def part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
+    """One line: a part's mean absolute gap with its interval, signed mean, largest, cells."""
+    lo, hi = summary["mean_abs_gap_ci_pp"]
+    return (f"{name} ({summary['compares']}): mean |gap| {summary['mean_abs_gap_pp']:.{decimals}f} pp "
+            f"[{lo:.{decimals}f}, {hi:.{decimals}f}], mean {summary['mean_gap_pp']:+.{decimals}f} pp, largest "
+            f"{summary['max_abs_gap_pp']:.{decimals}f} pp over {summary['cells']} cells")
+
+
+def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
+    """`part_sentence` as LaTeX text."""
+    lo, hi = summary["mean_abs_gap_ci_pp"]
+    plus, minus = summary["compares"].split(" - ")
+    return (f"{latex_escape(name.replace('_', ' '))} ({WORLD_LABELS[plus]} $-$ {WORLD_LABELS[minus]}): mean $|$gap$|$ "
+            f"{summary['mean_abs_gap_pp']:.{decimals}f} pp [{lo:.{decimals}f}, {hi:.{decimals}f}], mean "
+            f"{summary['mean_gap_pp']:+.{decimals}f} pp, largest {summary['max_abs_gap_pp']:.{decimals}f} pp, "
+            f"{summary['cells']} cells")
+
+
+def format_report(report: Mapping) -> str:
+    """The report as text (the stage's log, the README's numbers)."""
+    cross = report["cross"]
+    lines = [f"{'task':16s} {'policy':12s} " + " ".join(f"{w:>16s}" for w in WORLD_LABELS)]
+    for c in cross["cells"]:
+        cells = []
+        for w in WORLD_LABELS:
+            v = c.get(w)
+            cells.append(f"{'-':>16s}" if v is None else
+                         f"{100 * v['rate']:5.1f} [{100 * v['ci'][0]:3.0f},{100 * v['ci'][1]:3.0f}]".rjust(16))
+        lines.append(f"{c['task']:16s} {c['policy']:12s} " + " ".join(cells))
+    lines += [part_sentence(name, s) for name, s in cross["parts"].items() if s.get("cells")]
+    for name, a in cross.get("agreement", {}).items():
+        pearson = "undefined" if a["pearson"] is None else f"{a['pearson']:.3f}"
+        lines.append(f"same-policy agreement of {name} with R_real over {len(a['policies'])} policies: "
+                     f"Pearson {pearson}, MMRV {a['mmrv_pp']:.1f} pp")
+    for arm, j in report["joints"]["arms"].items():
+        line = f"joint offsets {arm} (deg): estimated {np.round(j['estimated_deg'], 2).tolist()}"
+        if j["truth_deg"] is not None:
+            line += (f", twin {np.round(j['truth_deg'], 2).tolist()}, largest error "
+                     f"{np.abs(j['error_deg']).max():.3f} deg")
+        lines.append(line)
+    for r in report["ablation"]:
+        cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
+                                                f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
+        lines.append(f"ablation {r['policy']} without {r['family']:10s}: {100 * r['rate']:5.1f} % "
+                     f"[{100 * r['ci'][0]:.1f}, {100 * r['ci'][1]:.1f}] ({r['successes']}/{r['trials']}){cost}")
+    for s in report["seeds"]:
+        lines.append(f"seeds {s['world']:6s} {s['policy']:12s} {s['task']:16s} "
+                     f"{[round(r, 1) for r in s['rates_pct']]} range {s['range_pp']:.1f} pp")
+    return "\n".join(lines)
+
+
+def ablation_figure(rows: list[Mapping], sim_rates: Mapping[str, float], opts: Mapping) -> Figure:
+    """Per ablation policy, pi^S's success in the twin with each family taken away (bars with
+    intervals), against the full twin (dashed) and the calibrated sim (dotted)."""
+    policies = sorted({r["policy"] for r in rows})
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(float(opts["width_in"]) * len(policies), float(opts["height_in"]))
+        axes = fig.subplots(1, len(policies), squeeze=False)[0]
+        for ax, policy in zip(axes, policies):
+            mine = [r for r in rows if r["policy"] == policy]
+            y = np.arange(len(mine))
+            rates = np.array([100 * r["rate"] for r in mine])
+            err = np.array([[100 * (r["rate"] - r["ci"][0]) for r in mine], [100 * (r["ci"][1] - r["rate"]) for r in mine]])
+            ax.barh(y, rates, xerr=err, color="#4c72b0", capsize=3)
+            ax.set_yticks(y, [f"without {'every family' if r['family'] == 'all' else r['family']}" for r in mine])
+            full = mine[0]["full_twin_rate"]
+            if full is not None:
+                ax.axvline(100 * full, color="#c44e52", linestyle="--", label="full twin")
+            if policy in sim_rates:
+                ax.axvline(100 * sim_rates[policy], color="#55a868", linestyle=":", label="calibrated sim")
+            ax.set_xlim(0, 100)
+            ax.set_xlabel(r"success of $\pi^S$ in the twin (%)")
+            ax.set_title(policy)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small", frameon=False)
+    return fig
+

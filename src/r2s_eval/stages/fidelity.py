@@ -1,0 +1,65 @@
+"""Stage: the fidelity report (``r2s_eval.report.fidelity``) and its table and figure.
+
+Reads the real side's reference (pi^R on the robot), pi^S's sim rollouts, the cross-evaluation
+rollouts (pi^R in the calibrated sim; pi^S on the twin), optionally the ablation rollouts
+(``FAMILY=FOLDER``: pi^S in the twin without that family) and further training seeds' rollouts
+(``WORLD:SEED=FOLDER``), the calibrated sim's world parameters and, with the twin, its truth.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from r2s_eval.errors import DataError
+from r2s_eval.report import save_figure
+from r2s_eval.report.fidelity import ablation_figure, build_report, fidelity_table, format_report, sim_rates
+from r2s_eval.stages import _cli
+from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.utils.io import read_json, write_json, write_text
+
+READS = ("stats.n_boot", "stats.ci_level", "seed", "report.fidelity")  # config paths the --cfg slice holds
+
+
+def folders(values: list[str], what: str) -> dict[str, list[str]]:
+    """KEY=FOLDER arguments -> {KEY: [FOLDER, ...]}."""
+    out: dict[str, list[str]] = {}
+    for value in values:
+        key, sep, folder = value.partition("=")
+        if not sep:
+            raise DataError(f"--{what} {value!r}: expected KEY=FOLDER")
+        out.setdefault(key, []).append(folder)
+    return out
+
+
+def main(args) -> None:
+    cfg, opts = args.cfg, args.cfg["report.fidelity"]
+    seeds = {(key.partition(":")[0], int(key.partition(":")[2])): load_episodes(dirs)
+             for key, dirs in folders(args.seed_rollouts, "seed-rollouts").items()}
+    report = build_report(
+        pd.read_parquet(args.reference), load_episodes(args.sim), load_episodes(args.cross_sim),
+        load_episodes(args.cross_real) if args.cross_real else None,
+        {family: load_episodes(dirs) for family, dirs in folders(args.ablation, "ablation").items()}, seeds,
+        read_json(args.world_params), read_json(args.twin)["params"]["joint_offset_rad"] if args.twin else None,
+        float(cfg["stats.ci_level"]), int(cfg["stats.n_boot"]), int(cfg["seed"]))
+    print(format_report(report))
+    write_json(args.out, report, provenance=True)
+    write_text(args.table, fidelity_table(report, decimals=int(opts["decimals"])), comment="%")
+    if args.pdf:
+        save_figure(ablation_figure(report["ablation"], sim_rates(report), opts), args.pdf, args.png, dpi=opts["dpi"])
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--reference", required=True, help="reference success table (pi^R on the real side)")
+    p.add_argument("--sim", nargs="+", required=True, help="pi^S sim rollout folders")
+    p.add_argument("--cross-sim", nargs="+", required=True, help="pi^R rollout folders in the calibrated sim")
+    p.add_argument("--cross-real", nargs="*", default=[], help="pi^S rollout folders on the twin")
+    p.add_argument("--ablation", nargs="*", default=[], help="FAMILY=FOLDER: pi^S in the twin without FAMILY")
+    p.add_argument("--seed-rollouts", nargs="*", default=[], help="WORLD:SEED=FOLDER: a further seed's rollouts")
+    p.add_argument("--world-params", required=True, help="the calibrated sim's world parameters (calib_joints)")
+    p.add_argument("--twin", help="the twin's world parameters (its true joint offsets)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--table", required=True)
+    p.add_argument("--pdf", help="the ablation figure (with --ablation)")
+    p.add_argument("--png")
+    _cli.run(main, p)

@@ -1,0 +1,68 @@
+"""The joint offsets are recovered from recorded states and actions alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from r2s_eval.calib.joints import RecordedEpisode, estimate_joint_offsets, replay_residuals
+from r2s_eval.errors import DataError
+from r2s_eval.sim import TabletopEnv, WorldParams
+
+TASK = "cup_on_plate"
+POSES = {"cup": (0.05, 0.02, 0.0), "plate": (-0.08, -0.03, 0.0)}
+
+
+def make_env(task: str, params: WorldParams) -> TabletopEnv:
+    return TabletopEnv(task, params=params, cameras=())
+
+
+def record(params: WorldParams, seed: int, steps: int = 40) -> RecordedEpisode:
+    """Joint targets wandering around home, recorded in a world built with ``params``."""
+    env = make_env(TASK, params)
+    rng = np.random.default_rng(seed)
+    env.reset(POSES, seed=seed)
+    start = env.state().astype(float)
+    actions = start + np.cumsum(rng.normal(0.0, 0.01, (steps, start.size)), axis=0)
+    states = []
+    for action in actions:
+        states.append(env.state().astype(float))
+        env.step(action, images=False)
+    env.close()
+    return RecordedEpisode(seed, TASK, POSES, np.stack(states), actions)
+
+
+def test_offsets_of_a_world_are_recovered_from_its_recordings():
+    robot = make_env(TASK, WorldParams()).robot
+    rng = np.random.default_rng(0)
+    truth = {arm: tuple(rng.uniform(-0.03, 0.03, len(spec.joints))) for arm, spec in robot.arms.items()}
+    episodes = [record(WorldParams(joint_offset_rad=truth), seed) for seed in range(3)]
+    fit = estimate_joint_offsets(robot, episodes, make_env, iterations=2)
+    for arm, offsets in truth.items():
+        assert np.abs(np.subtract(fit.offsets_rad[arm], offsets)).max() < 2e-3, arm
+        # The first pass sees the whole offset; the last one what little is left.
+        assert np.abs(fit.pass_residual_rad[-1][arm]).max() < 2e-3
+    assert fit.episodes == 3 and fit.frames == 120
+
+
+def test_a_nominal_recording_gives_no_offsets():
+    robot = make_env(TASK, WorldParams()).robot
+    fit = estimate_joint_offsets(robot, [record(WorldParams(), 7)], make_env, iterations=1)
+    for offsets in fit.offsets_rad.values():
+        assert np.abs(offsets).max() < 1e-6
+
+
+def test_an_episode_of_the_wrong_width_is_named():
+    episode = record(WorldParams(), 1)
+    bad = RecordedEpisode(41, TASK, POSES, episode.states[:, :-1], episode.actions[:, :-1])
+    env = make_env(TASK, WorldParams())
+    with pytest.raises(DataError, match="episode 41"):
+        replay_residuals(env, bad)
+
+
+def test_no_episodes_or_no_pass_is_refused():
+    robot = make_env(TASK, WorldParams()).robot
+    with pytest.raises(DataError, match="no recorded episodes"):
+        estimate_joint_offsets(robot, [], make_env, iterations=1)
+    with pytest.raises(DataError, match="iterations"):
+        estimate_joint_offsets(robot, [record(WorldParams(), 2)], make_env, iterations=0)

@@ -1,0 +1,158 @@
+# The same checkpoint in the other world, from the same initial configurations: pi^R (trained on
+# the real data) in the calibrated sim, and with the twin pi^S on the real side. Splits the
+# real-sim gap into its calibration and training parts (reports/fidelity_table.tex).
+OTHER_ARM = {"sim": "real", "real": "sim"}
+CROSS_ARMS = ["sim", "real"] if TWIN else ["sim"]
+ABLATION = CFG["fidelity"]["ablation"]
+
+
+def cross_rollout_params(wildcards):
+    return rollout_cfg_json(wildcards.arm, wildcards.policy, trained_on=OTHER_ARM[wildcards.arm])
+
+
+def twin_ablation_params(wildcards):
+    return stage_params("twin_ablation", family=wildcards.family)
+
+
+def ablation_rollout_params(wildcards):
+    return rollout_cfg_json("real", wildcards.policy, trained_on="sim")
+
+
+def seed_rollout_params(wildcards):
+    return rollout_cfg_json(wildcards.arm, wildcards.policy)
+
+
+rule cross_rollout:
+    wildcard_constraints:
+        policy="|".join(TRAINED) or "(?!)",
+    input:
+        inits="results/rollout/inits.parquet",
+        world=lambda w: WORLD_PARAMS[w.arm],
+        policy=lambda w: f"results/train/{OTHER_ARM[w.arm]}/{w.policy}",
+    output:
+        directory("results/cross/{arm}/{policy}"),
+    params:
+        cfg=cross_rollout_params,
+        batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
+    threads: 1
+    log:
+        "logs/cross/{arm}/{policy}.log",
+    shell:
+        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {input.policy}"
+        " --inits {input.inits} --world-params {input.world} --batch-episodes {params.batch_episodes}"
+        " --threads {threads} --out {output} --log {log}"
+
+
+if TWIN:
+
+    # The twin with one perturbation family taken away (its parameters set to the calibrated sim's).
+    rule twin_ablation:
+        input:
+            twin="results/real/twin_params.json",
+            sim="results/calib/world_params.json",
+        output:
+            "results/fidelity/twins/{family}.json",
+        params:
+            cfg=twin_ablation_params,
+        log:
+            "logs/fidelity/twins/{family}.log",
+        shell:
+            "{PY} -m r2s_eval.stages.twin_ablation --cfg {params.cfg:q} --twin {input.twin} --sim {input.sim}"
+            " --out {output} --log {log}"
+
+    rule ablation_rollout:
+        wildcard_constraints:
+            policy="|".join(TRAINED) or "(?!)",
+            family="|".join(ABLATION["families"]),
+        input:
+            inits="results/rollout/inits.parquet",
+            world="results/fidelity/twins/{family}.json",
+            policy="results/train/sim/{policy}",
+        output:
+            directory("results/fidelity/ablation/{family}/{policy}"),
+        params:
+            cfg=ablation_rollout_params,
+            batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
+        threads: 1
+        log:
+            "logs/fidelity/ablation/{family}/{policy}.log",
+        shell:
+            "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {input.policy}"
+            " --inits {input.inits} --world-params {input.world} --batch-episodes {params.batch_episodes}"
+            " --threads {threads} --out {output} --log {log}"
+
+
+# Further training seeds (policies.<name>.seeds): each rolled out in its own world (pi^R on the
+# real side, where it can be rerun: the twin; pi^S in the sim), for the spread over trainings.
+SEED_ARMS = {"real": "R_real", "sim": "S_sim"} if TWIN else {"sim": "S_sim"}
+SEED_ROLLOUTS = [f"results/seeds/rollout/{arm}/{p}/{k}" for p in TRAINED for k in range(1, seeds_of(p))
+                 for arm in SEED_ARMS]
+
+
+rule seed_rollout:
+    wildcard_constraints:
+        policy="|".join(TRAINED) or "(?!)",
+        replicate=r"[1-9]\d*",
+    input:
+        inits="results/rollout/inits.parquet",
+        world=lambda w: WORLD_PARAMS[w.arm],
+        policy="results/seeds/train/{arm}/{policy}/{replicate}",
+    output:
+        directory("results/seeds/rollout/{arm}/{policy}/{replicate}"),
+    params:
+        cfg=seed_rollout_params,
+        batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
+    threads: 1
+    log:
+        "logs/seeds/rollout/{arm}/{policy}/{replicate}.log",
+    shell:
+        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {input.policy}"
+        " --inits {input.inits} --world-params {input.world} --batch-episodes {params.batch_episodes}"
+        " --threads {threads} --out {output} --log {log}"
+
+
+def fidelity_inputs(wildcards):
+    inputs = {
+        "reference": "results/reference/success.parquet",
+        "sim": expand("results/rollout/sim/{policy}", policy=TRAINED),
+        "cross_sim": expand("results/cross/sim/{policy}", policy=TRAINED),
+        "world": "results/calib/world_params.json",
+        "seeds": SEED_ROLLOUTS,
+    }
+    if TWIN:
+        inputs["cross_real"] = expand("results/cross/real/{policy}", policy=TRAINED)
+        inputs["twin"] = "results/real/twin_params.json"
+        inputs["ablation"] = expand("results/fidelity/ablation/{family}/{policy}", family=ABLATION["families"],
+                                    policy=ABLATION_POLICIES)
+    return inputs
+
+
+def fidelity_args(wildcards, input):
+    # results/seeds/rollout/<arm>/<policy>/<k> -> WORLD:k=FOLDER
+    args = [f"--seed-rollouts"] + [f"{SEED_ARMS[Path(d).parts[-3]]}:{Path(d).name}={d}" for d in input.seeds]
+    if not input.seeds:
+        args = []
+    if TWIN:
+        args += ["--cross-real", *input.cross_real, "--twin", input.twin]
+        if ABLATION_POLICIES:
+            args += ["--ablation", *[f"{Path(d).parent.name}={d}" for d in input.ablation]]
+    return " ".join(args)
+
+
+rule fidelity:
+    input:
+        unpack(fidelity_inputs),
+    output:
+        report="results/fidelity/report.json",
+        table="reports/fidelity_table.tex",
+        figure=FIDELITY_FIGURE,
+    params:
+        cfg=stage_params("fidelity"),
+        args=fidelity_args,
+        figure=f"--pdf reports/fidelity_ablation.pdf --png reports/fidelity_ablation.png" if FIDELITY_FIGURE else "",
+    log:
+        "logs/fidelity.log",
+    shell:
+        "{PY} -m r2s_eval.stages.fidelity --cfg {params.cfg:q} --reference {input.reference} --sim {input.sim}"
+        " --cross-sim {input.cross_sim} --world-params {input.world} {params.args} --out {output.report}"
+        " --table {output.table} {params.figure} --log {log}"

@@ -7,7 +7,8 @@ import pandas as pd
 from PIL import Image
 
 from r2s_eval.report import save_figure
-from r2s_eval.report.fidelity import ablation_figure, ablation_rows, fidelity_table, format_report, joint_report
+from r2s_eval.report.fidelity import (ablation_figure, ablation_rows, ablation_table, fidelity_table, format_report,
+                                      joint_report)
 from r2s_eval.stats.fidelity import cross_evaluation
 
 OPTS = {"decimals": 1, "width_in": 4.0, "height_in": 2.8, "font_size": 9, "dpi": 80}
@@ -58,3 +59,15 @@ def test_ablation_figure_is_drawn(tmp_path):
     save_figure(fig, tmp_path / "a.pdf", tmp_path / "a.png", dpi=80)
     with Image.open(tmp_path / "a.png") as image:
         assert image.size[0] > 200 and image.size[1] > 100
+
+
+def test_ablation_table_gives_each_familys_cost():
+    table = ablation_table(report()["ablation"])
+    assert r"act & every family & 38.9 [" in table and "& 18 & +11.1 [" in table
+    assert r"act 27.8\%" in table  # the full twin's rate, in the note
+
+
+def test_ablation_figure_draws_a_policy_that_never_succeeds(tmp_path):
+    rows = ablation_rows({"joints": episodes("act", 0, 6), "all": episodes("act", 6, 6)}, episodes("act", 0, 6), 0.95)
+    save_figure(ablation_figure(rows, {"act": 0.0}, OPTS), tmp_path / "z.pdf", tmp_path / "z.png", dpi=60)
+    assert (tmp_path / "z.png").stat().st_size > 0

@@ -9,7 +9,7 @@ import subprocess
 import pandas as pd
 import pytest
 
-from r2s_eval.report.fidelity import fidelity_table
+from r2s_eval.report.fidelity import ablation_rows, ablation_table, fidelity_table
 from r2s_eval.stats.fidelity import cross_evaluation
 
 from r2s_eval.report import (
@@ -156,6 +156,8 @@ def all_tables(make_fit) -> list[str]:
         bt_scores_table(fits, {"a_1": 0.8, "b": 0.2}),
         judge_card_table({"kinematic": CARD, "vlm_judge": {}}),
         fidelity_table(fidelity_report()),
+        ablation_table(ablation_rows({"camera": pd.DataFrame({"policy": ["a_1"] * 4, "success": [True, True, False, False]})},
+                                     pd.DataFrame({"policy": ["a_1"] * 4, "success": [True, False, False, False]}), 0.95)),
     ]
 
 

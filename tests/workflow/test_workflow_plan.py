@@ -56,3 +56,34 @@ def test_failed_ingest_lets_no_training_run(tmp_path):
     assert not re.search(r"^\s*(local)?rule train:", out, re.M), out[-3000:]
     assert not (run / "results" / "train").exists() and not (run / "logs" / "train").exists()
     assert "Traceback" in (run / "logs" / "ingest.log").read_text()
+
+
+def test_a_lab_without_a_twin_cross_evaluates_its_real_checkpoints_in_the_sim(tmp_path):
+    # With the lab's own robot the real side cannot run pi^S: the fidelity report compares pi^R in
+    # the calibrated sim with the trials CSV, and rolls nothing out on the real side.
+    data = tmp_path / "lab_dataset"
+    data.mkdir()
+    reference = tmp_path / "reference.csv"
+    reference.write_text("policy,task,trials,successes\n")
+    overrides = ["real=dataset", f"real.dataset_root='{data}'", f"real.reference_csv='{reference}'",
+                 "fidelity.ablation.policies=[]", "+policies.act.seeds=2"]
+    plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/fidelity_table.tex", overrides=overrides).stdout)
+    by_rule = {}
+    for rule, wildcards in plan:
+        by_rule.setdefault(rule, []).append(wildcards)
+    assert {(w["arm"], w["policy"]) for w in by_rule["cross_rollout"]} == {("sim", p) for p in ("act", "act_subset", "act_weak")}
+    assert {(w["arm"], w["policy"]) for w in by_rule["seed_rollout"]} == {("sim", "act"), ("sim", "act_weak")}
+    assert "calib_joints" in by_rule and "fidelity" in by_rule
+    assert {w["arm"] for w in by_rule["rollout"]} == {"sim"}
+    assert not {"twin", "teleop", "ablation_rollout", "twin_ablation"} & set(by_rule)
+
+
+def test_the_twin_cross_evaluates_both_ways_and_runs_the_ablation(tmp_path):
+    # The smoke: pi^S of act in twins without the joint offsets and without every family, and
+    # act_weak's second training seed rolled out on both sides.
+    plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/fidelity_table.tex").stdout)
+    cross = {(w["arm"], w["policy"]) for rule, w in plan if rule == "cross_rollout"}
+    assert cross == {(arm, p) for arm in ("sim", "real") for p in ("act", "act_subset", "act_weak")}
+    assert {(w["family"], w["policy"]) for rule, w in plan if rule == "ablation_rollout"} == {("joints", "act"), ("all", "act")}
+    assert {(w["arm"], w["replicate"]) for rule, w in plan if rule == "seed_rollout"} == {("real", "1"), ("sim", "1")}
+    assert {w["policy"] for rule, w in plan if rule == "train_replicate"} == {"act_weak"}

@@ -2,7 +2,6 @@
 # the real data) in the calibrated sim, and with the twin pi^S on the real side. Splits the
 # real-sim gap into its calibration and training parts (reports/fidelity_table.tex).
 OTHER_ARM = {"sim": "real", "real": "sim"}
-CROSS_ARMS = ["sim", "real"] if TWIN else ["sim"]
 ABLATION = CFG["fidelity"]["ablation"]
 
 
@@ -145,14 +144,15 @@ rule fidelity:
     output:
         report="results/fidelity/report.json",
         table="reports/fidelity_table.tex",
-        figure=FIDELITY_FIGURE,
+        ablation=FIDELITY_ABLATION,
     params:
         cfg=stage_params("fidelity"),
         args=fidelity_args,
-        figure=f"--pdf reports/fidelity_ablation.pdf --png reports/fidelity_ablation.png" if FIDELITY_FIGURE else "",
+        ablation=("--ablation-table reports/fidelity_ablation_table.tex --pdf reports/fidelity_ablation.pdf"
+                  " --png reports/fidelity_ablation.png") if FIDELITY_ABLATION else "",
     log:
         "logs/fidelity.log",
     shell:
         "{PY} -m r2s_eval.stages.fidelity --cfg {params.cfg:q} --reference {input.reference} --sim {input.sim}"
         " --cross-sim {input.cross_sim} --world-params {input.world} {params.args} --out {output.report}"
-        " --table {output.table} {params.figure} --log {log}"
+        " --table {output.table} {params.ablation} --log {log}"

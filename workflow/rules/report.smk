@@ -20,7 +20,8 @@ SHARED_REPORTS = [
 ]
 # The perturbation ablation (workflow/rules/fidelity.smk) runs with the twin, for the policies named.
 ABLATION_POLICIES = [] if LIBERO or not TWIN else CFG["fidelity"]["ablation"]["policies"]
-FIDELITY_FIGURE = expand("reports/fidelity_ablation.{ext}", ext=FIGURE_EXTS) if ABLATION_POLICIES else []
+FIDELITY_ABLATION = (["reports/fidelity_ablation_table.tex", *expand("reports/fidelity_ablation.{ext}", ext=FIGURE_EXTS)]
+                     if ABLATION_POLICIES else [])
 if LIBERO:
     REPORTS = ["reports/libero_table.tex", *SHARED_REPORTS]
 else:
@@ -30,7 +31,7 @@ else:
         "reports/realsim_table.tex",
         *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
         "reports/fidelity_table.tex",
-        *FIDELITY_FIGURE,
+        *FIDELITY_ABLATION,
         *SHARED_REPORTS,
     ]
 

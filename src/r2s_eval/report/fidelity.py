@@ -130,6 +130,24 @@ def part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
             f"{summary['max_abs_gap_pp']:.{decimals}f} pp over {summary['cells']} cells")
 
 
+def ablation_table(rows: list[Mapping], decimals: int = 1) -> str:
+    """LaTeX: per ablation policy and family, pi^S's success in the twin without that family (%)
+    and what the family costs (pp, with its interval)."""
+    header = [_row(["Policy", "Without", r"$\pi^S$ in the twin (\%)", "Trials", "Cost (pp)"])]
+    body = []
+    for r in rows:
+        cost = DASH if r["cost_pp"] is None else (f"{r['cost_pp']:+.{decimals}f} [{r['cost_ci_pp'][0]:+.{decimals}f}, "
+                                                  f"{r['cost_ci_pp'][1]:+.{decimals}f}]")
+        family = "every family" if r["family"] == "all" else r["family"]
+        body.append(_row([latex_escape(r["policy"]), latex_escape(family),
+                          f"{100 * r['rate']:.{decimals}f} [{100 * r['ci'][0]:.{decimals}f}, {100 * r['ci'][1]:.{decimals}f}]",
+                          str(r["trials"]), cost]))
+    full = {r["policy"]: r["full_twin_rate"] for r in rows if r["full_twin_rate"] is not None}
+    notes = [f"Cost: success without the family minus in the full twin ({', '.join(f'{latex_escape(p)} {100 * v:.{decimals}f}\\%' for p, v in full.items())}); "
+             "Wilson intervals per rate, Newcombe per cost."]
+    return _tabular("llrrr", header, body, notes=notes)
+
+
 def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
     """`part_sentence` as LaTeX text."""
     lo, hi = summary["mean_abs_gap_ci_pp"]
@@ -184,7 +202,9 @@ def ablation_figure(rows: list[Mapping], sim_rates: Mapping[str, float], opts: M
             mine = [r for r in rows if r["policy"] == policy]
             y = np.arange(len(mine))
             rates = np.array([100 * r["rate"] for r in mine])
-            err = np.array([[100 * (r["rate"] - r["ci"][0]) for r in mine], [100 * (r["ci"][1] - r["rate"]) for r in mine]])
+            # A Wilson bound at 0 or n successes can sit a rounding error past the rate.
+            err = np.clip([[100 * (r["rate"] - r["ci"][0]) for r in mine], [100 * (r["ci"][1] - r["rate"]) for r in mine]],
+                          0, None)
             ax.barh(y, rates, xerr=err, color="#4c72b0", capsize=3)
             ax.set_yticks(y, [f"without {'every family' if r['family'] == 'all' else r['family']}" for r in mine])
             full = mine[0]["full_twin_rate"]

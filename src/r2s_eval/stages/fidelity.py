@@ -12,7 +12,8 @@ import pandas as pd
 
 from r2s_eval.errors import DataError
 from r2s_eval.report import save_figure
-from r2s_eval.report.fidelity import ablation_figure, build_report, fidelity_table, format_report, sim_rates
+from r2s_eval.report.fidelity import (ablation_figure, ablation_table, build_report, fidelity_table, format_report,
+                                      sim_rates)
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import read_json, write_json, write_text
@@ -44,7 +45,8 @@ def main(args) -> None:
     print(format_report(report))
     write_json(args.out, report, provenance=True)
     write_text(args.table, fidelity_table(report, decimals=int(opts["decimals"])), comment="%")
-    if args.pdf:
+    if args.ablation_table:
+        write_text(args.ablation_table, ablation_table(report["ablation"], int(opts["decimals"])), comment="%")
         save_figure(ablation_figure(report["ablation"], sim_rates(report), opts), args.pdf, args.png, dpi=opts["dpi"])
 
 
@@ -60,6 +62,7 @@ if __name__ == "__main__":
     p.add_argument("--twin", help="the twin's world parameters (its true joint offsets)")
     p.add_argument("--out", required=True)
     p.add_argument("--table", required=True)
-    p.add_argument("--pdf", help="the ablation figure (with --ablation)")
+    p.add_argument("--ablation-table", help="the ablation's table (with --ablation; its figure: --pdf, --png)")
+    p.add_argument("--pdf")
     p.add_argument("--png")
     _cli.run(main, p)

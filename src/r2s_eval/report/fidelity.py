@@ -174,12 +174,7 @@ def format_report(report: Mapping) -> str:
         pearson = "undefined" if a["pearson"] is None else f"{a['pearson']:.3f}"
         lines.append(f"same-policy agreement of {name} with R_real over {len(a['policies'])} policies: "
                      f"Pearson {pearson}, MMRV {a['mmrv_pp']:.1f} pp")
-    for arm, j in report["joints"]["arms"].items():
-        line = f"joint offsets {arm} (deg): estimated {np.round(j['estimated_deg'], 2).tolist()}"
-        if j["truth_deg"] is not None:
-            line += (f", twin {np.round(j['truth_deg'], 2).tolist()}, largest error "
-                     f"{np.abs(j['error_deg']).max():.3f} deg")
-        lines.append(line)
+    lines += [joint_line(arm, j) for arm, j in report["joints"]["arms"].items()]
     for r in report["ablation"]:
         cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
                                                 f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
@@ -189,6 +184,15 @@ def format_report(report: Mapping) -> str:
         lines.append(f"seeds {s['world']:6s} {s['policy']:12s} {s['task']:16s} "
                      f"{[round(r, 1) for r in s['rates_pct']]} range {s['range_pp']:.1f} pp")
     return "\n".join(lines)
+
+
+def joint_line(arm: str, joints: Mapping) -> str:
+    """One arm's estimated joint offsets (and the twin's, with the largest error) as text."""
+    line = f"joint offsets {arm} (deg): estimated {np.round(joints['estimated_deg'], 2).tolist()}"
+    if joints["truth_deg"] is not None:
+        line += (f", twin {np.round(joints['truth_deg'], 2).tolist()}, largest error "
+                 f"{np.abs(joints['error_deg']).max():.3f} deg")
+    return line
 
 
 def ablation_figure(rows: list[Mapping], sim_rates: Mapping[str, float], opts: Mapping) -> Figure:

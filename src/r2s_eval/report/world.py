@@ -33,7 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.fidelity import part_sentence
+from r2s_eval.report.fidelity import joint_line, part_sentence
 from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
 from r2s_eval.utils.io import read_json
 
@@ -215,9 +215,5 @@ def format_table(report: dict) -> str:
     if fidelity:
         lines += ["", "the gap split (same checkpoint in both worlds; reports/fidelity_table.tex):"]
         lines += [f"  {part_sentence(name, part)}" for name, part in fidelity["parts"].items() if part.get("cells")]
-        for arm, j in fidelity["joints"]["arms"].items():
-            line = f"  joint offsets {arm} (deg): estimated {[round(v, 2) for v in j['estimated_deg']]}"
-            if j["truth_deg"] is not None:
-                line += f", twin {[round(v, 2) for v in j['truth_deg']]}"
-            lines.append(line)
+        lines += [f"  {joint_line(arm, j)}" for arm, j in fidelity["joints"]["arms"].items()]
     return "\n".join(lines)

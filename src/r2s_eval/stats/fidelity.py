@@ -14,8 +14,8 @@ training part two trainings in one world. Every part is a set of per-cell differ
 independent rates, summarised as ``r2s_eval.stats.proportions.gap_summary`` does (mean
 absolute and signed gap, largest, with parametric-bootstrap intervals).
 
-Same-policy agreement: Pearson r and MMRV of the per-policy (task-mean) success of R_sim
-against R_real, as SimplerEnv scores its simulator with the same policy in both worlds.
+Same-policy agreement: Pearson r and MMRV of the per-policy success (the mean of its per-task
+rates, as the reference defines it: ``reference_rates``) of R_sim against R_real, as SimplerEnv scores its simulator with the same policy in both worlds.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import pandas as pd
 
 from r2s_eval.stats.metrics import mmrv, pearson
 from r2s_eval.stats.proportions import count_gap_cells, gap_summary, wilson_interval
+from r2s_eval.stats.reference import reference_rates
 
 # name -> (what the gap compares: minuend, subtrahend)
 PARTS = {
@@ -65,21 +66,16 @@ def cross_evaluation(worlds: dict[str, pd.DataFrame], level: float, n_boot: int,
             "agreement": same_policy_agreement(worlds), "ci_level": float(level)}
 
 
-def task_mean_rates(table: pd.DataFrame) -> pd.Series:
-    """Per policy, the mean over tasks of its success rate (every task weighs the same)."""
-    return (table["successes"] / table["trials"]).groupby(table["policy"]).mean()
-
-
 def same_policy_agreement(worlds: dict[str, pd.DataFrame]) -> dict:
     """Pearson r and MMRV (pp) of each simulated world's per-policy success against R_real."""
     if "R_real" not in worlds:
         return {}
-    real = task_mean_rates(worlds["R_real"])
+    real = reference_rates(worlds["R_real"])
     out = {}
     for name in ("R_sim", "S_sim"):
         if name not in worlds:
             continue
-        sim = task_mean_rates(worlds[name])
+        sim = reference_rates(worlds[name])
         policies = sorted(set(sim.index) & set(real.index))
         if len(policies) < 2:
             continue

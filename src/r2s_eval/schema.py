@@ -541,6 +541,45 @@ class CheckpointPolicy(ExternalPolicy):
     path: str | None = optional(_SOURCE_DEFAULTS)
 
 
+_KEY_MAP = "r2s_eval.serving.keymap"
+
+
+def _key_map_presets() -> Sequence[str]:
+    from r2s_eval.serving.keymap import PRESETS
+
+    return sorted(PRESETS)
+
+
+def _key_map_dtypes() -> Sequence[str]:
+    from r2s_eval.serving.keymap import DTYPES
+
+    return DTYPES
+
+
+@dataclass
+class ServerSpec:
+    """What a foreign server consumes and returns (r2s_eval.policies.interface.PolicySpec)."""
+
+    cameras: list[str] = optional("its key map, else the server's metadata")
+    action_dim: PositiveInt = optional("its key map's preset, else the server's metadata")
+    max_chunk: PositiveInt = optional("the server's metadata")
+    uses_state: bool = optional("its key map, else the server's metadata")
+    uses_task: bool = optional("its key map, else the server's metadata")
+    state_dim: PositiveInt | None = optional("the server's metadata")
+
+
+@dataclass
+class ServerKey:
+    """One key of a server's request: the stream that fills it (one of camera, state,
+    instruction), an image's size and the dtype; checked further by r2s_eval.serving.keymap."""
+
+    camera: str | None = optional(_KEY_MAP)
+    state: bool | tuple[Count, PositiveInt] | None = optional(_KEY_MAP)  # true: all of it; [start, stop]
+    instruction: bool | None = optional(_KEY_MAP)
+    size: tuple[PositiveInt, PositiveInt] | None = optional(_KEY_MAP)  # [height, width]
+    dtype: Annotated[str, OneOf(_key_map_dtypes)] | None = optional(_KEY_MAP)
+
+
 @dataclass
 class ServerPolicy(ExternalPolicy):
     """An openpi-protocol policy server."""
@@ -549,7 +588,11 @@ class ServerPolicy(ExternalPolicy):
     host: str = optional(_SOURCE_DEFAULTS)
     port: Annotated[int, Range(1, 65535)] | None = optional(_SOURCE_DEFAULTS)
     api_key_env: str | None = optional(_SOURCE_DEFAULTS)
-    spec: dict | None = optional(_SOURCE_DEFAULTS)
+    spec: ServerSpec | None = optional(_SOURCE_DEFAULTS)
+    # The server's own request keys (null: ours): a preset of openpi's example clients, and
+    # entries that override it key by key (null drops a preset key).
+    preset: Annotated[str, OneOf(_key_map_presets)] | None = optional(_KEY_MAP)
+    keys: dict[str, ServerKey | None] | None = optional(_KEY_MAP)
     connect_timeout_s: Positive = optional(_SOURCE_DEFAULTS)
     reply_timeout_s: Positive = optional(_SOURCE_DEFAULTS)
     connect_retries: Count = optional(_SOURCE_DEFAULTS)

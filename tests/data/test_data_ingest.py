@@ -110,6 +110,20 @@ def test_wrong_fps_and_missing_camera(dataset, tmp_path):
         ingest_dataset(dataset, "local/test", spec(feature_names=NAMES[::-1]), tmp_path / "frames")
 
 
+def test_a_state_outside_its_joint_ranges_is_a_wrong_unit(dataset, tmp_path):
+    # The state is N(0, 1): inside a joint range of +-3 (as radians), outside one of +-0.05 (the
+    # same joint's range read as if the dataset were in 60x larger units) nearly everywhere.
+    wide = {name: (-3.0, 3.0) for name in NAMES}
+    index, _ = ingest_dataset(dataset, "local/test", spec(feature_ranges=wide), tmp_path / "f")
+    assert len(index) == 3
+    narrow = {**wide, "j3": (-0.05, 0.05)}
+    with pytest.raises(DatasetValidationError) as error:
+        ingest_dataset(dataset, "local/test", spec(feature_ranges=narrow), tmp_path / "f2")
+    message = str(error.value)
+    assert "observation.state 'j3' lies inside its joint's range [-0.05, 0.05]" in message, message
+    assert "robot.features[3]" in message and "wrong unit" in message and "'j2'" not in message
+
+
 def test_unknown_task_and_short_episodes(dataset, tmp_path):
     with pytest.raises(DatasetValidationError, match="episode 0: task 'Pick the Cup and Place it on the Plate' is not one of"):
         ingest_dataset(dataset, "local/test", spec(tasks={"Stack the Two Blocks": "stack_blocks"}), tmp_path / "f")

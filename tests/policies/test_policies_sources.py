@@ -13,6 +13,7 @@ from r2s_eval.policies.config import PolicyConfigError
 from r2s_eval.policies.interface import ChunkPolicy
 from r2s_eval.policies.sources import (
     check_checkpoint,
+    check_server,
     checkpoint_hash,
     for_arm,
     result_identity,
@@ -20,9 +21,10 @@ from r2s_eval.policies.sources import (
 )
 
 
-def _checkpoint(folder, action_dim=14):
+def _checkpoint(folder, action_dim=14, inputs=None):
     folder.mkdir(parents=True)
-    config = {"type": "act", "output_features": {"action": {"type": "ACTION", "shape": [action_dim]}}}
+    config = {"type": "act", "output_features": {"action": {"type": "ACTION", "shape": [action_dim]}},
+              "input_features": inputs or {}}
     (folder / "config.json").write_text(json.dumps(config))
     (folder / "model.safetensors").write_bytes(os.urandom(4096))
     return folder
@@ -73,6 +75,42 @@ def test_bad_checkpoints_fail_before_any_rollout(tmp_path):
         check_checkpoint({"path": str(seven), "action_map": [0, 1, 2]}, "lab", 14)
     info = check_checkpoint({"path": str(seven), "action_map": [0, 1, 2, 3, 4, 5, 6]}, "lab", 14)
     assert info["action_dim"] == 7 and info["type"] == "act"
+
+
+def test_a_checkpoint_that_reads_what_the_world_does_not_record_fails_before_any_rollout(tmp_path):
+    # A SO-101 policy (6-D, a front and a wrist camera) against a world recording one camera and
+    # a 14-D state: each mismatch is named, with the world's side.
+    inputs = {"observation.state": {"type": "STATE", "shape": [6]},
+              "observation.images.front": {"type": "VISUAL", "shape": [3, 96, 96]},
+              "observation.images.wrist": {"type": "VISUAL", "shape": [3, 96, 96]}}
+    so101 = _checkpoint(tmp_path / "so101", action_dim=6, inputs=inputs)
+    with pytest.raises(PolicyError) as error:
+        check_checkpoint({"path": str(so101)}, "lab", 14, cameras=["front"], state_dim=14)
+    message = str(error.value)
+    assert "6-D actions, the robot takes 14-D" in message
+    assert "reads cameras ['wrist'], which world.cameras ['front'] does not record" in message
+    assert "reads a 6-D state, the world's robot records 14-D" in message
+    assert check_checkpoint({"path": str(so101)}, "lab", 6, cameras=["front", "wrist"], state_dim=6)["action_dim"] == 6
+
+
+def test_a_server_spec_or_key_map_that_reads_what_the_world_does_not_record_fails_when_planned():
+    server = {"type": "server", "host": "gpu01", "port": 8000}
+    spec = {"cameras": ["observation.images.top"], "state_dim": 8, "action_dim": 7, "max_chunk": 10}
+    with pytest.raises(PolicyError) as error:
+        check_server({**server, "spec": spec}, "srv", 6, cameras=["front", "wrist"], state_dim=6)
+    message = str(error.value)
+    assert message.startswith("policy 'srv' (server gpu01:8000): ")
+    assert "reads cameras ['top']" in message and "8-D state" in message and "7-D actions" in message
+    # openpi's DROID client: a camera the world lacks and joint positions beyond a 6-D state.
+    droid = {**server, "preset": "openpi_droid", "keys": {"observation/exterior_image_1_left": {"camera": "top"},
+                                                          "observation/wrist_image_left": {"camera": "wrist"}}}
+    with pytest.raises(PolicyError, match=r"server key 'observation/exterior_image_1_left' reads camera 'top'"):
+        check_server(droid, "srv", 8, cameras=["front", "wrist"], state_dim=8)
+    with pytest.raises(PolicyError, match=r"server key 'observation/joint_position' reads .*beyond the 6-D state"):
+        check_server({**droid, "keys": {**droid["keys"], "observation/exterior_image_1_left": {"camera": "front"}}},
+                     "srv", 6, cameras=["front", "wrist"], state_dim=6)
+    fitting = {**droid, "keys": {**droid["keys"], "observation/exterior_image_1_left": {"camera": "front"}}}
+    check_server(fitting, "srv", 8, cameras=["front", "wrist"], state_dim=8)
 
 
 class _Counting(ChunkPolicy):

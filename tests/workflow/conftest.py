@@ -135,17 +135,21 @@ def _report_files(reports: Path) -> list[Path]:
                   if p.is_file() and p.suffix != ".dvc" and not p.name.startswith("."))
 
 
-def assert_same_outputs(reference: Path, other: Path) -> None:
+def assert_same_outputs(reference: Path, other: Path, part: bool = False) -> None:
     """`other`'s run wrote the same bytes as `reference`'s: every report it has is identical, and
-    every parquet table under results/ has the same contents (timing columns aside)."""
+    every parquet table under results/ has the same contents (timing columns aside). ``part``:
+    `other` ran part of `reference`'s targets, so its tables are a subset of the reference's."""
     reports = _report_files(other / "reports")
     assert reports and set(reports) <= set(_report_files(reference / "reports"))
     differ = [str(r) for r in reports if (reference / "reports" / r).read_bytes() != (other / "reports" / r).read_bytes()]
     assert differ == [], f"reports differ between the two runs: {differ}"
     first_tables, second_tables = _parquet_contents(reference / "results"), _parquet_contents(other / "results")
-    assert sorted(first_tables) == sorted(second_tables)
-    for name, df in first_tables.items():
-        pd.testing.assert_frame_equal(df, second_tables[name], check_exact=True, obj=name)
+    if part:
+        assert second_tables and set(second_tables) <= set(first_tables), sorted(set(second_tables) - set(first_tables))
+    else:
+        assert sorted(first_tables) == sorted(second_tables)
+    for name, df in second_tables.items():
+        pd.testing.assert_frame_equal(first_tables[name], df, check_exact=True, obj=name)
 
 
 @dataclass

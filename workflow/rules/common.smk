@@ -11,6 +11,7 @@ from r2s_eval.config import compose_config, missing_inputs, select, to_json
 from r2s_eval.errors import R2SError
 from r2s_eval.policies.sources import (
     check_checkpoint,
+    check_server,
     checkpoint_hash,
     for_arm,
     is_external,
@@ -77,15 +78,20 @@ def workflow_made(path):
     return Path(str(path)).parts[:1] == ("results",)
 
 
+# A wrong folder, or a candidate that reads what the world does not record, fails now, before any
+# rollout (LIBERO's cameras and state are checked by its own stage).
+_WORLD = None if LIBERO else (CFG["world"]["cameras"], world_robot(CFG["world"]).action_dim)
 for _name, _source in EXTERNAL.items():
-    if _source["type"] == "checkpoint":  # a wrong folder fails now, before any rollout
-        for _arm in ARMS:
-            if not workflow_made(for_arm(_source, _arm)["path"]):
-                try:
-                    check_checkpoint(for_arm(_source, _arm), _name,
-                                     LIBERO_ACTION_DIM if LIBERO else world_robot(CFG["world"]).action_dim)
-                except R2SError as err:
-                    stop_planning(err)
+    for _arm in ARMS:
+        _entry = for_arm(_source, _arm)
+        try:
+            if _source["type"] == "checkpoint" and not workflow_made(_entry["path"]):
+                check_checkpoint(_entry, _name, LIBERO_ACTION_DIM if LIBERO else _WORLD[1],
+                                 *(_WORLD or (None, None)))
+            elif _source["type"] == "server" and _WORLD:
+                check_server(_entry, _name, _WORLD[1], *_WORLD)
+        except R2SError as err:
+            stop_planning(err)
 JUDGES = sorted(CFG["judges"])
 # What ingest matches a dataset's task strings against: the instructions of the tasks evaluated.
 INSTRUCTIONS = {key: CFG["world"]["tasks"][key]["instruction"] for key in CFG["tasks"]}

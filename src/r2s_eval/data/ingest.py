@@ -48,7 +48,14 @@ class IngestSpec:
     max_length: int = 10_000
     drop_bad_episodes: bool = False
     check_videos: bool = True
+    # feature name -> the range its values can take, in the dataset's units (the world's joint
+    # limits through robot.features); a feature mostly outside it is recorded in another unit
+    feature_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+
+
+RANGE_MARGIN = 0.1  # of a joint's range: calibration slack and servo overshoot at the limits
+MIN_SHARE_IN_RANGE = 0.5  # below this share of the frames inside its range, a feature's unit is wrong
 
 
 def _episode_problems(meta, ep: dict, frames: pd.DataFrame, spec: IngestSpec) -> list[Problem]:
@@ -67,6 +74,29 @@ def _episode_problems(meta, ep: dict, frames: pd.DataFrame, spec: IngestSpec) ->
         if bad.any():
             rows = np.unique(np.nonzero(bad)[0])
             out.append(Problem(data_file, f"{key} has NaN/inf in {len(rows)} frame(s), first at frame {int(rows[0])}", e))
+    return out
+
+
+def range_problems(frames: dict[int, pd.DataFrame], spec: IngestSpec, data_file: str) -> list[Problem]:
+    """Features whose recorded state lies mostly outside what the world's joint can reach: a unit
+    the world's mapping gets wrong (degrees as radians, -100..100 as degrees), which no calibration
+    downstream could tell from a badly placed robot."""
+    if not spec.feature_ranges or not frames:
+        return []
+    state = np.concatenate([np.stack(f[STATE_KEY].to_numpy()) for f in frames.values()])
+    out = []
+    for i, name in enumerate(spec.feature_names):
+        if name not in spec.feature_ranges:
+            continue
+        lo, hi = spec.feature_ranges[name]
+        margin = RANGE_MARGIN * (hi - lo)
+        values = state[:, i]
+        share = float(np.mean((values >= lo - margin) & (values <= hi + margin)))
+        if share < MIN_SHARE_IN_RANGE:
+            out.append(Problem(data_file, f"{STATE_KEY} {name!r} lies inside its joint's range [{lo:.4g}, {hi:.4g}] "
+                                          f"(dataset units, through robot.features[{i}]) in {share:.0%} of "
+                                          f"{len(values)} frames (recorded {values.min():.4g} .. {values.max():.4g}): "
+                                          "the world's mapping has the wrong unit (check its scale and offset)"))
     return out
 
 
@@ -102,6 +132,8 @@ def ingest_dataset(root: str | Path, repo_id: str, spec: IngestSpec, first_frame
     found_videos, first_frames = video_problems(meta, checked, first_key)
     problems.merge(found)
     problems.merge(found_videos)
+    for p in range_problems(frames, spec, "data/*.parquet"):
+        problems.add(p, whole_dataset=True)
     if problems.dataset:
         raise fail(root, problems.lines())
 

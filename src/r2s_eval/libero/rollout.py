@@ -39,10 +39,13 @@ log = logging.getLogger("r2s_eval.libero")
 POLL_S = 0.5
 
 
-def policy_cameras(spec: PolicySpec, cameras: dict[str, str], policy: str) -> dict[str, str]:
+def policy_cameras(spec: PolicySpec, cameras: dict[str, str], policy: str, key_map=None) -> dict[str, str]:
     """The observation keys the policy reads, each with the LIBERO camera that feeds it
     (`cameras`: libero.observation.cameras, keys without the observation.images. prefix); a
-    policy LIBERO cannot feed is an error before any episode starts."""
+    policy LIBERO cannot feed is an error before any episode starts. `key_map`: a server's
+    (r2s_eval.serving.keymap.KeyMap), whose keys' cameras and state slices are checked by key."""
+    if key_map is not None:
+        key_map.check_streams(cameras, STATE_DIM, f"policy {policy!r}", "LIBERO (libero.observation.cameras)")
     offered = {IMAGE_PREFIX + k: c for k, c in cameras.items()}
     problems = []
     unmapped = [k for k in spec.cameras if k not in offered]
@@ -203,7 +206,8 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
     model: ChunkPolicy = open_policy(source, policy, device=rollout.get("device", "cpu"), call_batch=1)
     server = None
     try:
-        cameras = policy_cameras(model.spec, dict(libero["observation"]["cameras"]), policy)
+        cameras = policy_cameras(model.spec, dict(libero["observation"]["cameras"]), policy,
+                                 getattr(model, "key_map", None))
         if not 1 <= rollout["n_action_steps"] <= rollout["chunk_size"] <= model.spec.max_chunk:
             raise PolicyError(f"policy {policy!r}: need 1 <= n_action_steps <= chunk_size <= its chunk length "
                               f"({rollout['n_action_steps']}, {rollout['chunk_size']}, {model.spec.max_chunk})")

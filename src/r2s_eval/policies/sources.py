@@ -10,6 +10,9 @@ kinds here need no training:
       api_key_env           name of the environment variable holding the key (never the key)
       spec                  what a foreign server consumes and returns, when its metadata
                             does not say (ours does): cameras, action_dim, max_chunk, ...
+      preset, keys          the server's own request keys, sizes and dtypes (openpi's example
+                            clients: preset openpi_libero | openpi_droid; `keys` entries override
+                            the preset's): r2s_eval.serving.keymap. None: our own key names
 
 Both take `action_map` (robot index per policy action dimension; default: identity).
 """
@@ -33,7 +36,7 @@ _COMMON = {"type": None, "name": None, "arms": {}, "action_map": None, "device":
 _PER_TYPE = {
     "checkpoint": {"path": None},
     "server": {
-        "host": "127.0.0.1", "port": None, "api_key_env": None, "spec": None,
+        "host": "127.0.0.1", "port": None, "api_key_env": None, "spec": None, "preset": None, "keys": None,
         "connect_timeout_s": 10.0, "reply_timeout_s": 120.0, "connect_retries": 3,
     },
 }
@@ -73,9 +76,37 @@ def validate_source_cfg(cfg: Mapping, name: str | None = None) -> dict:
             raise PolicyConfigError(f"{who}: no checkpoint path for the {arm} arm (set path, or arms.{arm}.path)")
         if kind == "server" and arm_cfg["port"] is None:
             raise PolicyConfigError(f"{who}: no server port for the {arm} arm (set port, or arms.{arm}.port)")
+        if kind == "server":
+            _check_server_streams(arm_cfg, who)
     if out["action_map"] is not None:
         out["action_map"] = [int(i) for i in out["action_map"]]
     return out
+
+
+SPEC_FIELDS = ("cameras", "action_dim", "max_chunk", "uses_state", "uses_task", "state_dim")
+KEY_MAP_SPEC_FIELDS = ("cameras", "uses_state", "uses_task")  # a key map decides these
+
+
+def _check_server_streams(cfg: Mapping, who: str) -> None:
+    """A server entry's `spec`, `preset` and `keys` (for one arm): unknown spec fields, a key map
+    that leaves a key unfilled, a spec field the key map decides."""
+    from r2s_eval.policies.config import PolicyConfigError
+    from r2s_eval.serving.keymap import resolve_key_map
+
+    spec = cfg.get("spec")
+    if spec is not None and not isinstance(spec, Mapping):
+        raise PolicyConfigError(f"{who}: 'spec' must be a mapping of {list(SPEC_FIELDS)}, got {spec!r}")
+    unknown = sorted(set(spec or {}) - set(SPEC_FIELDS))
+    if unknown:
+        raise PolicyConfigError(f"{who}: 'spec' has unknown field(s) {unknown}; allowed: {list(SPEC_FIELDS)}")
+    try:
+        key_map = resolve_key_map(cfg.get("preset"), cfg.get("keys"), who)
+    except PolicyError as exc:
+        raise PolicyConfigError(str(exc)) from exc
+    clash = [k for k in KEY_MAP_SPEC_FIELDS if (spec or {}).get(k) is not None]
+    if key_map is not None and clash:
+        raise PolicyConfigError(f"{who}: 'spec' sets {clash}, which its key map ('keys' / 'preset') decides; "
+                                f"leave them out")
 
 
 def for_arm(cfg: Mapping, arm: str) -> dict:
@@ -135,8 +166,56 @@ def checkpoint_hash(path: str | os.PathLike, memo_file: str | os.PathLike | None
     return digest.hexdigest()
 
 
-def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int) -> dict:
-    """Read a checkpoint's config (no model load) and check it can drive the robot.
+def _action_map_problem(indices, action_dim: int, robot_action_dim: int, what: str) -> str | None:
+    if indices is None and action_dim != robot_action_dim:
+        return (f"{what} returns {action_dim}-D actions, the robot takes {robot_action_dim}-D; set action_map "
+                f"(the robot index of each action dimension)")
+    if indices is not None and (len(indices) != action_dim or len(set(indices)) != len(indices)
+                                or min(indices) < 0 or max(indices) >= robot_action_dim):
+        return f"action_map {list(indices)} must list {action_dim} distinct robot indices below {robot_action_dim} for {what}"
+    return None
+
+
+def _stream_problems(cameras_used, state_dim_used, cameras, state_dim: int | None) -> list[str]:
+    """What a policy reads that the world does not record: cameras, or a state of another width."""
+    out = []
+    if cameras is not None:
+        missing = sorted(set(cameras_used) - set(cameras))
+        if missing:
+            out.append(f"reads cameras {missing}, which world.cameras {list(cameras)} does not record")
+    if state_dim is not None and state_dim_used is not None and int(state_dim_used) != state_dim:
+        out.append(f"reads a {state_dim_used}-D state, the world's robot records {state_dim}-D (robot.features)")
+    return out
+
+
+def check_server(cfg: Mapping, name: str, robot_action_dim: int, cameras, state_dim: int) -> None:
+    """A server entry (one arm's) against the world, before any episode: what its key map or its
+    spec reads (cameras, state width) and the actions its spec returns. What the server itself
+    announces is checked when it is reached."""
+    from r2s_eval.serving.keymap import resolve_key_map
+
+    who = f"policy {name!r}"
+    spec = dict(cfg.get("spec") or {})
+    key_map = resolve_key_map(cfg.get("preset"), cfg.get("keys"), who)
+    if key_map is not None:
+        key_map.check_streams(cameras, state_dim, who, offerer="world.cameras")
+        action_dim = spec.get("action_dim", key_map.action_dim)
+        problems = []
+    else:
+        used = [str(c).removeprefix("observation.images.") for c in spec.get("cameras") or ()]
+        problems = _stream_problems(used, spec.get("state_dim"), cameras, state_dim)
+        action_dim = spec.get("action_dim")
+    if action_dim is not None:
+        problem = _action_map_problem(cfg.get("action_map"), int(action_dim), robot_action_dim, "its spec")
+        problems += [problem] if problem else []
+    if problems:
+        raise PolicyError(f"{who} (server {cfg.get('host')}:{cfg.get('port')}): " + "; ".join(problems))
+
+
+def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int, cameras=None, state_dim: int | None = None) -> dict:
+    """Read a checkpoint's config (no model load) and check it can drive the robot: its action
+    width (or action_map), and with ``cameras`` / ``state_dim`` the world's, the cameras and the
+    state width it reads.
 
     Runs when the workflow is planned, so a wrong folder fails before any rollout starts.
     """
@@ -152,18 +231,14 @@ def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int) -> dict:
         policy_type = str(config["type"])
     except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
         raise PolicyError(f"policy {name!r}: {folder}/config.json is not a LeRobot policy config ({exc!r})") from exc
-    indices = cfg.get("action_map")
-    if indices is None and action_dim != robot_action_dim:
-        raise PolicyError(
-            f"policy {name!r}: checkpoint {folder} returns {action_dim}-D actions, the robot takes "
-            f"{robot_action_dim}-D; set action_map (the robot index of each action dimension)"
-        )
-    if indices is not None and (len(indices) != action_dim or len(set(indices)) != len(indices)
-                                or min(indices) < 0 or max(indices) >= robot_action_dim):
-        raise PolicyError(
-            f"policy {name!r}: action_map {list(indices)} must list {action_dim} distinct robot indices "
-            f"below {robot_action_dim} for checkpoint {folder}"
-        )
+    inputs = config.get("input_features") or {}
+    used = [k.removeprefix("observation.images.") for k in inputs if k.startswith("observation.images.")]
+    state_shape = (inputs.get("observation.state") or {}).get("shape") or [None]
+    problems = _stream_problems(used, state_shape[0], cameras, state_dim)
+    problem = _action_map_problem(cfg.get("action_map"), action_dim, robot_action_dim, f"checkpoint {folder}")
+    if problem or problems:
+        raise PolicyError(f"policy {name!r}: " + "; ".join([*([problem] if problem else []),
+                                                          *(f"checkpoint {folder} {p}" for p in problems)]))
     return {"folder": str(folder), "type": policy_type, "action_dim": action_dim}
 
 
@@ -187,5 +262,5 @@ def open_policy(cfg: Mapping, name: str, trained_dir: str | os.PathLike | None =
     return ServerPolicy(
         name, cfg["host"], int(cfg["port"]), api_key_env=cfg.get("api_key_env"),
         connect_timeout_s=float(cfg["connect_timeout_s"]), reply_timeout_s=float(cfg["reply_timeout_s"]),
-        connect_retries=int(cfg["connect_retries"]), **spec,
+        connect_retries=int(cfg["connect_retries"]), preset=cfg.get("preset"), keys=cfg.get("keys"), **spec,
     )

@@ -7,6 +7,11 @@ gone); the slot's next `reset()` connects again.
 
 Every failure is a `PolicyError` naming the policy and `host:port`. Like the other policies,
 one caller at a time (not thread-safe).
+
+Requests carry our own stream names unless the policy has a key map (`preset=` / `keys=`, see
+`r2s_eval.serving.keymap`): then each of the server's keys is filled from the stream the map
+names, at the map's image size and dtype, and the spec's cameras, state and instruction use are
+the map's.
 """
 
 from __future__ import annotations
@@ -14,13 +19,14 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus, InvalidURI
 from websockets.sync.client import ClientConnection, connect
 
 from r2s_eval.policies.interface import ChunkPolicy, PolicyError, PolicySpec
+from r2s_eval.serving.keymap import KeyMap, resolve_key_map
 from r2s_eval.serving.protocol import DEFAULT_MAX_MESSAGE_BYTES, ProtocolError, pack, unpack_dict
 from r2s_eval.serving.server import RESET_KEY, ws_url
 
@@ -47,7 +53,8 @@ class ServerPolicy(ChunkPolicy):
                  cameras: Sequence[str] | None = None, action_dim: int | None = None,
                  max_chunk: int | None = None, uses_state: bool | None = None,
                  uses_task: bool | None = None, state_dim: int | None = None,
-                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES):
+                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+                 preset: str | None = None, keys: Mapping | KeyMap | None = None):
         self.name = name
         self.host = host
         self.port = int(port)
@@ -65,6 +72,17 @@ class ServerPolicy(ChunkPolicy):
         # Spec fields given here win over what the server announces (foreign servers announce none).
         given = {"cameras": cameras, "action_dim": action_dim, "max_chunk": max_chunk,
                  "uses_state": uses_state, "uses_task": uses_task, "state_dim": state_dim}
+        # The server's own key names, when they are not ours (checked before any connection).
+        self.key_map = keys if isinstance(keys, KeyMap) else resolve_key_map(preset, keys, f"policy {name!r}")
+        if self.key_map is not None:
+            clash = [k for k in ("cameras", "uses_state", "uses_task") if given[k] is not None]
+            if clash:
+                raise PolicyError(f"policy {name!r}: spec {clash} come from its key map ('keys' / 'preset'); "
+                                  f"leave them out of the spec")
+            given.update(cameras=self.key_map.cameras, uses_state=self.key_map.uses_state,
+                         uses_task=self.key_map.uses_task)
+            if action_dim is None:
+                given["action_dim"] = self.key_map.action_dim
         self._spec_args = {k: v for k, v in given.items() if v is not None}
         self._spec: PolicySpec | None = None
         self._server_metadata: dict | None = None
@@ -116,7 +134,21 @@ class ServerPolicy(ChunkPolicy):
         # What the server serves, never where it runs: the same model on another host is the same policy.
         meta = self.server_metadata
         served = meta.get("policy") if "policy" in meta else meta
-        return {"name": self.name, "spec": self.spec.to_dict(), "served": _json_safe(served)}
+        out = {"name": self.name, "spec": self.spec.to_dict(), "served": _json_safe(served)}
+        if self.key_map is not None:  # what the server is shown decides what it does
+            out["keys"] = self.key_map.to_dict()
+        return out
+
+    def select(self, obs: dict) -> dict:
+        if self.key_map is not None:  # a missing stream is named by the server key it fills
+            self.key_map.check_obs(obs, f"policy {self.name!r}")
+        return super().select(obs)
+
+    def request(self, selected: dict) -> dict:
+        """The message sent for a selected observation: ours as it is, or the key map's."""
+        if self.key_map is None:
+            return selected
+        return self.key_map.request(selected)
 
     # -- connections ---------------------------------------------------------------------------
     def _connect_once(self) -> ClientConnection:
@@ -222,7 +254,7 @@ class ServerPolicy(ChunkPolicy):
     def predict_chunks(self, slots: Sequence[int], observations: Sequence[dict]) -> np.ndarray:
         if len(slots) != len(observations):
             raise self._error(f"{len(slots)} slots but {len(observations)} observations")
-        payloads = [pack(self.select(obs)) for obs in observations]
+        payloads = [pack(self.request(self.select(obs))) for obs in observations]
         conns = [self._conn(slot) for slot in slots]
         pending: list[int] = []  # slots whose reply is still on the wire
         try:

@@ -7,7 +7,7 @@ import dataclasses
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.env import TabletopEnv
 from r2s_eval.sim.params import WorldParams
-from r2s_eval.sim.robot import world_robot
+from r2s_eval.sim.robot import Robot, world_robot
 from r2s_eval.sim.tasks import Task, get_task
 
 
@@ -44,3 +44,26 @@ def make_env(task: str, world_cfg: dict, params: WorldParams | None = None, came
         robot=world_robot(world_cfg),
         **shared,
     )
+
+
+def feature_ranges(robot: Robot) -> dict[str, tuple[float, float]]:
+    """Per dataset feature, the range its values can take in the dataset's units: a limited joint's
+    range from the model, a gripper's open..closed; unlimited joints are left out. Ingest checks a
+    recording against it, so a wrong unit in ``robot.features`` (degrees read as radians, -100..100
+    read as degrees) stops there instead of silently skewing the calibration."""
+    from r2s_eval.sim.world import build_robot_model
+
+    model = build_robot_model(robot)
+    ranges = {}
+    for f in robot.features:
+        arm = robot.arms[f.arm]
+        if f.joint is None:
+            model_range = (0.0, 1.0)  # the closing fraction
+        else:
+            joint = model.joint(arm.named(f.joint))
+            if not model.jnt_limited[joint.id]:
+                continue
+            model_range = tuple(float(v) for v in model.jnt_range[joint.id])
+        lo, hi = sorted((v - f.offset) / f.scale for v in model_range)
+        ranges[f.name] = (lo, hi)
+    return ranges

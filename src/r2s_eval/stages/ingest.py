@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from r2s_eval.data import IngestSpec, ingest_dataset
+from r2s_eval.sim.build import feature_ranges
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
@@ -25,6 +26,7 @@ def main(args) -> None:
         max_length=ingest["max_length"],
         drop_bad_episodes=ingest["drop_bad_episodes"],
         check_videos=ingest["check_videos"],
+        feature_ranges=feature_ranges(robot),
     )
     with atomic_dir(args.frames) as frames_dir:
         index, report = ingest_dataset(args.dataset, ingest["repo_id"], spec, frames_dir)

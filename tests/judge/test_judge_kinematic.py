@@ -196,3 +196,33 @@ def test_judge_trajectory_errors_name_the_file(judge, tmp_path):
     pd.DataFrame({"step": [0], "time_s": [0.0]}).to_parquet(bad)
     with pytest.raises(ValueError, match=r"bad\.parquet.*lacks columns"):
         describe(judge, bad)
+
+
+def test_judge_reads_joints_in_the_world_s_units(judge, traj_factory, tmp_path):
+    # A lab's arm recorded in degrees (LeRobot's so_follower): the judge told the robot's units
+    # describes it as the same motion in radians would be; untold, its joint numbers are 57x off.
+    import types
+
+    import numpy as np
+    import pandas as pd
+
+    radians = traj_factory(noise=0.002)
+    table = pd.read_parquet(radians)
+    width = len(table["state"].iloc[0])
+    degrees = tmp_path / "degrees.parquet"
+    for column in ("state", "action"):
+        table[column] = [np.rad2deg(np.asarray(v)) for v in table[column]]
+    table.to_parquet(degrees)
+    lab = make_judge({"backend": "kinematic"})
+    lab.know_robot(types.SimpleNamespace(features=[types.SimpleNamespace(scale=np.pi / 180)] * width))
+    bundled = make_judge({"backend": "kinematic"})
+    bundled.know_robot(types.SimpleNamespace(features=[types.SimpleNamespace(scale=1.0)] * width))
+    told, reference = describe(lab, degrees), describe(bundled, radians)
+    untold = describe(judge, degrees)
+    for criterion in ("motion_smoothness", "action_continuity"):
+        assert told.criteria[criterion].evidence == pytest.approx(reference.criteria[criterion].evidence, rel=1e-6)
+    jerk = "joint_jerk_rms_rad_s3"
+    assert untold.criteria["motion_smoothness"].evidence[jerk] == pytest.approx(
+        57.29578 * reference.criteria["motion_smoothness"].evidence[jerk], rel=1e-3)
+    # The units are part of what the judge's answers depend on (its cache key); unit scales are not.
+    assert lab.identity() != judge.identity() and bundled.identity() == judge.identity()

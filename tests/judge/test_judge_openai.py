@@ -160,7 +160,8 @@ def test_openai_stage_killed_mid_run_resumes_without_repeating_a_request(rollout
     with ChatServer(hold_after=5) as server:
         world = bundled_world()
         cfg = json.dumps({"judge": judge_cfg(server.url, concurrency=2), "name": "vlm",
-                          "world.objects": world["objects"], "world.tasks": world["tasks"]})
+                          "world.objects": world["objects"], "world.tasks": world["tasks"],
+                          "world.robot": world["robot"]})
         cmd = [sys.executable, "-m", "r2s_eval.stages.describe", "--cfg", cfg, "--rollouts", *dirs,
                "--cache", str(cache), "--out", str(out)]
         env = {**os.environ, "PYTHONPATH": str(SRC)}
@@ -206,7 +207,8 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
         judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
         desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
         world = bundled_world()
-        describe_cfg = {**judge, "world.objects": world["objects"], "world.tasks": world["tasks"]}
+        describe_cfg = {**judge, "world.objects": world["objects"], "world.tasks": world["tasks"],
+                        "world.robot": world["robot"]}
         _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out", "--stats"]),
                  ["--cfg", json.dumps(describe_cfg), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
         _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),

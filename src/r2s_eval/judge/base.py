@@ -222,6 +222,10 @@ class Judge(ABC):
         """The world's tasks ({key: Task}), for a judge that reads more of a task than its
         instruction (the offline video judge); the others ignore them."""
 
+    def know_robot(self, robot: Any) -> None:
+        """The world's robot (``r2s_eval.sim.robot.Robot``), for a judge that reads the recorded
+        joint values (the kinematic judge: their units); the others ignore it."""
+
     def identity(self) -> dict[str, str]:
         """Everything that changes a judge's answers; part of every cache key."""
         return {

@@ -32,9 +32,12 @@ Compare (from the two descriptions alone, deterministic, no position bias):
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Mapping
 from typing import Any
+
+import numpy as np
 
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
@@ -104,13 +107,35 @@ class KinematicJudge(Judge):
         w = self.cfg["weights"]
         if any(float(v) < 0 for v in w.values()) or not sum(float(v) for v in w.values()) > 0:
             raise ValueError(f"kinematic judge: weights must be >= 0 and not all 0, got {w}")
+        self._unit_scale: np.ndarray | None = None  # dataset units -> model units, per state entry
+
+    def know_robot(self, robot: Any) -> None:
+        # Trajectories hold the dataset's units (a lab's arm in degrees, its gripper 0..100); the
+        # reference levels are in radians and closing fractions, the model's units.
+        scale = np.array([f.scale for f in robot.features], dtype=float)
+        self._unit_scale = None if np.all(scale == 1.0) else scale
+
+    def identity(self) -> dict[str, str]:
+        out = super().identity()
+        if self._unit_scale is not None:  # the bundled world's keys stay as they were
+            out["unit_scale"] = hashlib.sha256(self._unit_scale.tobytes()).hexdigest()[:16]
+        return out
+
+    def _in_model_units(self, tr: T.Trajectory) -> T.Trajectory:
+        scale = self._unit_scale
+        if scale is None:
+            return tr
+        if tr.state.shape[1] != len(scale):
+            raise ValueError(f"the trajectory's state has {tr.state.shape[1]} entries, the world's robot "
+                             f"{len(scale)} (robot.features)")
+        return dataclasses.replace(tr, state=tr.state * scale, action=tr.action * scale)
 
     # ---------------------------------------------------------------- describe
     def describe(self, rollout: RolloutInput) -> Description:
         if rollout.trajectory_path is None:
             raise ValueError("the kinematic judge reads trajectories; the rollout input has no trajectory_path")
         c = self.cfg
-        tr = T.load_trajectory(rollout.trajectory_path)
+        tr = self._in_model_units(T.load_trajectory(rollout.trajectory_path))
         smooth = T.smoothness_metrics(tr, c["joint_dims"])
         cont = T.continuity_metrics(
             tr, c["joint_dims"], c["idle_speed_rad_s"], c["min_pause_steps"],

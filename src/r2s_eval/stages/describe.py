@@ -6,12 +6,13 @@ import json
 from pathlib import Path
 
 from r2s_eval.judge import describe_rollouts, make_judge
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import world_tasks
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
 
-READS = ("world.objects", "world.tasks")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("world.objects", "world.tasks", "world.robot")  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("judge", "name")  # keys the rule adds for this job
 
 
@@ -19,6 +20,7 @@ def main(args) -> None:
     # Transport keys (server address, timeouts, concurrency) come apart: they never rerun judging.
     judge = make_judge({**args.cfg["judge"], **json.loads(args.transport)})
     judge.know_tasks(world_tasks({"objects": args.cfg["world.objects"], "tasks": args.cfg["world.tasks"]}))
+    judge.know_robot(world_robot({"robot": args.cfg["world.robot"], "rig": {}}))  # its units, not its cameras
     episodes = load_episodes(args.rollouts)
     out = Path(args.out)
     stats = Path(args.stats) if args.stats else out.with_name("describe_stats.json")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -96,3 +97,41 @@ def test_the_bundled_rig_places_the_four_cameras_as_before():
     to_target = np.array([-0.03, 0.0, 0.75]) - head[:3, 3]
     np.testing.assert_allclose(head[:3, 2], to_target / np.linalg.norm(to_target), atol=1e-9)
     env.close()
+
+
+def test_a_world_sets_the_physics_timestep():
+    """`robot.timestep_s` overrides the scene's 2 ms: the control period is held for whole steps of it."""
+    env = TabletopEnv("ball_in_box", cameras=(), robot=world_robot(_world(**{"robot.timestep_s": 0.001})))
+    assert env.model.opt.timestep == 0.001 and env.n_substeps == 100
+    assert TabletopEnv("ball_in_box", cameras=()).n_substeps == 50
+
+
+def test_the_grasp_centre_is_offset_in_the_sites_frame():
+    """`ee.pos` puts the grasp centre off the named site, along the site's own axes."""
+    arm = copy.deepcopy(bundled_world()["robot"]["arms"]["left"])
+    arm["ee"] = {**arm["ee"], "pos": [0.01, 0.0, 0.0]}  # 1 cm further along tcp's x, the approach
+    shifted, bundled = (TabletopEnv("ball_in_box", cameras=(), robot=r)
+                        for r in (world_robot(_world(**{"robot.arms.left": arm})), bundled_robot()))
+    moved = shifted.ee_positions()["left"] - bundled.ee_positions()["left"]
+    np.testing.assert_allclose(moved, 0.01 * bundled.ee_rotations()["left"][:, 0], atol=1e-9)
+    np.testing.assert_allclose(shifted.ee_positions()["right"], bundled.ee_positions()["right"])
+
+
+def test_collision_swaps_the_jaws_shapes_for_primitives():
+    """`collision` switches a body's collision geoms off and adds collision-only primitives that
+    collide as the body's own geoms did (the bundled arm's parts never touch each other)."""
+    arm = copy.deepcopy(bundled_world()["robot"]["arms"]["left"])
+    arm["collision"] = {"disable": {"bodies": ["finger_a"], "geoms": ["pad_b"]},
+                        "add": [{"body": "finger_a", "type": "box", "size": [0.019, 0.002, 0.011], "pos": [0.045, 0.0, 0.0],
+                                 "euler_deg": [0.0, 0.0, 90.0], "friction": [1.2, 0.01, 0.001]}]}
+    m = TabletopEnv("ball_in_box", cameras=(), robot=world_robot(_world(**{"robot.arms.left": arm}))).model
+    for name in ("left_finger_a", "left_pad_a", "left_pad_b"):
+        assert m.geom(name).contype == 0 and m.geom(name).conaffinity == 0, name
+    assert m.geom("right_pad_a").contype == 2 and m.geom("left_finger_b").contype == 2
+    box = m.geom("left_collision_0").id
+    assert m.body(m.geom_bodyid[box]).name == "left_finger_a" and m.geom_type[box] == mujoco.mjtGeom.mjGEOM_BOX
+    assert (m.geom_contype[box], m.geom_conaffinity[box], m.geom_group[box]) == (2, 1, 3)
+    np.testing.assert_allclose(m.geom_friction[box], [1.2, 0.01, 0.001])
+    np.testing.assert_allclose(m.geom_quat[box], [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)], atol=1e-12)
+    bundled = TabletopEnv("ball_in_box", cameras=()).model
+    assert m.body("left_finger_a").mass == bundled.body("left_finger_a").mass  # the box adds no mass

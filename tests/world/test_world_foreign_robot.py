@@ -1,7 +1,7 @@
 """A world the code never saw: the Franka Panda that gym-hil ships (used from the installed package,
-never copied), one task, a camera placed by the world with a lab's intrinsics. The twin records it,
-the calibration finds its objects from that camera's first frames, and the replay reproduces the
-recordings in the nominal simulation."""
+never copied), two tasks, a camera placed by the world with a lab's intrinsics. The twin records
+it, the calibration finds its objects from that camera's first frames and its joint offsets from
+the recordings, and the replay reproduces the recordings in the simulation so calibrated."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 pytest.importorskip("gym_hil", reason="the Panda world's robot comes from gym-hil (pip install --no-deps gym-hil)")
 
 from r2s_eval.calib.episodes import estimate_episodes  # noqa: E402
+from r2s_eval.calib.joints import estimate_joint_offsets, recorded_episodes  # noqa: E402
 from r2s_eval.calib.offsets import calibration_subset, fit_offsets  # noqa: E402
 from r2s_eval.config import compose_config  # noqa: E402
 from r2s_eval.data import IngestSpec, ingest_dataset  # noqa: E402
@@ -24,6 +25,7 @@ from r2s_eval.replay import replay_episode  # noqa: E402
 from r2s_eval.sim import WorldParams, world_robot  # noqa: E402
 from r2s_eval.sim.build import make_env  # noqa: E402
 from r2s_eval.twin import twin_world  # noqa: E402
+from r2s_eval.twin.operator import success_rate  # noqa: E402
 from r2s_eval.twin.record import record_teleop  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -83,8 +85,14 @@ def test_calibration_finds_the_objects_and_replay_reproduces_the_recordings(pand
     error_m = np.hypot(merged["x_m"] - merged["x_m_true"], merged["y_m"] - merged["y_m_true"])
     assert len(merged) == 2 * (EPISODES - CALIBRATION) and error_m.max() < 0.01, merged
 
+    # As the pipeline does: replay in the simulation calibrated with the joint offsets the
+    # recordings show (their replay residuals); they are the twin's.
+    fit = estimate_joint_offsets(robot, recorded_episodes(root, index, estimates),
+                                 lambda task, params: make_env(task, world, params, cameras=()), iterations=2)
+    twin = twin_world(cfg["real"]["twin"], world["objects"], robot)["params"]
+    np.testing.assert_allclose(fit.offsets_rad["panda"], twin["joint_offset_rad"]["panda"], atol=np.deg2rad(0.2))
     meta = open_metadata(root)
-    env = make_env("block_on_plate", world, cameras=())
+    env = make_env("block_on_plate", world, WorldParams(joint_offset_rad=fit.offsets_rad), cameras=())
     replayed = 0
     for ep in index.itertuples():
         mine = estimates[estimates["episode_index"] == ep.episode_index]
@@ -96,3 +104,9 @@ def test_calibration_finds_the_objects_and_replay_reproduces_the_recordings(pand
         replayed += result.success
     env.close()
     assert replayed == EPISODES
+
+
+def test_the_operator_puts_the_ball_in_the_cup(panda):
+    """The second task, with the operator's default (human-like) settings in perturbed twins."""
+    cfg, *_ = panda
+    assert success_rate("ball_in_cup", episodes=4, twin=True, world=cfg["world"]) == 1.0

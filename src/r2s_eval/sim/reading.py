@@ -3,7 +3,7 @@ readers (``tasks``, ``robot``) share."""
 
 from __future__ import annotations
 
-import importlib.resources
+import importlib.util
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -58,16 +58,23 @@ def interval(value: Any, where: str) -> tuple[float, float]:
 REPO_ROOT = Path(__file__).resolve().parents[3]
 
 
+def package_dir(name: str, where: str) -> Path:
+    """The directory of an installed package, found without importing it: a package installed
+    with ``--no-deps`` (to ship model files) may not import."""
+    top, *sub = name.split(".")
+    spec = importlib.util.find_spec(top) if top else None
+    if spec is None:
+        raise fail(where, f"package {name!r} is not installed")
+    locations = spec.submodule_search_locations
+    return (Path(next(iter(locations))) if locations else Path(spec.origin).parent).joinpath(*sub)
+
+
 def file_path(ref: Any, where: str, what: str = "file") -> Path:
     """The file a world names: a path (relative to the repository, or absolute) or
     ``{package, resource}``, a file shipped inside an installed package; it must exist."""
     if isinstance(ref, Mapping):
         check_keys(dict(ref), {"package", "resource"}, {"package", "resource"}, where)
-        try:
-            root = importlib.resources.files(str(ref["package"]))
-        except ModuleNotFoundError:
-            raise fail(f"{where}.package", f"package {ref['package']!r} is not installed") from None
-        path = Path(str(root / str(ref["resource"])))
+        path = package_dir(str(ref["package"]), f"{where}.package") / str(ref["resource"])
     elif isinstance(ref, str) and ref:
         path = Path(ref) if Path(ref).is_absolute() else REPO_ROOT / ref
     else:

@@ -11,6 +11,8 @@ its grippers, the end-effector frames the scripted operator steers, and the cont
     workspace: {z_m: 0.75, geom: table_top}  # the table plane (objects rest on it, first frames
                                       #   are back-projected onto it) and the scene's table geom
     control_hz: 10                    # the dataset's fps; each action is held for one period
+    timestep_s: 0.002                 # optional: the physics timestep (default: the scene's); the
+                                      #   control period must be a whole number of them
     arms:                             # in the order the default dataset layout lists them
       left:
         model: assets/arm.xml         # attached with the prefix "<arm>_"
@@ -30,7 +32,16 @@ its grippers, the end-effector frames the scripted operator steers, and the cont
           jaw_open_m: 0.05            # each jaw's distance from the grasp centre when open
           pads: [finger_a, finger_b]  # the two jaws' bodies (a grasp is contact with both)
         ee: {site: tcp, approach: +x, jaw: +y}  # grasp-centre site; its axes along the approach
-                                      #   direction and the jaws' closing axis
+                                      #   direction and the jaws' closing axis; optional
+                                      #   pos: [x, y, z], the grasp centre in the site's frame
+                                      #   (a site that is not midway between the jaws)
+        collision:                    # optional: jaw collision shapes that can hold an object
+          disable: {geoms: [pad_mesh], bodies: [finger_a]}  # these geoms and every collision
+                                      #   geom of these bodies stop colliding
+          add:                        # primitive geoms added to bodies of the arm (collision only)
+            - {body: finger_a, type: box, size: [0.01, 0.002, 0.01], pos: [0, 0, 0.04],
+               euler_deg: [0, 0, 0], friction: [1.0, 0.005, 0.0001]}  # in the body's frame; euler_deg
+                                      #   (x, y, z, intrinsic), friction (MuJoCo's default) optional
     features:                         # optional: the dataset's observation.state / action entries
       - {name: left_j1, arm: left, joint: j1, scale: 1.0, offset: 0.0}
       - {name: left_gripper, arm: left, gripper: true}
@@ -41,6 +52,12 @@ package. A feature's value converts to model units as ``scale * value + offset``
 degrees: ``scale: 0.017453``); a gripper feature's model unit is the closing fraction (0 open,
 1 closed). Without ``features`` the layout is, arm by arm, ``<arm>_<joint>`` then ``<arm>_gripper``
 in model units. Every joint and gripper of every arm is named by exactly one feature.
+
+``collision`` is for a gripper whose jaws cannot hold an object by friction in the simulation
+(jaw geoms that are convex hulls of whole printed parts meet an object on slanted faces and
+squeeze it out): it swaps the jaws' collision shapes for primitives of the real jaws' faces.
+The added geoms are invisible and massless and collide as their body's own collision geoms did.
+It changes only what touches what; it adds no force a real gripper lacks.
 
 ``world.rig`` ties each camera name (the dataset's ``observation.images.<name>``) to a camera::
 
@@ -94,6 +111,23 @@ class Gripper:
 
 
 @dataclass(frozen=True)
+class CollisionGeom:
+    body: str
+    type: str  # a MuJoCo primitive: box, sphere, capsule, cylinder, ellipsoid
+    size: tuple[float, ...]
+    pos: tuple[float, float, float]
+    euler_deg: tuple[float, float, float]
+    friction: tuple[float, float, float] | None  # None: MuJoCo's default
+
+
+@dataclass(frozen=True)
+class Collision:
+    disable_geoms: tuple[str, ...]
+    disable_bodies: tuple[str, ...]
+    add: tuple[CollisionGeom, ...]
+
+
+@dataclass(frozen=True)
 class Arm:
     name: str
     model: Path
@@ -108,6 +142,8 @@ class Arm:
     gripper: Gripper
     ee_site: str
     ee_rotation: np.ndarray  # columns: the site frame's approach, jaw and third axes
+    ee_pos: tuple[float, float, float]  # the grasp centre in the site's frame
+    collision: Collision | None
 
     def named(self, local: str) -> str:
         """The model's name of one of this arm's elements (attached with the arm's prefix)."""
@@ -142,6 +178,7 @@ class Robot:
     workspace_z_m: float
     table_geom: str
     control_hz: float
+    timestep_s: float | None  # None: the scene's
     arms: dict[str, Arm]
     features: tuple[Feature, ...]
     rig: dict[str, RigCamera]
@@ -242,6 +279,40 @@ def _ee_rotation(entry: dict, where: str) -> np.ndarray:
     return np.column_stack([a, j, np.cross(a, j)])
 
 
+GEOM_SIZES = {"box": 3, "sphere": 1, "capsule": 2, "cylinder": 2, "ellipsoid": 3}
+
+
+def _collision_geom(value: Any, where: str) -> CollisionGeom:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"body", "type", "size", "pos", "euler_deg", "friction"}, {"body", "type", "size"}, where)
+    if not isinstance(entry["type"], str) or entry["type"] not in GEOM_SIZES:
+        raise fail(f"{where}.type", f"must be one of {sorted(GEOM_SIZES)}, got {entry['type']!r}")
+    size = _vector(entry["size"], f"{where}.size", GEOM_SIZES[entry["type"]])
+    if min(size) <= 0:
+        raise fail(f"{where}.size", f"must be positive, got {list(size)}")
+    return CollisionGeom(
+        body=str(entry["body"]), type=entry["type"], size=size,
+        pos=_vector(entry.get("pos", (0.0, 0.0, 0.0)), f"{where}.pos", 3),
+        euler_deg=_vector(entry.get("euler_deg", (0.0, 0.0, 0.0)), f"{where}.euler_deg", 3),
+        friction=_vector(entry["friction"], f"{where}.friction", 3) if "friction" in entry else None,
+    )
+
+
+def _collision(value: Any, where: str) -> Collision:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"disable", "add"}, set(), where)
+    disable = as_mapping(entry.get("disable", {}), f"{where}.disable")
+    check_keys(disable, {"geoms", "bodies"}, set(), f"{where}.disable")
+    add = entry.get("add", [])
+    if not isinstance(add, list):
+        raise fail(f"{where}.add", f"must be a list of geoms, got {add!r}")
+    return Collision(
+        disable_geoms=_names(disable["geoms"], f"{where}.disable.geoms") if "geoms" in disable else (),
+        disable_bodies=_names(disable["bodies"], f"{where}.disable.bodies") if "bodies" in disable else (),
+        add=tuple(_collision_geom(g, f"{where}.add[{i}]") for i, g in enumerate(add)),
+    )
+
+
 def _gripper(value: Any, where: str) -> Gripper:
     entry = as_mapping(value, where)
     check_keys(entry, {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"},
@@ -261,8 +332,8 @@ def _gripper(value: Any, where: str) -> Gripper:
 def _arm(name: str, value: Any) -> Arm:
     where = f"robot.arms.{name}"
     entry = as_mapping(value, where)
-    check_keys(entry, {"model", "mount", "joints", "actuators", "servo", "gravity_compensation", "home", "gripper", "ee"},
-               {"model", "mount", "joints", "home", "gripper", "ee"}, where)
+    check_keys(entry, {"model", "mount", "joints", "actuators", "servo", "gravity_compensation", "home", "gripper", "ee",
+                       "collision"}, {"model", "mount", "joints", "home", "gripper", "ee"}, where)
     joints = _names(entry["joints"], f"{where}.joints")
     actuators = _names(entry.get("actuators", list(joints)), f"{where}.actuators")
     if len(actuators) != len(joints):
@@ -279,7 +350,7 @@ def _arm(name: str, value: Any) -> Arm:
         servo = (float(finite(gains["kp"], f"{where}.servo.kp", positive=True)),
                  float(finite(gains["kv"], f"{where}.servo.kv")))
     ee = as_mapping(entry["ee"], f"{where}.ee")
-    check_keys(ee, {"site", "approach", "jaw"}, {"site"}, f"{where}.ee")
+    check_keys(ee, {"site", "approach", "jaw", "pos"}, {"site"}, f"{where}.ee")
     return Arm(
         name=name, model=model_path(entry["model"], f"{where}.model"), mount_frame=mount.get("frame"),
         mount_pos=_vector(mount.get("pos", (0.0, 0.0, 0.0)), f"{where}.mount.pos", 3),
@@ -288,6 +359,8 @@ def _arm(name: str, value: Any) -> Arm:
         home=np.array(_vector(entry["home"], f"{where}.home", len(joints))),
         gripper=_gripper(entry["gripper"], f"{where}.gripper"), ee_site=str(ee["site"]),
         ee_rotation=_ee_rotation(ee, f"{where}.ee"),
+        ee_pos=_vector(ee.get("pos", (0.0, 0.0, 0.0)), f"{where}.ee.pos", 3),
+        collision=_collision(entry["collision"], f"{where}.collision") if entry.get("collision") is not None else None,
     )
 
 
@@ -376,7 +449,7 @@ def load_robot(world: Mapping) -> Robot:
     ``WorldError`` naming its key. Names inside the model files are checked when it is compiled
     (``r2s_eval.sim.world.check_model``)."""
     entry = as_mapping(world.get("robot"), "robot")
-    check_keys(entry, {"type", "scene", "workspace", "control_hz", "arms", "features"},
+    check_keys(entry, {"type", "scene", "workspace", "control_hz", "timestep_s", "arms", "features"},
                {"scene", "workspace", "control_hz", "arms"}, "robot")
     workspace = as_mapping(entry["workspace"], "robot.workspace")
     check_keys(workspace, {"z_m", "geom"}, {"z_m", "geom"}, "robot.workspace")
@@ -392,6 +465,8 @@ def load_robot(world: Mapping) -> Robot:
         type=str(entry.get("type", "robot")), scene=model_path(entry["scene"], "robot.scene"),
         workspace_z_m=float(finite(workspace["z_m"], "robot.workspace.z_m")), table_geom=str(workspace["geom"]),
         control_hz=float(finite(entry["control_hz"], "robot.control_hz", positive=True)),
+        timestep_s=(float(finite(entry["timestep_s"], "robot.timestep_s", positive=True))
+                    if entry.get("timestep_s") is not None else None),
         arms=arms, features=_features(entry.get("features"), arms), rig=rig,
     )
 
@@ -414,8 +489,8 @@ def bundled_robot() -> Robot:
     return world_robot(bundled_world())
 
 
-__all__ = ["Arm", "Feature", "Gripper", "RigCamera", "Robot", "WorldError", "bundled_robot", "load_robot",
-           "load_world", "model_path", "world_robot"]
+__all__ = ["Arm", "Collision", "CollisionGeom", "Feature", "Gripper", "RigCamera", "Robot", "WorldError", "bundled_robot",
+           "load_robot", "load_world", "model_path", "world_robot"]
 
 
 def load_world(world: Mapping) -> tuple[Robot, dict]:

@@ -1,8 +1,9 @@
 """Scene assembly from a world's robot and rig (``r2s_eval.sim.robot``) plus task objects -> MjModel.
 
 The scene file holds the table, lights and fixed cameras; each arm's model is attached at its
-mount with the prefix ``<arm>_``; the rig's cameras are renamed, placed, aimed and given their
-intrinsics; the task objects are added as free bodies; ``WorldParams`` perturbs the result.
+mount with the prefix ``<arm>_`` (its ``collision`` entry swapping collision shapes); the rig's
+cameras are renamed, placed, aimed and given their intrinsics; the task objects are added as
+free bodies; ``WorldParams`` perturbs the result.
 The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 """
 
@@ -15,7 +16,7 @@ from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.objects import ObjectSpec, add_object, yaw_quat
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
-from r2s_eval.sim.robot import Arm, RigCamera, Robot
+from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot
 
 EE_SITE_GROUP = 5  # a site group no renderer shows by default
 
@@ -74,12 +75,56 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
     site = spec.site(arm.named(arm.ee_site))
     if site is None:
         raise fail(f"{where}.ee.site", f"{arm.model.name} has no site {arm.ee_site!r}")
-    site.parent.add_site(name=ee_site(arm.name), pos=site.pos, quat=_quat_of(_rot_of(site.quat) @ arm.ee_rotation),
-                         group=EE_SITE_GROUP)
+    site.parent.add_site(name=ee_site(arm.name), pos=site.pos + _rot_of(site.quat) @ arm.ee_pos,
+                         quat=_quat_of(_rot_of(site.quat) @ arm.ee_rotation), group=EE_SITE_GROUP)
+    if arm.collision is not None:
+        _swap_collision(spec, arm, arm.collision)
     if arm.gravity_compensation:  # every body of the arm's model (attached with its prefix)
         for body in spec.bodies:
             if body.name.startswith(arm.named("")):
                 body.gravcomp = 1.0
+
+
+def _collision_bits(body: mujoco.MjsBody) -> tuple[int, int]:
+    """(contype, conaffinity) of the body's first collision geom; MuJoCo's default without one."""
+    return next(((g.contype, g.conaffinity) for g in body.geoms if g.contype or g.conaffinity), (1, 1))
+
+
+def _swap_collision(spec: mujoco.MjSpec, arm: Arm, collision: Collision) -> None:
+    """Switch the arm's named collision geoms off and add its primitives (invisible, massless),
+    which collide as their body's own collision geoms did."""
+    where = f"robot.arms.{arm.name}.collision"
+
+    def body_of(local: str, key: str) -> mujoco.MjsBody:
+        body = spec.body(arm.named(local))
+        if body is None:
+            raise fail(f"{where}.{key}", f"{arm.model.name} has no body {local!r}")
+        return body
+
+    added = [(entry, body_of(entry.body, f"add[{i}].body")) for i, entry in enumerate(collision.add)]
+    bits = [_collision_bits(body) for _, body in added]  # before any is switched off
+    off = []
+    for local in collision.disable_geoms:
+        geom = spec.geom(arm.named(local))
+        if geom is None:
+            raise fail(f"{where}.disable.geoms", f"{arm.model.name} has no geom {local!r}")
+        off.append(geom)
+    for local in collision.disable_bodies:
+        geoms = [g for g in body_of(local, "disable.bodies").geoms if g.contype or g.conaffinity]
+        if not geoms:
+            raise fail(f"{where}.disable.bodies", f"body {local!r} of {arm.model.name} has no collision geom")
+        off += geoms
+    for geom in off:
+        geom.contype = geom.conaffinity = 0
+    for i, ((entry, body), (contype, conaffinity)) in enumerate(zip(added, bits)):
+        quat = np.zeros(4)
+        mujoco.mju_euler2Quat(quat, np.deg2rad(entry.euler_deg), "xyz")
+        kind = getattr(mujoco.mjtGeom, f"mjGEOM_{entry.type.upper()}")
+        geom = body.add_geom(name=arm.named(f"collision_{i}"), type=kind,
+                             size=[*entry.size, *[0.0] * (3 - len(entry.size))], pos=list(entry.pos), quat=quat,
+                             group=3, density=0.0, contype=contype, conaffinity=conaffinity)
+        if entry.friction is not None:
+            geom.friction = list(entry.friction)
 
 
 def _rest_frame(body: mujoco.MjsBody) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +172,8 @@ def _place_camera(spec: mujoco.MjSpec, robot: Robot, cam: RigCamera) -> None:
 def build_robot_spec(robot: Robot) -> mujoco.MjSpec:
     """Scene, arms and camera rig (no task objects)."""
     spec = mujoco.MjSpec.from_file(str(robot.scene))
+    if robot.timestep_s is not None:
+        spec.option.timestep = robot.timestep_s
     if spec.geom(robot.table_geom) is None:
         raise fail("robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}")
     for arm in robot.arms.values():
@@ -140,8 +187,8 @@ def substeps(robot: Robot, timestep_s: float) -> int:
     """Physics steps per control period; the control period must be whole timesteps."""
     n = robot.control_dt_s / timestep_s
     if abs(n - round(n)) > 1e-6 or round(n) < 1:
-        raise fail("robot.control_hz", f"{robot.control_hz:g} Hz is not a whole number of "
-                                       f"{timestep_s:g} s physics steps")
+        raise fail("robot.timestep_s" if robot.timestep_s is not None else "robot.control_hz",
+                   f"{robot.control_hz:g} Hz is not a whole number of {timestep_s:g} s physics steps")
     return int(round(n))
 
 

@@ -47,20 +47,31 @@ stack_blocks    block_a   bottom 6 mm above block_b's top face
 block_from_box  block_a   on the table beside the box, towards the centre line
 ==============  ========  ======================================================
 
+Heights and turns come from the arm. A top-down hand rises (to hover, carry, retreat) as high
+as the settings say or as the arm reaches over the points it moves between, whichever is lower
+(reach probes: IK from the commanded configuration); what a retreat cannot rise it backs off
+towards the arm's base. The hand takes the yaw about the reach direction that the arm holds with
+its joints nearest home (probed among quarter turns): the bundled arm's and a Panda's jaws close
+across the reach, an SO-101's along it. A hand that rests far from pointing down turns down on its
+way to the object.
+
 ``upright_cup`` (``turn_upright``) grasps the lying cup across its middle, lifts it, pitches the
 hand by 90 deg about the jaw axis (the cup's opening turns up), lowers it onto
 the table, lets go and backs off along the hand's axis. Blocks are grasped
 with the jaws square to their faces; the hand turns (for round objects in
-22.5 deg steps, for blocks among their face pairs) to stay close to the natural
-reach direction while keeping its jaws and long palm from sweeping into an
+22.5 deg steps, for blocks among their face pairs) to stay close to its natural
+yaw while keeping its jaws and long palm from sweeping into an
 object within 15 cm. Before closing, the operator waits until the arm has
-caught up with its command (the servos lag).
+caught up with its command (the servos lag) or has stopped short of it (a compliant arm sags).
 
 Human-like variability (seeded by ``rng``): per-segment speed factor, short
 pauses, overshoot-and-correct on free-space moves, millimetre aiming error,
-and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps).
+and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps at 10 Hz). The
+settings' step counts and per-step rates (pauses, holds, gripper rate, a segment's step limit)
+are for 0.1 s steps: at a faster control rate each lasts as many control steps as make 0.1 s.
 
-Success rate: ``python -m r2s_eval.twin.operator --task <key|all> --episodes 20 [--twin]``.
+Success rate: ``python -m r2s_eval.twin.operator [--world <name>] --task <key|all> --episodes 20
+[--twin]`` (a world of ``conf/world``, default the bundled one; episodes stop after 15 s).
 """
 
 from __future__ import annotations
@@ -74,11 +85,11 @@ from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim import world
 from r2s_eval.sim.env import TabletopEnv
-from r2s_eval.sim.robot import Robot
+from r2s_eval.sim.robot import Robot, bundled_robot, world_robot
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import height_m, support_top_m
 from r2s_eval.sim.predicates import centre_m
-from r2s_eval.sim.tasks import TASKS, Task, get_task
+from r2s_eval.sim.tasks import TASKS, WORLDS_DIR, Task, get_task
 from r2s_eval.twin.perturb import sample_twin_params
 
 
@@ -130,6 +141,11 @@ def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
 
 
 _ROBOT_MODELS: dict[int, tuple[Robot, object]] = {}
+PROBE_ITERATIONS = 60  # IK iterations of a reach probe
+PROBE_TOLERANCE_M, PROBE_TOLERANCE_RAD = 0.002, np.deg2rad(2.0)  # a probe closer than this reaches
+STEP_S = 0.1  # the settings' step counts and per-step rates are for control steps of this length
+STOPPED_M_S = 0.005  # a tcp slower than this has stopped
+REST_TILT_RAD = np.deg2rad(30.0)  # a hand tilted further from pointing down at the start turns gradually
 
 
 def robot_model(robot: Robot):
@@ -161,10 +177,38 @@ class ArmIK:
         for name, a in robot.arms.items():
             home[self._qadr[name]] = a.home
         self.posture_task.set_target(home)
+        self._probe = mink.Configuration(self.model, q)  # a scratch configuration for reach probes
 
     def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
         T = self.configuration.get_transform_frame_to_world(world.ee_site(self.arm), "site").as_matrix()
         return T[:3, 3].copy(), T[:3, :3].copy()
+
+    def joints_for(self, pos_world_m: np.ndarray, R_world: np.ndarray) -> np.ndarray | None:
+        """The arm's joints that put its grasp centre at the pose, solved from the commanded
+        configuration (which stays as it is); None when the pose is out of the arm's reach."""
+        self._probe.update(self.configuration.q)
+        self.frame_task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(R_world), pos_world_m))
+        for _ in range(PROBE_ITERATIONS):
+            vel = mink.solve_ik(self._probe, [self.frame_task, self.posture_task], self.robot.control_dt_s,
+                                solver="daqp", damping=1e-3, limits=self.limits)
+            self._probe.integrate_inplace(vel, self.robot.control_dt_s)
+        T = self._probe.get_transform_frame_to_world(world.ee_site(self.arm), "site").as_matrix()
+        turn = Rotation.from_matrix(T[:3, :3] @ R_world.T).magnitude()
+        if np.linalg.norm(T[:3, 3] - pos_world_m) > PROBE_TOLERANCE_M or turn > PROBE_TOLERANCE_RAD:
+            return None
+        return self._probe.q[self._qadr[self.arm]].copy()
+
+    def highest_z(self, xy: np.ndarray, z_low: float, z_high: float, R_world: np.ndarray) -> float:
+        """``z_high`` if the hand reaches it over ``xy`` (orientation ``R_world``), else the highest
+        height above ``z_low`` it reaches (to 5 mm): a small arm cannot lift a top-down hand high.
+        Where the hand reaches neither (a wrist at its limit), the height is not what limits it."""
+        if (self.joints_for(np.r_[xy, z_high], R_world) is not None
+                or self.joints_for(np.r_[xy, z_low], R_world) is None):
+            return z_high
+        while z_high - z_low > 0.005:
+            mid = 0.5 * (z_low + z_high)
+            z_low, z_high = (mid, z_high) if self.joints_for(np.r_[xy, mid], R_world) is not None else (z_low, mid)
+        return z_low
 
     def solve(self, pos_world_m: np.ndarray, R_world: np.ndarray, iterations: int) -> np.ndarray:
         """Move the commanded configuration toward the target; returns the arm's joint targets."""
@@ -198,6 +242,8 @@ class ScriptedOperator:
         self._action: np.ndarray | None = None
         self._cmd_pos: np.ndarray | None = None
         self._gripper_cmd = 0.0
+        # Each step of the settings (pauses, holds, gripper rate) lasts this many control steps.
+        self._ticks = max(1, round(STEP_S / env.control_dt_s))
         self.arm = self._choose_arm()
         self._plan = _plan(self)
 
@@ -229,36 +275,57 @@ class ScriptedOperator:
     def _grasp_yaw(self) -> float:
         """Approach yaw of the top-down hand (its jaws close across it).
 
-        Along the reach for round objects, square to a block's or box's faces; and, like a
+        At the arm's natural yaw for round objects, square to a block's or box's faces; and, like a
         person, turned so the jaws and the long palm do not sweep into a close neighbour.
         """
         name = self.task.manipulated
-        xy = centre_m(self.env, name)[:2]
+        centre = centre_m(self.env, name)
+        xy = centre[:2]
         reach = xy - self.env.arm_base_positions()[self.arm][:2]
-        reach_yaw = float(np.arctan2(reach[1], reach[0]))
         obj_yaw = self.env.object_poses()[name]["yaw_rad"]
         if self.task.placement(name) == "on_side":
             return obj_yaw  # jaws across the lying axis; the hand's z axis along it
+        natural_yaw = self._natural_yaw(centre, float(np.arctan2(reach[1], reach[0])))
         kind = self.task.object(name).kind
         step = np.pi / 2 if kind in ("block", "box") else np.pi / 8
-        base = obj_yaw if kind in ("block", "box") else reach_yaw
+        base = obj_yaw if kind in ("block", "box") else natural_yaw
         candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
         others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
         near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
 
         def cost(yaw: float) -> float:
-            turn = abs(np.angle(np.exp(1j * (yaw - reach_yaw))))
+            turn = abs(np.angle(np.exp(1j * (yaw - natural_yaw))))
             jaw_axis = np.array([-np.sin(yaw), np.cos(yaw)])
             return turn + sum(2.0 * abs(float(jaw_axis @ d)) for d in near)
 
         return float(min(candidates, key=cost))
+
+    def _natural_yaw(self, centre: np.ndarray, reach_yaw: float) -> float:
+        """The yaw of the top-down hand the arm holds over ``centre`` with its joints nearest home:
+        the reach direction, or a quarter or half turn from it (a wrist whose jaws close along
+        the reach; a wrist that would otherwise turn to its limit)."""
+        home = self.env.robot.arms[self.arm].home
+
+        def cost(turn: float) -> float:
+            q = self._ik.joints_for(centre, top_down_rotation(reach_yaw + turn))
+            return np.inf if q is None else float(np.linalg.norm(q - home))
+
+        return reach_yaw + min((0.0, np.pi / 2, np.pi, -np.pi / 2), key=cost)
+
+    def reachable_z(self, xys, z: float) -> float:
+        """``z``, or the highest height below it that the hand (in its grasp orientation) reaches
+        over every point of ``xys``."""
+        return min(self._ik.highest_z(np.asarray(xy), self.env.table_top_z_m, z, self._R_grasp) for xy in xys)
 
     def _speed(self, base_m_s: float) -> float:
         j = self.cfg.speed_jitter_rel
         return base_m_s * self.rng.uniform(1.0 - j, 1.0 + j)
 
     def _free_move(self, name: str, pos_world_m: np.ndarray, gripper: float) -> list[Segment]:
-        """A free-space move, sometimes overshooting horizontally and correcting."""
+        """A free-space move, sometimes overshooting horizontally and correcting; the hand turns to
+        its grasp orientation on the way if it is not there yet."""
+        turn = None if np.array_equal(self._R_cmd, self._R_grasp) else self._R_grasp
+        speed = self.cfg.free_speed_m_s
         segments = []
         if self.rng.random() < self.cfg.overshoot_prob and self._cmd_pos is not None:
             direction = pos_world_m - self._cmd_pos
@@ -266,8 +333,8 @@ class ScriptedOperator:
             norm = np.linalg.norm(direction)
             if norm > 0.03:
                 over = pos_world_m + direction / norm * self.rng.uniform(*self.cfg.overshoot_m)
-                segments.append(Segment(f"{name}_overshoot", over, gripper, self._speed(self.cfg.free_speed_m_s)))
-        segments.append(Segment(name, pos_world_m, gripper, self._speed(self.cfg.free_speed_m_s)))
+                segments.append(Segment(f"{name}_overshoot", over, gripper, self._speed(speed), R_world=turn))
+        segments.append(Segment(name, pos_world_m, gripper, self._speed(speed), R_world=turn))
         return segments
 
     # ------------------------------------------------------------ control loop
@@ -284,7 +351,12 @@ class ScriptedOperator:
         measured = robot.to_model(state)
         self._ik = ArmIK(robot, self.arm, {name: q for name, (q, _) in measured.items()})
         self._cmd_pos, _ = self._ik.tcp_pose()
-        self._R_cmd = top_down_rotation(self._grasp_yaw())
+        self._ee = self.env.ee_positions()[self.arm]  # the real tcp, as last seen
+        self._R_grasp = top_down_rotation(self._grasp_yaw())
+        # A hand that rests far from pointing down (a small arm's folded rest) turns down on the
+        # way to the object, at the turn speed, not in one step.
+        _, hand = self._ik.tcp_pose()
+        self._R_cmd = hand if -hand[2, 0] < np.cos(REST_TILT_RAD) else self._R_grasp
         # Commands per arm in model units (joint targets, gripper closing): the others held at home
         # with their grippers open, the operator's arm from where it is. A person at the controls
         # sees where the gripper really is and aims accordingly: the commands make up for the
@@ -303,12 +375,14 @@ class ScriptedOperator:
         self._segment = self._queue.pop(0)
         self.phase = self._segment.name
         self._segment_steps = 0
-        self._hold_left = self._segment.hold_steps
+        self._hold_left = self._segment.hold_steps * self._ticks
         if self.rng.random() < self.cfg.pause_prob:
-            self._pause_steps = int(self.rng.integers(self.cfg.pause_steps[0], self.cfg.pause_steps[1] + 1))
+            steps = int(self.rng.integers(self.cfg.pause_steps[0], self.cfg.pause_steps[1] + 1))
+            self._pause_steps = steps * self._ticks
         return True
 
     def _advance(self) -> None:
+        ee_before, self._ee = self._ee, self.env.ee_positions()[self.arm]
         if self._segment is None and not self._next_segment():
             self.done = True
             return
@@ -330,20 +404,23 @@ class ScriptedOperator:
                 rotvec *= max_turn / angle
                 turned = False
             self._R_cmd = Rotation.from_rotvec(rotvec).as_matrix() @ self._R_cmd
-        rate = self.cfg.gripper_rate_per_step
+        rate = self.cfg.gripper_rate_per_step / self._ticks
         self._gripper_cmd += float(np.clip(seg.gripper - self._gripper_cmd, -rate, rate))
         self._command[self.arm] = (self._ik.solve(self._cmd_pos, self._R_cmd, self.cfg.ik_iterations)
                                    - self._joint_offsets, self._gripper_cmd)
         self._action = self.env.robot.from_model(self._command)
         arrived = dist <= max_step and turned and abs(seg.gripper - self._gripper_cmd) < 1e-9
-        if arrived and seg.settle_m is not None:  # the arm lags its command: wait until it is there
-            arrived = float(np.linalg.norm(self.env.ee_positions()[self.arm] - self._cmd_pos)) <= seg.settle_m
+        if arrived and seg.settle_m is not None:
+            # The arm lags its command: wait until it is there, or has stopped short of it (a
+            # compliant arm sags under its own weight).
+            arrived = (float(np.linalg.norm(self._ee - self._cmd_pos)) <= seg.settle_m
+                       or float(np.linalg.norm(self._ee - ee_before)) < STOPPED_M_S * self.env.control_dt_s)
         if arrived:
             if self._hold_left > 0:
                 self._hold_left -= 1
             else:
                 self._segment = None
-        elif self._segment_steps > self.cfg.max_steps_per_segment:
+        elif self._segment_steps > self.cfg.max_steps_per_segment * self._ticks:
             self._segment = None  # give up on an unreachable target
 
 
@@ -373,14 +450,17 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     table_z = env.table_top_z_m
     open_cmd = pp.open_cmd
 
-    def hover_z() -> float:
+    def hover_z(xy: np.ndarray) -> float:
         if pp.hover_z_m is not None:
-            return pp.hover_z_m(op)
-        return centre_m(env, pp.obj)[2] + 0.5 * op.object_height_m(pp.obj) + cfg.hover_above_cup_m
+            z = pp.hover_z_m(op)
+        else:
+            z = centre_m(env, pp.obj)[2] + 0.5 * op.object_height_m(pp.obj) + cfg.hover_above_cup_m
+        return op.reachable_z([xy], z)
 
     def pregrasp():
         obj = centre_m(env, pp.obj)
-        return op._free_move("pregrasp", np.r_[obj[:2] + _aim(op), hover_z()], open_cmd)
+        xy = obj[:2] + _aim(op)
+        return op._free_move("pregrasp", np.r_[xy, hover_z(xy)], open_cmd)
 
     def approach():
         obj = centre_m(env, pp.obj)  # re-aim on the object as seen now
@@ -401,9 +481,10 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     def close_only():
         return [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
 
-    def lift():
-        return [Segment("lift", np.r_[op._cmd_pos[:2], table_z + cfg.carry_tcp_height_m], 1.0,
-                        op._speed(cfg.fine_speed_m_s * 1.5))]
+    def lift():  # as high as the carry over to the target allows
+        xy, target = op._cmd_pos[:2], pp.place_centre_m(op)[:2]
+        carry_z = op.reachable_z([xy, 0.5 * (xy + target), target], table_z + cfg.carry_tcp_height_m)
+        return [Segment("lift", np.r_[xy, carry_z], 1.0, op._speed(cfg.fine_speed_m_s * 1.5))]
 
     def carry():
         # Where the object sits in the hand, as seen: place the object, not the tcp.
@@ -420,9 +501,15 @@ def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[
     def release():
         return [Segment("release", op._cmd_pos.copy(), open_cmd, cfg.fine_speed_m_s, hold_steps=2)]
 
-    def retreat():
-        return [Segment("retreat", op._cmd_pos + np.array([0.0, 0.0, cfg.retreat_m]), open_cmd,
-                        op._speed(cfg.free_speed_m_s))]
+    def retreat():  # up; what the arm cannot rise it backs off towards its base
+        up = op._cmd_pos + np.array([0.0, 0.0, cfg.retreat_m])
+        up[2] = op.reachable_z([up[:2]], up[2])
+        segments = [Segment("retreat", up, open_cmd, op._speed(cfg.free_speed_m_s))]
+        if up[2] < op._cmd_pos[2] + cfg.retreat_m:
+            back = env.arm_base_positions()[op.arm][:2] - up[:2]
+            back *= (op._cmd_pos[2] + cfg.retreat_m - up[2]) / np.linalg.norm(back)
+            segments.append(Segment("retreat_back", up + np.r_[back, 0.0], open_cmd, op._speed(cfg.free_speed_m_s)))
+        return segments
 
     return [pregrasp, approach, close, lift, carry, lower, release, retreat]
 
@@ -601,29 +688,40 @@ def run_episode(env: TabletopEnv, operator: ScriptedOperator, max_steps: int = 1
     return steps
 
 
-def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0) -> float:
-    """Fraction of scripted episodes that end in success (physics only, no rendering)."""
+EPISODE_S = 15.0  # the success rate's episodes stop after this long (150 steps at 10 Hz)
+
+
+def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
+                 world: dict | None = None) -> float:
+    """Fraction of scripted episodes that end in success (physics only, no rendering) in ``world``
+    (a ``world`` config slice; default: the bundled world)."""
+    robot, spec = (bundled_robot() if world is None else world_robot(world)), get_task(task, world)
     successes = 0
     for i in range(episodes):
-        objects = get_task(task).object_names
-        params = sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=objects) if twin else None
-        env = TabletopEnv(task, params=params, cameras=())
+        params = (sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=spec.object_names, robot=robot)
+                  if twin else None)
+        env = TabletopEnv(spec, params=params, cameras=(), robot=robot)
         obs = env.reset(seed=seed * 100_000 + i)
-        operator = make_operator(task, env, np.random.default_rng([seed, i, 2]))
-        run_episode(env, operator, obs=obs)
+        operator = make_operator(spec, env, np.random.default_rng([seed, i, 2]))
+        run_episode(env, operator, round(EPISODE_S * robot.control_hz), obs=obs)
         successes += env.is_success()
+        env.close()
     return successes / episodes
 
 
 if __name__ == "__main__":
     import argparse
 
+    import yaml
+
     parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator.")
+    parser.add_argument("--world", help="a world of conf/world (default: the bundled one)")
     parser.add_argument("--task", default="all", help="task key, or 'all'")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--twin", action="store_true", help="perturbed twin worlds instead of nominal")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    for key in TASKS if args.task == "all" else [args.task]:
-        rate = success_rate(key, args.episodes, args.twin, args.seed)
+    world_cfg = None if args.world is None else yaml.safe_load((WORLDS_DIR / f"{args.world}.yaml").read_text())
+    for key in (TASKS if world_cfg is None else world_cfg["tasks"]) if args.task == "all" else [args.task]:
+        rate = success_rate(key, args.episodes, args.twin, args.seed, world_cfg)
         print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed", flush=True)

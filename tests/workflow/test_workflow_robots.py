@@ -71,3 +71,16 @@ def test_a_foreign_robot_runs_through_the_smoke_chain_as_the_readme_shows(experi
     ranking = (clone / "reports" / "ranking.txt").read_text()
     assert all(policy in ranking for policy in ("act", "act_subset", "act_weak")), ranking
     (tmp_path / "wall_s.json").write_text(json.dumps({experiment: wall_s}))
+
+
+def test_the_panda_demo_plans_as_the_readme_shows(tmp_path):
+    # The demo itself takes half an hour; its command as written plans the whole DAG, the
+    # cross-evaluation included.
+    if importlib.util.find_spec("gym_hil") is None:
+        pytest.skip("gym_hil is not installed (pip install --no-deps, see the README)")
+    clone = clone_checkout(tmp_path / "r2s-eval")
+    proc = run_as_written(f"{readme_command('snakemake -j 2 --config experiment=demo_panda')} -n", clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = dict(line.split() for line in proc.stdout.split("Job stats:")[1].split("total")[0].splitlines()[3:]
+                if line.strip())
+    assert jobs["teleop"] == "1" and jobs["train"] == "6" and jobs["cross_rollout"] == "6", jobs

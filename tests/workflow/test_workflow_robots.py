@@ -19,7 +19,7 @@ import pytest
 
 from r2s_eval.data.dataset import open_metadata
 from r2s_eval.report.world import build_report, format_table
-from r2s_eval.stages.init_error import score
+from r2s_eval.stages.init_error import scored_errors
 from r2s_eval.utils.io import read_parquet_metadata
 
 from .conftest import clone_checkout, readme_command, run_as_written
@@ -57,10 +57,7 @@ def test_a_foreign_robot_runs_through_the_smoke_chain_as_the_readme_shows(experi
 
     # The world report's numbers for this robot, from the run's artefacts.
     truth_file = results / "real" / "init_truth.parquet"
-    estimates = pd.read_parquet(results / "init" / "estimates.parquet")
-    if "calibration" in estimates:  # as the init_error stage: the offsets' own episodes are not scored
-        estimates = estimates[~estimates["calibration"]].drop(columns="calibration")
-    errors = score(estimates, pd.read_parquet(truth_file))
+    errors = scored_errors(pd.read_parquet(results / "init" / "estimates.parquet"), pd.read_parquet(truth_file))
     report = build_report(read_parquet_metadata(truth_file)["attempts"], errors,
                           pd.read_parquet(results / "replay" / "log.parquet"), n_boot=200)
     print(format_table(report))

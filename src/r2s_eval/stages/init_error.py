@@ -45,12 +45,15 @@ def summarise(errors: pd.DataFrame) -> dict:
     return out
 
 
-def main(args) -> None:
-    estimates = pd.read_parquet(args.estimates)
+def scored_errors(estimates: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
+    """The errors of the test episodes' estimates against the twin's truth."""
     if "calibration" in estimates:  # held out for the offset fit: never scored as test data
         estimates = estimates[~estimates["calibration"]].drop(columns="calibration")
-    truth = pd.read_parquet(args.truth)[["episode_index", "object", "x_m", "y_m", "yaw_rad"]]
-    errors = score(estimates, truth)
+    return score(estimates, truth[["episode_index", "object", "x_m", "y_m", "yaw_rad"]])
+
+
+def main(args) -> None:
+    errors = scored_errors(pd.read_parquet(args.estimates), pd.read_parquet(args.truth))
     write_parquet(args.table, errors)
     write_json(args.summary, {"tasks": summarise(errors)}, provenance=True)
 

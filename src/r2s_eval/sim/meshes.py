@@ -16,6 +16,11 @@ A world's object entry (``world.objects.<name>``)::
 
 The body frame sits at the centre of the mesh's bounding box's bottom face, z up (the file's
 axes, scaled): the dims other code reads (``half_x_m``, ``half_y_m``, ``height_m``) are that box's.
+
+An arm's drawn meshes can be decimated too (``robot.arms.<arm>.visual``, ``r2s_eval.sim.robot``):
+``decimated_meshes`` splits a face budget over the mesh files and simplifies them with
+``fast-simplification`` (quadric edge collapse), kept in the same cache folder (``visual/``) and
+per process.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,25 +64,150 @@ def cache_dir() -> Path:
     return Path(os.environ.get("R2S_EVAL_CACHE") or Path.home() / ".cache" / "r2s_eval")
 
 
-def _decompose(vertices: np.ndarray, faces: np.ndarray, settings: dict) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-    """CoACD's convex parts of the (body-frame) surface, from the cache when computed before."""
-    key = hashlib.sha256(vertices.astype("<f8").tobytes() + faces.astype("<i8").tobytes()
-                         + json.dumps(settings, sort_keys=True).encode()).hexdigest()[:24]
-    path = cache_dir() / "coacd" / f"{key}.npz"
+def cached_arrays(kind: str, key: bytes, compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The arrays ``compute`` gives, computed once per ``key`` and kept in the cache folder
+    (``<cache>/<kind>/<hash of key>.npz``, written atomically)."""
+    path = cache_dir() / kind / f"{hashlib.sha256(key).hexdigest()[:24]}.npz"
     if path.is_file():
         with np.load(path) as saved:
-            return tuple((saved[f"v{i}"], saved[f"f{i}"]) for i in range(int(saved["n"])))
-    import coacd
-
-    coacd.set_log_level("error")
-    parts = tuple((np.asarray(v, float), np.asarray(f, np.int64))
-                  for v, f in coacd.run_coacd(coacd.Mesh(vertices, faces), seed=0, **settings))
+            return {name: saved[name] for name in saved.files}
+    arrays = compute()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-    np.savez(tmp, n=len(parts), **{f"v{i}": v for i, (v, _) in enumerate(parts)},
-             **{f"f{i}": f for i, (_, f) in enumerate(parts)})
+    np.savez(tmp, **arrays)
     os.replace(tmp, path)
-    return parts
+    return arrays
+
+
+def _decompose(vertices: np.ndarray, faces: np.ndarray, settings: dict) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """CoACD's convex parts of the (body-frame) surface, from the cache when computed before."""
+
+    def compute() -> dict[str, np.ndarray]:
+        import coacd
+
+        coacd.set_log_level("error")
+        parts = [(np.asarray(v, float), np.asarray(f, np.int64))
+                 for v, f in coacd.run_coacd(coacd.Mesh(vertices, faces), seed=0, **settings)]
+        return {"n": np.array(len(parts)), **{f"v{i}": v for i, (v, _) in enumerate(parts)},
+                **{f"f{i}": f for i, (_, f) in enumerate(parts)}}
+
+    saved = cached_arrays("coacd", vertices.astype("<f8").tobytes() + faces.astype("<i8").tobytes()
+                          + json.dumps(settings, sort_keys=True).encode(), compute)
+    return tuple((saved[f"v{i}"], saved[f"f{i}"]) for i in range(int(saved["n"])))
+
+
+# ---------------------------------------------------------------- decimated visual meshes
+VISUAL_MIN_FACES = 32  # a mesh is not decimated below this (nor is one with fewer faces touched)
+DECIMATION_VERSION = 1  # part of the cache key: bump when the decimation below changes
+_DECIMATED: dict[tuple, tuple[tuple[np.ndarray, np.ndarray] | None, ...]] = {}
+
+
+def face_budget(faces: Sequence[int], uses: Sequence[int], max_faces: int) -> list[int] | None:
+    """Per mesh, the faces it keeps so that all drawn together (mesh i ``uses[i]`` times) have at
+    most ``max_faces``: the budget is split in proportion to the meshes' faces, no mesh going below
+    ``VISUAL_MIN_FACES`` (or its own count, if smaller). None: the floors alone exceed the budget."""
+    floors = [min(n, VISUAL_MIN_FACES) for n in faces]
+    fixed: set[int] = set()  # meshes held at their floor
+    while True:
+        free = [i for i in range(len(faces)) if i not in fixed]
+        left = max_faces - sum(uses[i] * floors[i] for i in fixed)
+        drawn = sum(uses[i] * faces[i] for i in free)
+        ratio = left / drawn if drawn else 1.0
+        low = [i for i in free if ratio * faces[i] < floors[i]]
+        if not low:
+            break
+        fixed.update(low)
+    targets = [floors[i] if i in fixed else min(faces[i], int(ratio * faces[i])) for i in range(len(faces))]
+    return targets if sum(u * t for u, t in zip(uses, targets)) <= max_faces else None
+
+
+def _read_surface(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh file's triangles (the file's units), vertices merged (an STL repeats them per face,
+    an OBJ per texture seam) so that edges can collapse."""
+    import trimesh
+
+    try:
+        surface = trimesh.load(path, force="mesh")
+    except Exception as err:  # trimesh raises many kinds for a file it cannot read
+        raise fail(where, f"cannot read {path} as a mesh: {err}") from None
+    surface.merge_vertices(merge_tex=True, merge_norm=True)
+    return np.asarray(surface.vertices, float), np.asarray(surface.faces, np.int64)
+
+
+def _clean(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Without degenerate or repeated faces and unused vertices."""
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    faces = faces[np.sort(np.unique(np.sort(faces, axis=1), axis=0, return_index=True)[1])]
+    used = np.unique(faces)
+    index = np.full(len(vertices), -1, np.int64)
+    index[used] = np.arange(len(used))
+    return np.asarray(vertices[used], float), index[faces]
+
+
+def _cluster(vertices: np.ndarray, faces: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices within one cell of a ``cell``-sized grid merged (vertex clustering)."""
+    _, first, index = np.unique(np.round(vertices / cell).astype(np.int64), axis=0, return_index=True,
+                                return_inverse=True)
+    return _clean(vertices[first], index.reshape(-1)[faces])
+
+
+def _decimate(vertices: np.ndarray, faces: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``target`` faces by quadric edge collapse (``fast_simplification``). CAD exports are
+    full of slivers (long thin triangles) that no edge collapse may touch without folding a face,
+    which stalls the collapses far above a small target; so vertices closer than a tenth of the
+    decimated mesh's typical edge are merged first (vertex clustering, below what it can show),
+    the cell doubled while the collapses still stall."""
+    import fast_simplification
+
+    corners = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+    cell = 0.1 * np.sqrt(4 * area / np.sqrt(3) / target)  # a tenth of an equilateral triangle's edge
+    for _ in range(10):
+        v, f = _cluster(vertices, faces, cell) if cell > 0 else (vertices, faces)
+        count = target
+        for _ in range(3):  # the simplifier stops near its target, at times a little above it
+            if len(f) <= target:
+                return v, f
+            v, f = _clean(*fast_simplification.simplify(v, f, target_count=min(count, len(f) - 1)))
+            if len(f) > 1.2 * target:
+                break  # stalled: merge more first
+            count = max(1, count * target // len(f) - 1)
+        cell *= 2
+    return v, f
+
+
+def decimated_meshes(files: Sequence[tuple[Path, int]], max_faces: int,
+                     where: str) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...]:
+    """Per mesh file (with how many geoms draw it), its decimated (vertices, faces) in the file's
+    units, or None for a file kept as it is, such that all drawn together have at most ``max_faces``
+    faces (``face_budget``). Computed once per files' content and budget (the cache folder's
+    ``visual/``) and kept per process; ``where`` is the ``visual`` key an error names."""
+    stamp = tuple((str(path), path.stat().st_mtime_ns, path.stat().st_size, uses) for path, uses in files)
+    if (stamp, max_faces) in _DECIMATED:
+        return _DECIMATED[stamp, max_faces]
+    digest = hashlib.sha256(json.dumps([DECIMATION_VERSION, max_faces]).encode())
+    for path, uses in files:
+        digest.update(hashlib.sha256(path.read_bytes()).digest() + json.dumps(uses).encode())
+
+    def compute() -> dict[str, np.ndarray]:
+        surfaces = [_read_surface(path, where) for path, _ in files]
+        targets = face_budget([len(f) for _, f in surfaces], [uses for _, uses in files], max_faces)
+        if targets is None:
+            floor = sum(min(len(f), VISUAL_MIN_FACES) * uses for (_, f), (_, uses) in zip(surfaces, files))
+            raise fail(f"{where}.max_faces", f"{max_faces} faces cannot draw the arm's {len(files)} meshes "
+                                             f"(at least {floor}: {VISUAL_MIN_FACES} per mesh)")
+        out = {"n": np.array(len(files))}
+        for i, ((vertices, faces), target) in enumerate(zip(surfaces, targets)):
+            if target < len(faces):
+                v, f = _decimate(vertices, faces, target)
+                if len(v) >= 4:  # what MuJoCo takes for a mesh (else the file's is kept)
+                    out[f"v{i}"], out[f"f{i}"] = v, f
+        return out
+
+    saved = cached_arrays("visual", digest.digest(), compute)
+    result = tuple((saved[f"v{i}"], saved[f"f{i}"]) if f"v{i}" in saved else None for i in range(len(files)))
+    _DECIMATED[stamp, max_faces] = result
+    return result
 
 
 def load_shape(entry: Mapping, where: str) -> MeshShape:

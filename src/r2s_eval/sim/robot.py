@@ -42,6 +42,7 @@ its grippers, the end-effector frames the scripted operator steers, and the cont
             - {body: finger_a, type: box, size: [0.01, 0.002, 0.01], pos: [0, 0, 0.04],
                euler_deg: [0, 0, 0], friction: [1.0, 0.005, 0.0001]}  # in the body's frame; euler_deg
                                       #   (x, y, z, intrinsic), friction (MuJoCo's default) optional
+        visual: {max_faces: 20000}    # optional: draw the arm with at most this many mesh faces
     features:                         # optional: the dataset's observation.state / action entries
       - {name: left_j1, arm: left, joint: j1, scale: 1.0, offset: 0.0}
       - {name: left_gripper, arm: left, gripper: true}
@@ -58,6 +59,16 @@ in model units. Every joint and gripper of every arm is named by exactly one fea
 squeeze it out): it swaps the jaws' collision shapes for primitives of the real jaws' faces.
 The added geoms are invisible and massless and collide as their body's own collision geoms did.
 It changes only what touches what; it adds no force a real gripper lacks.
+
+``visual`` is for a model whose drawn meshes are CAD exports of hundreds of thousands of faces, which
+a software renderer (EGL on llvmpipe) draws at tens of milliseconds a frame: the arm's visual geoms
+(mesh geoms with ``contype`` and ``conaffinity`` 0) draw decimated copies of their mesh files
+instead, the budget split over the meshes in proportion to their faces (a mesh drawn by several
+geoms counts as often; none goes below 32 faces). Materials and colours stay; the collision geoms,
+their meshes and the bodies' masses and inertias stay exactly as the model has them (a body whose
+inertia came from its geoms keeps the one the full meshes give). Decimated meshes are cached like
+scanned objects' convex parts (``r2s_eval.sim.meshes``). Geoms whose material has a texture keep
+their meshes (decimation drops texture coordinates).
 
 ``world.rig`` ties each camera name (the dataset's ``observation.images.<name>``) to a camera::
 
@@ -144,6 +155,7 @@ class Arm:
     ee_rotation: np.ndarray  # columns: the site frame's approach, jaw and third axes
     ee_pos: tuple[float, float, float]  # the grasp centre in the site's frame
     collision: Collision | None
+    visual_max_faces: int | None = None  # None: the model's meshes as they are
 
     def named(self, local: str) -> str:
         """The model's name of one of this arm's elements (attached with the arm's prefix)."""
@@ -313,6 +325,15 @@ def _collision(value: Any, where: str) -> Collision:
     )
 
 
+def _visual(value: Any, where: str) -> int:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"max_faces"}, {"max_faces"}, where)
+    faces = entry["max_faces"]
+    if isinstance(faces, bool) or not isinstance(faces, int) or faces < 1:
+        raise fail(f"{where}.max_faces", f"must be a whole number of faces (>= 1), got {faces!r}")
+    return faces
+
+
 def _gripper(value: Any, where: str) -> Gripper:
     entry = as_mapping(value, where)
     check_keys(entry, {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"},
@@ -333,7 +354,7 @@ def _arm(name: str, value: Any) -> Arm:
     where = f"robot.arms.{name}"
     entry = as_mapping(value, where)
     check_keys(entry, {"model", "mount", "joints", "actuators", "servo", "gravity_compensation", "home", "gripper", "ee",
-                       "collision"}, {"model", "mount", "joints", "home", "gripper", "ee"}, where)
+                       "collision", "visual"}, {"model", "mount", "joints", "home", "gripper", "ee"}, where)
     joints = _names(entry["joints"], f"{where}.joints")
     actuators = _names(entry.get("actuators", list(joints)), f"{where}.actuators")
     if len(actuators) != len(joints):
@@ -361,6 +382,7 @@ def _arm(name: str, value: Any) -> Arm:
         ee_rotation=_ee_rotation(ee, f"{where}.ee"),
         ee_pos=_vector(ee.get("pos", (0.0, 0.0, 0.0)), f"{where}.ee.pos", 3),
         collision=_collision(entry["collision"], f"{where}.collision") if entry.get("collision") is not None else None,
+        visual_max_faces=_visual(entry["visual"], f"{where}.visual") if entry.get("visual") is not None else None,
     )
 
 

@@ -1,7 +1,8 @@
 """Scene assembly from a world's robot and rig (``r2s_eval.sim.robot``) plus task objects -> MjModel.
 
 The scene file holds the table, lights and fixed cameras; each arm's model is attached at its
-mount with the prefix ``<arm>_`` (its ``collision`` entry swapping collision shapes); the rig's
+mount with the prefix ``<arm>_`` (its ``visual`` entry decimating its drawn meshes, its ``collision``
+entry swapping collision shapes); the rig's
 cameras are renamed, placed, aimed and given their intrinsics; the task objects are added as
 free bodies; ``WorldParams`` perturbs the result.
 The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
@@ -9,10 +10,14 @@ The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+
 import mujoco
 import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
+from r2s_eval.sim.meshes import decimated_meshes
 from r2s_eval.sim.objects import ObjectSpec, add_object, yaw_quat
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
@@ -46,7 +51,10 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
             raise fail(f"{where}.mount.frame", f"the scene {spec.modelname!r} has no frame {arm.mount_frame!r}")
     else:
         frame = spec.worldbody.add_frame(pos=list(arm.mount_pos), quat=list(yaw_quat(np.deg2rad(arm.mount_yaw_deg))))
-    spec.attach(mujoco.MjSpec.from_file(str(arm.model)), prefix=f"{arm.name}_", frame=frame)
+    model = mujoco.MjSpec.from_file(str(arm.model))
+    if arm.visual_max_faces is not None:
+        _decimate_visuals(model, arm)
+    spec.attach(model, prefix=f"{arm.name}_", frame=frame)
     for local in arm.joints:
         if spec.joint(arm.named(local)) is None:
             raise fail(f"{where}.joints", f"{arm.model.name} has no joint {local!r}")
@@ -83,6 +91,81 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
         for body in spec.bodies:
             if body.name.startswith(arm.named("")):
                 body.gravcomp = 1.0
+
+
+def _textured(spec: mujoco.MjSpec, geom: mujoco.MjsGeom) -> bool:
+    material = spec.material(geom.material) if geom.material else None
+    return material is not None and any(material.textures)
+
+
+def _decimate_visuals(model: mujoco.MjSpec, arm: Arm) -> None:
+    """Point the arm's visual mesh geoms (not colliding: contype = conaffinity = 0) at decimated
+    copies of their meshes (``robot.arms.<arm>.visual``), in the arm's own model before it is
+    attached. Collision geoms and their meshes are untouched; a mesh no geom names any more is
+    dropped; a body whose inertia came from its geoms is given the one the full meshes gave it."""
+    where = f"robot.arms.{arm.name}.visual"
+    drawn: dict[str, list[mujoco.MjsGeom]] = {}
+    for geom in model.geoms:
+        if (geom.type == mujoco.mjtGeom.mjGEOM_MESH and geom.contype == 0 and geom.conaffinity == 0
+                and not _textured(model, geom)):
+            drawn.setdefault(geom.meshname, []).append(geom)
+    meshes = [mesh for mesh in map(model.mesh, drawn) if mesh is not None and mesh.file]
+    files = []
+    for mesh in meshes:
+        # A mesh file is found as MuJoCo finds it: under the meshdir of the model that declared it.
+        path = Path(mesh.file)
+        meshdir = mesh.compiler.meshdir if hasattr(mesh, "compiler") else model.meshdir
+        path = path if path.is_absolute() else arm.model.parent / meshdir / path
+        if not path.is_file():
+            raise fail(where, f"{arm.model.name}'s mesh {mesh.name!r} has no file {path}")
+        files.append((path, len(drawn[mesh.name])))
+    derived = set()  # bodies whose inertia comes from geoms that get a new mesh
+    for mesh, decimated in zip(meshes, decimated_meshes(files, arm.visual_max_faces, where)):
+        if decimated is None:
+            continue
+        vertices, faces = decimated
+        name = f"{mesh.name}_visual"
+        while model.mesh(name) is not None:
+            name += "_"
+        coarse = model.add_mesh(name=name, uservert=vertices.flatten().tolist(), userface=faces.flatten().tolist())
+        for attribute in ("scale", "refpos", "refquat", "smoothnormal", "material"):  # as the file was read
+            if hasattr(mesh, attribute):
+                setattr(coarse, attribute, getattr(mesh, attribute))
+        # No geom's mass comes from it (see below), and a shell's inertia never fails on an open surface.
+        coarse.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+        for geom in drawn[mesh.name]:
+            geom.meshname = name
+            if _inertia_from(geom, where):
+                derived.add(geom.parent.name)
+        if not any(g.meshname == mesh.name for g in model.geoms):
+            model.delete(mesh)
+    if derived:
+        inertials = _model_inertials(str(arm.model), arm.model.stat().st_mtime_ns)
+        for body in map(model.body, sorted(derived)):
+            body.explicitinertial = True
+            body.mass, body.ipos, body.iquat, body.inertia = inertials[body.name]
+            body.fullinertia = [np.nan] * 6
+
+
+def _inertia_from(geom: mujoco.MjsGeom, where: str) -> bool:
+    """Whether ``geom`` adds to its body's mass and inertia."""
+    compiler = geom.compiler if hasattr(geom, "compiler") else geom.parent.compiler
+    low, high = compiler.inertiagrouprange
+    if not low <= geom.group <= high:
+        return False
+    if compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE:
+        raise fail(where, f"the model takes every body's inertia from its geoms (inertiafromgeom=true): "
+                          f"decimating {geom.parent.name!r}'s visual geoms would change its mass")
+    return (compiler.inertiafromgeom == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+            and not geom.parent.explicitinertial)
+
+
+@functools.cache
+def _model_inertials(path: str, mtime_ns: int) -> dict[str, tuple]:
+    """Per body of the model file, (mass, ipos, iquat, diagonal inertia) as compiled (once per file)."""
+    model = mujoco.MjSpec.from_file(path).compile()
+    return {model.body(i).name: (float(model.body_mass[i]), model.body_ipos[i].copy(), model.body_iquat[i].copy(),
+                                 model.body_inertia[i].copy()) for i in range(1, model.nbody)}
 
 
 def _collision_bits(body: mujoco.MjsBody) -> tuple[int, int]:

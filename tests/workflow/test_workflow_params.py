@@ -110,3 +110,12 @@ def test_stage_entry_points_stay_thin(stage):
     source = (STAGES_DIR / f"{stage}.py").read_text()
     others = re.findall(r"from r2s_eval\.stages\.(?!_cli|_reads|_rollouts)(\w+) import", source)
     assert not others, f"stages/{stage}.py imports other entry points {others}"
+
+
+def test_the_joint_fit_s_settings_never_rerun_the_pose_estimate(tmp_path):
+    target = "results/init/estimates.parquet"
+    a = _stage_cfg(tmp_path / "a", "init_estimate", target, [])
+    b = _stage_cfg(tmp_path / "b", "init_estimate", target, ["calib.joints.iterations=3"])
+    assert a == b and "calib.joints" not in a and a["calib.camera"] == "head_left"
+    c = _stage_cfg(tmp_path / "c", "init_estimate", target, ["calib.refine.max_iterations=4"])
+    assert c != a

@@ -19,13 +19,16 @@ from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_parquet
 
-READS = ("calib", "world")  # config paths the --cfg slice holds (see _reads.py)
+# The pose estimate's settings, not the joints' (calib.joints): those never rerun it.
+READS = ("calib.camera", "calib.segmenter", "calib.refine", "world")  # config paths the --cfg slice holds (see _reads.py)
 
 log = logging.getLogger("r2s_eval.init")
 
 
 def main(args) -> None:
-    calib, world = args.cfg["calib"], args.cfg["world"]
+    calib = {"camera": args.cfg["calib.camera"], "segmenter": args.cfg["calib.segmenter"],
+             "refine": args.cfg["calib.refine"]}
+    world = args.cfg["world"]
     index = pd.read_parquet(args.index)
     fitted = json.loads(Path(args.offsets).read_text())
     started = time.perf_counter()

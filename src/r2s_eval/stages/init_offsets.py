@@ -26,13 +26,16 @@ from r2s_eval.stages import _cli
 from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.utils.io import write_json
 
-READS = ("calib", "world")  # config paths the --cfg slice holds (see _reads.py)
+# The pose estimate's settings, not the joints' (calib.joints): those never rerun it.
+READS = ("calib.camera", "calib.segmenter", "calib.refine", "calib.calibration", "world")  # config paths the --cfg slice holds (see _reads.py)
 
 log = logging.getLogger("r2s_eval.init_offsets")
 
 
 def main(args) -> None:
-    calib, world = args.cfg["calib"], args.cfg["world"]
+    calib = {"camera": args.cfg["calib.camera"], "segmenter": args.cfg["calib.segmenter"],
+             "refine": args.cfg["calib.refine"], "calibration": args.cfg["calib.calibration"]}
+    world = args.cfg["world"]
     per_task = int(calib["calibration"]["episodes_per_task"])
     index = pd.read_parquet(args.index)
     subset = calibration_subset(index, per_task)

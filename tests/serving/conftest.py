@@ -42,6 +42,9 @@ def _helpers():
     return sys.modules[name]
 
 
+_helpers()  # importable as serving_test_helpers by this folder's test modules (their servers' base class)
+
+
 @pytest.fixture(scope="session")
 def helpers():
     """tests/serving/serving_helpers.py (free ports, observations, fake policy, fault server)."""

@@ -71,7 +71,39 @@ class FakePolicy(ChunkPolicy):
         ])
 
 
-class FaultServer:
+class ThreadedServer:
+    """A websocket server on a thread of its own, on a free port (`port`), for `with` blocks.
+    Subclasses give `_handler`, and may give `_process_request` (the handshake) and
+    `compression` (websockets' default: permessage-deflate offered)."""
+
+    _process_request = None
+    compression = "deflate"
+
+    def __init__(self):
+        self.port = 0
+        self._ready = threading.Event()
+
+    async def _main(self):
+        self._stop = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
+        async with serve(self._handler, "127.0.0.1", 0, process_request=self._process_request,
+                         compression=self.compression, close_timeout=1) as server:
+            self.port = server.sockets[0].getsockname()[1]
+            self._ready.set()
+            await self._stop.wait()
+
+    def __enter__(self):
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
+        self._thread.start()
+        assert self._ready.wait(10), f"{type(self).__name__} did not start"
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(10)
+
+
+class FaultServer(ThreadedServer):
     """An openpi-style server that sends our metadata, then misbehaves as `behaviour` says.
 
     good: correct replies; refuse: HTTP 403 at the handshake; wrong_shape: (25, 7) actions;
@@ -81,10 +113,9 @@ class FaultServer:
     """
 
     def __init__(self, behaviour: str):
+        super().__init__()
         self.behaviour = behaviour
         self.connections = 0
-        self.port = 0
-        self._ready = threading.Event()
 
     def _process_request(self, connection, request):
         if self.behaviour == "refuse":
@@ -126,22 +157,3 @@ class FaultServer:
                 # silent: read and never answer
         except ConnectionClosed:
             pass
-
-    async def _main(self):
-        self._stop = asyncio.Event()
-        self._loop = asyncio.get_running_loop()
-        async with serve(self._handler, "127.0.0.1", 0, process_request=self._process_request,
-                         close_timeout=1) as server:
-            self.port = server.sockets[0].getsockname()[1]
-            self._ready.set()
-            await self._stop.wait()
-
-    def __enter__(self) -> FaultServer:
-        self._thread = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
-        self._thread.start()
-        assert self._ready.wait(10), "fault server did not start"
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._loop.call_soon_threadsafe(self._stop.set)
-        self._thread.join(10)

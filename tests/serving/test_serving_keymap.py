@@ -3,21 +3,19 @@ client's keys, shapes and dtypes; overrides; unfilled keys and missing streams; 
 
 from __future__ import annotations
 
-import asyncio
-import threading
 import traceback
 
 import numpy as np
 import pytest
 from openpi_client import image_tools
 from openpi_client.websocket_client_policy import WebsocketClientPolicy
-from websockets.asyncio.server import serve
 from websockets.exceptions import ConnectionClosed
 
 from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.serving import PolicyServer, ServerPolicy
 from r2s_eval.serving.keymap import PRESETS, resize_with_pad, resolve_key_map
 from r2s_eval.serving.protocol import pack, unpack_dict
+from serving_test_helpers import ThreadedServer  # loaded by this folder's conftest
 
 pytestmark = [
     pytest.mark.timeout(60),
@@ -44,16 +42,18 @@ OPENPI_DROID = {
 }
 
 
-class PeerServer:
+class PeerServer(ThreadedServer):
     """An openpi-style server (metadata without a spec, no reset extension): with `accepts`, any
     request whose keys, shapes or dtypes differ is answered, as openpi's server does, with the
     traceback as a text frame and close code 1011. Records every request (raw and decoded)."""
 
+    compression = None
+
     def __init__(self, accepts: dict | None, action_dim: int, chunk: int = 10):
+        super().__init__()
         self.accepts, self.action_dim, self.chunk = accepts, action_dim, chunk
         self.raw: list[bytes] = []
         self.requests: list[dict] = []
-        self._ready = threading.Event()
 
     def actions(self) -> np.ndarray:  # float64, as a numpy policy may return: the client casts
         return np.arange(self.chunk * self.action_dim, dtype=np.float64).reshape(self.chunk, self.action_dim) / 100
@@ -89,24 +89,6 @@ class PeerServer:
                 await ws.send(pack({"actions": self.actions(), "server_timing": {"infer_ms": 1.0}}))
         except ConnectionClosed:
             pass
-
-    async def _main(self):
-        self._stop = asyncio.Event()
-        self._loop = asyncio.get_running_loop()
-        async with serve(self._handler, "127.0.0.1", 0, compression=None, close_timeout=1) as server:
-            self.port = server.sockets[0].getsockname()[1]
-            self._ready.set()
-            await self._stop.wait()
-
-    def __enter__(self) -> PeerServer:
-        self._thread = threading.Thread(target=lambda: asyncio.run(self._main()), daemon=True)
-        self._thread.start()
-        assert self._ready.wait(10), "peer server did not start"
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._loop.call_soon_threadsafe(self._stop.set)
-        self._thread.join(10)
 
 
 def _image(rng, hw=(256, 256)) -> np.ndarray:

@@ -322,6 +322,9 @@ class Checkpoints:
 @dataclass
 class Compare:
     checkpoints: Checkpoints
+    allocation: Literal["fixed", "adaptive"]
+    alpha: Level
+    budget: PositiveInt | None
 
 
 @dataclass
@@ -802,6 +805,13 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     c = cfg["compare"]["checkpoints"]
     if c["start"] > c["stop"]:
         problems.append(Problem("compare.checkpoints.start", f"must be <= compare.checkpoints.stop ({c['stop']})"))
+    budget = cfg["compare"]["budget"]
+    if budget is not None and budget > c["stop"]:
+        problems.append(Problem("compare.budget", f"must be <= compare.checkpoints.stop ({c['stop']}): the last "
+                                                  f"checkpoint holds everything judged"))
+    if cfg["compare"]["allocation"] == "fixed" and budget is not None:
+        problems.append(Problem("compare.budget", "is read only by compare.allocation: adaptive (the fixed "
+                                                  "allocation judges compare.checkpoints.stop per pair)"))
     if cfg["calib"]["camera"] not in world["cameras"]:
         problems.append(Problem("calib.camera", f"must be one of the recorded world.cameras {world['cameras']}, "
                                                 f"got {cfg['calib']['camera']!r}"))

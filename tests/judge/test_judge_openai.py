@@ -200,7 +200,8 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     dirs, episodes = rollouts
     monkeypatch.chdir(tmp_path)
     pairs = tmp_path / "pairs.parquet"
-    cfg_pairs = {"compare": {"checkpoints": {"start": 4, "stop": 8, "step": 4}}, "seed": 3}
+    cfg_pairs = {"compare": {"checkpoints": {"start": 4, "stop": 8, "step": 4}, "allocation": "fixed", "alpha": 0.05,
+                             "budget": None}, "seed": 3}
     _cli.run(cp_stage.main, _add(cp_stage, ["--rollouts", "--out"]),
              ["--cfg", json.dumps(cfg_pairs), "--rollouts", *dirs, "--out", str(pairs)])
     with ChatServer() as server:
@@ -232,6 +233,45 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
 
 
 # The flags of the judge_pairs stage, as its __main__ block adds them.
+def test_openai_adaptive_stage_describes_on_the_way_and_never_pays_twice(rollouts, tmp_path, monkeypatch):
+    """compare_pairs (adaptive) -> judge_adaptive through their command lines, against a chat
+    server: a rollout is described when a comparison first needs it, describe and compare
+    requests are counted apart, a never-a-letter comparison is replaced, and a rerun asks nothing."""
+    from r2s_eval.stages import _cli
+    from r2s_eval.stages import compare_pairs as cp_stage
+
+    dirs, episodes = rollouts
+    monkeypatch.chdir(tmp_path)
+    compare = {"checkpoints": {"start": 4, "stop": 8, "step": 4}, "allocation": "adaptive", "alpha": 0.05, "budget": None}
+    pairs = tmp_path / "pairs.parquet"
+    _cli.run(cp_stage.main, _add(cp_stage, ["--rollouts", "--out"]),
+             ["--cfg", json.dumps({"compare": compare, "seed": 3}), "--rollouts", *dirs, "--out", str(pairs)])
+    world = bundled_world()
+    verdicts, desc = tmp_path / "j" / "verdicts.parquet", tmp_path / "j" / "descriptions.parquet"
+    with ChatServer() as server:
+        cfg = {"judge": judge_cfg(server.url, swap_share=0.5), "name": "vlm", "compare": compare,
+               "world.objects": world["objects"], "world.tasks": world["tasks"], "world.robot": world["robot"]}
+        command = [sys.executable, "-m", "r2s_eval.stages.judge_adaptive", "--cfg", json.dumps(cfg), "--pairs", str(pairs),
+                   "--rollouts", *dirs, "--cache", "cache", "--out", str(verdicts), "--descriptions-out", str(desc)]
+        first = subprocess.run(command, capture_output=True, text=True)
+        assert first.returncode == 0, first.stderr[-3000:]
+        answered = server.answered
+        stats = json.loads(verdicts.with_name("compare_stats.json").read_text())
+        made = json.loads(verdicts.with_name("describe_stats.json").read_text())
+        out = pd.read_parquet(verdicts)
+        again = subprocess.run(command, capture_output=True, text=True)
+        assert again.returncode == 0 and server.answered == answered  # the rerun asks nothing
+    pd.testing.assert_frame_equal(pd.read_parquet(verdicts), out)
+    assert json.loads(verdicts.with_name("describe_stats.json").read_text())["requests"] == 0
+    assert (out["winner"] == "GoodPolicyAlpha").all() and len(set(zip(out["task"], out["init_id"]))) == len(out)
+    assert stats["allocation"] == "adaptive" and stats["excluded"] > 0
+    assert made["requests"] > 0 and stats["requests"] > 0 and made["requests"] + stats["requests"] == answered
+    assert stats["describe_requests"] == made["requests"]
+    described = pd.read_parquet(desc)["episode_id"]
+    assert set(described) <= set(episodes["episode_id"].astype(str))
+    assert set(out["episode_a"]) | set(out["episode_b"]) <= set(described)
+
+
 JP_FLAGS = ["--pairs", "--rollouts", "--descriptions", "--cache", "--transport", "--out"]
 
 

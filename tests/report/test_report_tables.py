@@ -225,6 +225,22 @@ def test_ranking_says_whether_the_reference_recovers_the_planted_order(make_fit)
     assert "planted order" not in ranking_text({"k": fit}, rate, {"a": (0.7, 0.9)})
 
 
+def test_ranking_says_what_adaptive_judging_decided_and_cost(make_fit):
+    fit = unit_fit(make_fit, {10: {"a": (60.0, 50.0, 70.0), "b": (30.0, 20.0, 40.0), "c": (10.0, 0.0, 20.0)}})
+    pairs = [{"policy_i": "a", "policy_j": "b", "decided": False, "winner": None},
+             {"policy_i": "a", "policy_j": "c", "decided": True, "winner": "a"},
+             {"policy_i": "b", "policy_j": "c", "decided": True, "winner": "b"}]
+    account = {"alpha": 0.05, "stop": "units_exhausted", "items": 84, "calls": 84, "requests": 0,
+               "describe_calls": 40, "describe_requests": 0, "undecided": ["a vs b"], "pairs": pairs}
+    text = ranking_text({"k": fit, "v": fit}, {"a": 0.8, "b": 0.5, "c": 0.1}, adaptive={"k": account, "v": None})
+    assert text.splitlines()[-1] == ("k: adaptive judging stopped (units exhausted) after 84 comparisons; judge calls: "
+                                     "40 describe + 84 compare; decided at alpha 0.05 over all pairs: a > c, b > c; "
+                                     "left undecided: a vs b")
+    vlm = {**account, "describe_calls": None, "requests": 90, "undecided": [], "stop": "all_decided"}
+    line = ranking_text({"k": fit}, {"a": 0.8, "b": 0.5, "c": 0.1}, adaptive={"k": vlm}).splitlines()[-1]
+    assert line.endswith("84 compare; model requests: 90 compare; decided at alpha 0.05 over all pairs: a > c, b > c")
+
+
 def test_realsim_table_note_names_the_interval():
     v = validation(0.5, 0.6, 0.1, 6.0)
     v.update(interval="unit", ci_level=0.95)

@@ -87,3 +87,22 @@ def test_the_twin_cross_evaluates_both_ways_and_runs_the_ablation(tmp_path):
     assert {(w["family"], w["policy"]) for rule, w in plan if rule == "ablation_rollout"} == {("joints", "act"), ("all", "act")}
     assert {(w["arm"], w["replicate"]) for rule, w in plan if rule == "seed_rollout"} == {("real", "1"), ("sim", "1")}
     assert {w["policy"] for rule, w in plan if rule == "train_replicate"} == {"act_weak"}
+
+
+def test_adaptive_allocation_judges_in_one_job_per_judge_and_describes_on_the_way(tmp_path):
+    # compare.allocation: adaptive: no describe jobs; a two-step judge's job writes the
+    # descriptions it made; a one-step judge gets the job without descriptions.
+    overrides = ["compare.allocation=adaptive", "compare.alpha=0.1", "compare.budget=20",
+                 "+judges.video.mode=one_step"]
+    plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/realsim_table.tex", overrides=overrides).stdout)
+    rules = {rule for rule, _ in plan}
+    assert not {"describe", "descriptions", "judge_pairs"} & rules
+    assert {(rule, w["judge"]) for rule, w in plan if rule.startswith("judge_adaptive")} == {
+        ("judge_adaptive_described", "kinematic"), ("judge_adaptive", "video")}
+    assert "compare_pairs" in rules and "fit" in rules
+
+
+def test_adaptive_budget_beyond_the_last_checkpoint_is_refused(tmp_path):
+    proc = snakemake(tmp_path / "run", "-n", overrides=["compare.allocation=adaptive", "compare.budget=5000"], check=False)
+    assert proc.returncode != 0
+    assert "compare.budget" in proc.stdout + proc.stderr and "checkpoints.stop" in proc.stdout + proc.stderr

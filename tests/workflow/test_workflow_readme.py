@@ -20,6 +20,7 @@ from .conftest import (
     REPO,
     clone_checkout,
     copy_run,
+    finished_rules,
     planned_jobs,
     readme_block_after,
     readme_command,
@@ -34,6 +35,7 @@ PUSH, PULL = "python -m r2s_eval.artifacts push", "python -m r2s_eval.artifacts 
 WORLD_REPORT = "python -m r2s_eval.stages.world_report"
 PLAN_SMOKE = "snakemake -n --config experiment=smoke"
 PANDA_PREVIEW = "python -m r2s_eval.world panda"
+ADAPTIVE_SMOKE = "snakemake -j 2 reports/realsim_table.tex --config experiment=smoke overrides='[compare.allocation=adaptive]'"
 PANDA_DATASET = ("snakemake -j 2 reports/realsim_table.tex --config overrides='[world=panda,suite=world,"
                  "\"tasks=[block_on_plate]\",real=dataset,real.dataset_root=/data/my_teleop,"
                  "real.reference_csv=/data/trials.csv]'")
@@ -128,6 +130,36 @@ def _contents(root: Path) -> dict[str, str]:
     """Every file under results/ and reports/ by its SHA-256."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
             for part in ("results", "reports") for p in sorted((root / part).rglob("*")) if p.is_file()}
+
+
+@pytest.mark.slow
+def test_adaptive_allocation_judges_the_smoke_rollouts_again(smoke_run, clone):
+    # The README's adaptive command on a finished smoke run: only the comparison plan, the
+    # judging and what follows rerun; each (task, init) is compared once per pair, a two-step
+    # judge describes only what it compared, the ranking says what was decided, and a second
+    # call plans nothing.
+    copy_run(smoke_run.workdir, clone)
+    proc = run_as_written(readme_command(ADAPTIVE_SMOKE), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    ran = finished_rules(proc.stdout + proc.stderr)
+    assert "compare_pairs" in ran and "judge_adaptive_described" in ran, ran
+    assert not set(ran) & {"train", "rollout", "describe", "descriptions", "judge_pairs", "teleop", "replay"}, ran
+    for judge in ("kinematic", "video"):
+        folder = clone / "results" / "judge" / judge
+        verdicts = pd.read_parquet(folder / "verdicts.parquet")
+        assert verdicts["sequence_index"].tolist() == list(range(len(verdicts)))
+        for _, g in verdicts.groupby(["policy_i", "policy_j"]):
+            assert len(set(zip(g["task"], g["init_id"]))) == len(g)  # no (task, init) twice in a pair
+        described = pd.read_parquet(folder / "descriptions.parquet")
+        assert set(described["episode_id"]) == set(verdicts["episode_a"]) | set(verdicts["episode_b"])
+        stats = json.loads((folder / "compare_stats.json").read_text())
+        made = json.loads((folder / "describe_stats.json").read_text())
+        assert stats["allocation"] == "adaptive" and stats["describe_calls"] == made["calls"]
+        assert made["calls"] + made["cache_hits"] == len(described)  # the copy kept the answer cache
+    ranking = (clone / "reports" / "ranking.txt").read_text()
+    assert "kinematic: adaptive judging stopped" in ranking and "video: adaptive judging stopped" in ranking
+    again = run_as_written(ADAPTIVE_SMOKE.replace("-j 2", "-n"), clone)
+    assert planned_jobs(again.stdout) == [], again.stdout[-2000:]
 
 
 @pytest.mark.slow

@@ -62,6 +62,7 @@ def _gpu_jobs():
     local_judges = [(j,) for j in JUDGES
                     if CFG["judges"][j].get("backend") == "transformers" and _on_gpu(CFG["judges"][j].get("device"))]
     jobs["describe"] = jobs["judge_pairs"] = (("judge",), local_judges)
+    jobs["judge_adaptive"] = jobs["judge_adaptive_described"] = jobs["judge_pairs"]
     segmenter = CFG["calib"]["segmenter"]
     on_gpu = segmenter.get("type") == "grounded_sam" and _on_gpu(segmenter.get("device"))
     jobs["init_offsets"] = jobs["init_estimate"] = ((), [()] if on_gpu else [])

@@ -25,6 +25,8 @@ from itertools import combinations
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import ConfigError, DataError
+
 PAIR_COLUMNS = (
     "pair_index", "policy_i", "policy_j", "task", "init_id",
     "episode_a", "episode_b", "policy_a", "policy_b", "first_checkpoint",
@@ -32,10 +34,43 @@ PAIR_COLUMNS = (
 _NEEDED = ("episode_id", "policy", "task", "init_id")
 
 
-def _pair_rng(seed: int, a: str, b: str) -> np.random.Generator:
+def pair_rng(seed: int, a: str, b: str, salt: str = "") -> np.random.Generator:
+    """The random stream of one unordered policy pair: adding a policy leaves the others' unchanged.
+    `salt` gives another use its own streams."""
     lo, hi = sorted((a, b))
-    digest = hashlib.sha256(f"{lo}\x00{hi}".encode()).digest()
+    digest = hashlib.sha256(f"{salt}{lo}\x00{hi}".encode()).digest()
     return np.random.default_rng([int(seed), int.from_bytes(digest[:8], "little")])
+
+
+def index_episodes(episodes_df: pd.DataFrame, policies: Sequence[str]
+                   ) -> tuple[list[str], list[str], dict[tuple[str, str], dict[int, list[str]]]]:
+    """The policies (checked), the tasks any of them has, and (policy, task) -> {init_id: sorted
+    episode ids} (sorted, so results do not depend on the table's row order)."""
+    lacking = [c for c in _NEEDED if c not in episodes_df.columns]
+    if lacking:
+        raise DataError(f"episode table lacks columns {lacking}")
+    if "arm" in episodes_df.columns and episodes_df["arm"].nunique() > 1:
+        raise DataError(f"episode table mixes arms {sorted(episodes_df['arm'].unique())}; sample one arm at a time")
+    policies = [str(p) for p in policies]
+    if len(policies) < 2 or len(set(policies)) != len(policies):
+        raise ConfigError(f"need at least two distinct policies, got {policies}")
+    df = episodes_df[list(_NEEDED)].astype({"episode_id": str, "policy": str, "task": str})
+    absent = sorted(set(policies) - set(df["policy"]))
+    if absent:
+        raise DataError(f"policies {absent} have no episodes in the episode table")
+    df = df[df["policy"].isin(policies)]
+    episodes: dict[tuple[str, str], dict[int, list[str]]] = {}
+    for (pol, task, init), ids in df.groupby(["policy", "task", "init_id"])["episode_id"]:
+        episodes.setdefault((pol, task), {})[int(init)] = sorted(ids)
+    return policies, sorted(df["task"].unique()), episodes
+
+
+def shared_inits(episodes: dict[tuple[str, str], dict[int, list[str]]], pi: str, pj: str, task: str) -> list[int]:
+    """The inits both policies have for `task`, sorted; an error naming them when there is none."""
+    inits = sorted(set(episodes.get((pi, task), {})) & set(episodes.get((pj, task), {})))
+    if not inits:
+        raise DataError(f"policies {pi!r} and {pj!r} share no initial configuration (init_id) for task {task!r}")
+    return inits
 
 
 def checkpoint_sizes(spec: dict) -> list[int]:
@@ -67,40 +102,14 @@ def sample_pairs(
     episode_a, episode_b, policy_a, policy_b, first_checkpoint (the smallest checkpoint that
     includes the comparison).
     """
-    lacking = [c for c in _NEEDED if c not in episodes_df.columns]
-    if lacking:
-        raise ValueError(f"episode table lacks columns {lacking}")
-    if "arm" in episodes_df.columns and episodes_df["arm"].nunique() > 1:
-        raise ValueError(f"episode table mixes arms {sorted(episodes_df['arm'].unique())}; sample one arm at a time")
-    policies = [str(p) for p in policies]
-    if len(policies) < 2 or len(set(policies)) != len(policies):
-        raise ValueError(f"need at least two distinct policies, got {policies}")
+    policies, tasks, episodes = index_episodes(episodes_df, policies)
     ck = _check_checkpoints(checkpoints)
     n = ck[-1]
-
-    df = episodes_df[list(_NEEDED)].astype({"episode_id": str, "policy": str, "task": str})
-    absent = sorted(set(policies) - set(df["policy"]))
-    if absent:
-        raise ValueError(f"policies {absent} have no episodes in the episode table")
-    df = df[df["policy"].isin(policies)]
-    tasks = sorted(df["task"].unique())
-    # (policy, task) -> {init_id: sorted episode ids}; sorting makes the result row-order independent.
-    episodes: dict[tuple[str, str], dict[int, list[str]]] = {}
-    for (pol, task, init), ids in df.groupby(["policy", "task", "init_id"])["episode_id"]:
-        episodes.setdefault((pol, task), {})[int(init)] = sorted(ids)
-
     first_ck = np.searchsorted(np.asarray(ck), np.arange(n) + 1)  # index of the first checkpoint >= k+1
     frames = []
     for pi, pj in combinations(policies, 2):
-        common = {}
-        for task in tasks:
-            inits = sorted(set(episodes.get((pi, task), {})) & set(episodes.get((pj, task), {})))
-            if not inits:
-                raise ValueError(
-                    f"policies {pi!r} and {pj!r} share no initial configuration (init_id) for task {task!r}"
-                )
-            common[task] = inits
-        rng = _pair_rng(seed, pi, pj)
+        common = {task: shared_inits(episodes, pi, pj, task) for task in tasks}
+        rng = pair_rng(seed, pi, pj)
         first, second = sorted((pi, pj))
 
         # Draws happen in sequence order, so a longer sequence extends a shorter one with the

@@ -12,6 +12,18 @@ from r2s_eval.compare.sampling import _check_checkpoints
 _NEEDED = ("pair_index", "policy_i", "policy_j", "policy_a", "policy_b", "winner")
 
 
+def checkpoint_positions(judged_pairs_df: pd.DataFrame) -> pd.Series:
+    """Each comparison's position for the checkpoints: checkpoint ``n`` holds those below ``n``.
+
+    The fixed allocation's is the comparison's place in its pair's sequence (``pair_index``); the
+    adaptive allocation's (``checkpoint_position``) its place in the whole sequence judged,
+    divided by the number of policy pairs (see ``r2s_eval.judge.adaptive``).
+    """
+    if "checkpoint_position" in judged_pairs_df.columns:
+        return judged_pairs_df["checkpoint_position"]
+    return judged_pairs_df["pair_index"]
+
+
 def wins_at_checkpoints(
     judged_pairs_df: pd.DataFrame,
     policies: Sequence[str],
@@ -34,6 +46,8 @@ def wins_at_checkpoints(
     _check_checkpoints(checkpoints)
     ck = [int(c) for c in checkpoints]
     df = judged_pairs_df[list(_NEEDED)].astype({c: str for c in _NEEDED[1:]})
+    adaptive = "checkpoint_position" in judged_pairs_df.columns
+    df["position"] = checkpoint_positions(judged_pairs_df).to_numpy()
 
     unknown = sorted((set(df["policy_i"]) | set(df["policy_j"])) - set(index))
     if unknown:
@@ -49,12 +63,12 @@ def wins_at_checkpoints(
     for (pi, pj), g in df.groupby(["policy_i", "policy_j"], sort=False):
         seen.add(frozenset((pi, pj)))
         idx = np.sort(g["pair_index"].to_numpy())
-        if len(idx) < n_max or not np.array_equal(idx[:n_max], np.arange(n_max)):
+        if not adaptive and (len(idx) < n_max or not np.array_equal(idx[:n_max], np.arange(n_max))):
             raise ValueError(
                 f"pair {pi} vs {pj}: checkpoints need judged comparisons with pair_index 0..{n_max - 1}, "
                 f"found {len(idx)} comparisons"
             )
-        pos = g["pair_index"].to_numpy()
+        pos = g["position"].to_numpy()
         win_i = (g["winner"] == pi).to_numpy()
         for c, n in enumerate(ck):
             first = pos < n

@@ -16,7 +16,8 @@ Public API:
     invalid-answer replacement and the order-swap audit ``swap_audited``), built on the cached
     parallel runner (``runner``: ``StageStats``), the judge's questions (``questions``), its
     scratch folder (``scratch``), the replacement reserve (``replacement``) and the order-swap
-    audit (``swap_audit``).
+    audit (``swap_audit``); ``adaptive.judge_adaptively`` (``compare.allocation: adaptive``) asks
+    block after block for the policy pairs still open and describes rollouts on the way.
 """
 
 from r2s_eval.judge.base import (

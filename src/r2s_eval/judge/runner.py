@@ -60,6 +60,19 @@ class StageStats:
         return d
 
 
+def sum_stats(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """Stats of several runs of one stage added up: every count (and the wall time) summed, the
+    other fields taken from the first part that has them."""
+    total: dict[str, Any] = {}
+    for part in parts:
+        for key, value in part.items():
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                total[key] = total.get(key, 0) + value
+            else:
+                total.setdefault(key, value)
+    return total
+
+
 def require_columns(df: pd.DataFrame, cols: tuple[str, ...], what: str) -> None:
     lacking = [c for c in cols if c not in df.columns]
     if lacking:

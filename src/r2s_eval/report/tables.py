@@ -263,14 +263,31 @@ def planted_order_line(reference_rate: Mapping[str, float], reference_ci: Mappin
             + f"; point estimates {'follow' if follows else 'do NOT follow'} it")
 
 
+def adaptive_line(judge: str, account: Mapping) -> str:
+    """What an adaptive judging run decided and what it cost (``r2s_eval.judge.adaptive``)."""
+    decided = [d for d in account["pairs"] if d["decided"]]
+    orders = ", ".join(f"{d['winner']} > {d['policy_j'] if d['winner'] == d['policy_i'] else d['policy_i']}"
+                       for d in decided)
+    described = account.get("describe_calls") is not None  # two-step judges describe on the way
+    cost = f"{account['items']} comparisons; judge calls: " + (
+        f"{account['describe_calls']} describe + {account['calls']} compare" if described else f"{account['calls']} compare")
+    if account.get("requests") or account.get("describe_requests"):
+        cost += "; model requests: " + (f"{account['describe_requests']} describe + {account['requests']} compare"
+                                        if described else f"{account['requests']} compare")
+    undecided = "; left undecided: " + ", ".join(account["undecided"]) if account["undecided"] else ""
+    return (f"{judge}: adaptive judging stopped ({account['stop'].replace('_', ' ')}) after {cost}; "
+            f"decided at alpha {account['alpha']:g} over all pairs: {orders or 'none'}{undecided}")
+
+
 def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, float],
                  reference_ci: Mapping[str, tuple] | None = None, planted_order: Sequence[str] | None = None,
-                 reference_name: str = "real success") -> str:
+                 reference_name: str = "real success", adaptive: Mapping[str, Mapping] | None = None) -> str:
     """Plain-text ranking at the last checkpoint, each judge beside the reference performance
     (the mean of the per-task success rates, with its interval where ``reference_ci`` gives
     one; ``reference_name`` says what it is). The title names the bootstrap behind the score
-    intervals. With a line-up's ``planted_order`` (best first), a last line says whether the
-    reference recovers it."""
+    intervals. With a line-up's ``planted_order`` (best first), a line says whether the
+    reference recovers it; a judge that judged adaptively (``adaptive``: judge -> its account)
+    gets a line with its decisions, its cost and the pairs it left open."""
     policies = sorted(reference_rate, key=lambda p: -reference_rate[p])
     reference_ci = reference_ci or {}
     width = 24 if reference_ci else 16
@@ -299,6 +316,7 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
              + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
     if planted_order and reference_ci:
         notes.append(planted_order_line(reference_rate, reference_ci, planted_order, level))
+    notes += [adaptive_line(judge, account) for judge, account in sorted((adaptive or {}).items()) if account]
     return "\n".join([title, header, *rows.values(), *notes]) + "\n"
 
 

@@ -1,8 +1,14 @@
-"""Stage: sample task-stratified A/B pairs at nested checkpoints (one sequence per policy pair)."""
+"""Stage: which comparisons to judge, one sequence per policy pair.
+
+The fixed allocation samples task-stratified A/B pairs at nested checkpoints (``sample_pairs``);
+the adaptive one lays out every pair's distinct (task, init) units in seeded blocks
+(``unit_order``), which the judge stage takes as the answers decide.
+"""
 
 from __future__ import annotations
 
 from r2s_eval.compare import checkpoint_sizes, sample_pairs
+from r2s_eval.compare.sequential import unit_order
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import write_parquet
@@ -13,9 +19,15 @@ READS = ("compare", "seed")  # config paths the --cfg slice holds (see _reads.py
 def main(args) -> None:
     episodes = load_episodes(args.rollouts)
     policies = sorted(episodes["policy"].unique())
-    checkpoints = checkpoint_sizes(args.cfg["compare"]["checkpoints"])
-    pairs = sample_pairs(episodes, policies, checkpoints, seed=int(args.cfg["seed"]))
-    write_parquet(args.out, pairs, metadata={"stage": "compare_pairs", "checkpoints": checkpoints, "policies": policies})
+    compare = args.cfg["compare"]
+    checkpoints = checkpoint_sizes(compare["checkpoints"])
+    seed = int(args.cfg["seed"])
+    if compare["allocation"] == "adaptive":
+        pairs = unit_order(episodes, policies, seed)
+    else:
+        pairs = sample_pairs(episodes, policies, checkpoints, seed=seed)
+    write_parquet(args.out, pairs, metadata={"stage": "compare_pairs", "checkpoints": checkpoints,
+                                             "policies": policies, "allocation": compare["allocation"]})
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
+from r2s_eval.judge.runner import sum_stats
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import read_parquet_metadata, write_json, write_parquet
 
@@ -20,21 +21,17 @@ READS = ()  # config paths the --cfg slice holds (see _reads.py)
 
 def gather(parts: list[str]) -> tuple[pd.DataFrame, dict]:
     """The parts' rows in order, and their summed stats (every count; the wall time too)."""
-    tables, stats = [], {}
+    tables, part_stats, judge = [], [], None
     for part in parts:
         meta = read_parquet_metadata(part)
         if meta.get("stage") != "describe" or "stats" not in meta:
             raise DataError(f"{part}: not the output of the describe stage")
-        judges = {meta["judge"], stats.get("judge", meta["judge"])}
-        if len(judges) > 1:
-            raise DataError(f"{part}: described by judge {meta['judge']!r}, the other parts by {stats['judge']!r}")
-        for key, value in meta["stats"].items():
-            if isinstance(value, (int, float)) and not isinstance(value, bool):
-                stats[key] = stats.get(key, 0) + value
-            else:
-                stats.setdefault(key, value)
-        stats["judge"] = meta["judge"]
+        if judge is not None and meta["judge"] != judge:
+            raise DataError(f"{part}: described by judge {meta['judge']!r}, the other parts by {judge!r}")
+        judge = meta["judge"]
+        part_stats.append(meta["stats"])
         tables.append(pd.read_parquet(part))
+    stats = {**sum_stats(part_stats), "judge": judge}
     table = pd.concat(tables, ignore_index=True)
     dup = table["episode_id"][table["episode_id"].duplicated()].unique().tolist()
     if dup:

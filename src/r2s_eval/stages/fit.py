@@ -13,9 +13,12 @@ import pandas as pd
 from r2s_eval.compare import checkpoint_sizes
 from r2s_eval.stages import _cli
 from r2s_eval.stats import fit_checkpoints
-from r2s_eval.utils.io import write_parquet
+from r2s_eval.utils.io import read_parquet_metadata, write_parquet
 
 READS = ("stats", "compare", "seed")  # config paths the --cfg slice holds (see _reads.py)
+# The adaptive judging's account the fit passes on to the report (r2s_eval.judge.adaptive).
+ADAPTIVE_SUMMARY = ("alpha", "stop", "rounds", "items", "calls", "requests", "describe_calls", "describe_requests",
+                    "undecided", "pairs")
 
 
 def main(args) -> None:
@@ -30,6 +33,9 @@ def main(args) -> None:
     a_share = float(np.mean(verdicts["verdict"] == "A"))
     meta = {"stage": "fit", "share_of_A_answers": a_share, "interval": str(table["interval"].iloc[0]),
             "ci_level": float(stats["ci_level"]), "n_boot": int(stats["n_boot"])}
+    judged = read_parquet_metadata(args.verdicts).get("stats", {})
+    if judged.get("allocation") == "adaptive":  # what the ranking rests on, for the report
+        meta["adaptive"] = {k: judged.get(k) for k in ADAPTIVE_SUMMARY}
     write_parquet(args.out, table, metadata=meta)
     if args.replicates:
         write_parquet(args.replicates, replicates, metadata=meta)

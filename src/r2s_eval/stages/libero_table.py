@@ -13,7 +13,7 @@ from r2s_eval.libero import suite_of
 from r2s_eval.report import libero_success_table, ranking_text, realsim_table, reference_interval
 from r2s_eval.stages import _cli
 from r2s_eval.stats import reference_rates
-from r2s_eval.utils.io import read_json, write_text
+from r2s_eval.utils.io import read_json, read_parquet_metadata, write_text
 
 READS = ("report.realsim_table", "report.judge_audit.planted_order")  # config paths the --cfg slice holds (see _reads.py)
 
@@ -27,8 +27,10 @@ def main(args) -> None:
     judges = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
     success = libero_success_table(table, suite_of, decimals=1)
     write_text(args.table, judges + "\n" + success, comment="%")
+    adaptive = {judge: meta.get("adaptive") for judge, meta in _cli.by_judge(args.fits, read_parquet_metadata).items()}
     text = ranking_text(fits, reference_rates(table).to_dict(), reference_interval(validations),
-                        planted_order=args.cfg["report.judge_audit.planted_order"], reference_name="LIBERO success")
+                        planted_order=args.cfg["report.judge_audit.planted_order"], reference_name="LIBERO success",
+                        adaptive=adaptive)
     write_text(args.ranking, text)
     print(text)
 

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.compare import wins_at_checkpoints
+from r2s_eval.compare.wins import checkpoint_positions
 from r2s_eval.errors import DataError
 from r2s_eval.stats.bradley_terry import bt_scores, fit_bradley_terry
 from r2s_eval.stats.checkpoints import INTERVALS, bootstrap_checkpoints, check_interval
@@ -58,7 +59,7 @@ def units_of(verdicts: pd.DataFrame, policies: list[str], checkpoints: list[int]
         pi.map(index).to_numpy(), verdicts["policy_j"].astype(str).map(index).to_numpy(),
         (verdicts["winner"].astype(str) == pi).to_numpy(), verdicts["init_id"].tolist(),
         n_policies=len(policies), stratum=verdicts["task"].astype(str).tolist(),
-        position=verdicts["pair_index"].to_numpy(), checkpoints=checkpoints,
+        position=checkpoint_positions(verdicts).to_numpy(), checkpoints=checkpoints,
     )
 
 

@@ -71,7 +71,7 @@ def test_a_foreign_robot_runs_through_the_smoke_chain_as_the_readme_shows(experi
 
 
 def test_the_panda_demo_plans_as_the_readme_shows(tmp_path):
-    # The demo itself takes half an hour; its command as written plans the whole DAG, the
+    # The demo itself takes some 18 minutes; its command as written plans the whole DAG, the
     # cross-evaluation included.
     if importlib.util.find_spec("gym_hil") is None:
         pytest.skip("gym_hil is not installed (pip install --no-deps, see the README)")

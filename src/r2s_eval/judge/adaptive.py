@@ -36,7 +36,7 @@ from r2s_eval.judge.base import Judge
 from r2s_eval.judge.cache import AnswerCache
 from r2s_eval.judge.drivers import _comparisons, _verdict_table, describe_rollouts
 from r2s_eval.judge.questions import description_questions
-from r2s_eval.judge.replacement import pair_label
+from r2s_eval.judge.replacement import exclusion_record, pair_label
 from r2s_eval.judge.runner import Asker, StageStats, finish, require_columns, sum_stats
 from r2s_eval.judge.scratch import clear_leftovers
 from r2s_eval.judge.swap_audit import ask_swapped, swap_columns, swap_stats
@@ -231,11 +231,7 @@ def _replace_invalid(round_rows, labels, keys, ask: Asker, blocks, pairs,
         again = []
         for n in pending:
             row = round_rows[n]
-            exclusions.append({
-                "policy_i": row["policy_i"], "policy_j": row["policy_j"], "pair_index": row["pair_index"],
-                "source_index": row["source_index"], "task": row["task"], "episode_a": row["episode_a"],
-                "episode_b": row["episode_b"], "replies": ask.answers[keys[n]].get("replies", []),
-            })
+            exclusions.append(exclusion_record(row, ask.answers[keys[n]]))
             log.warning("%s: invalid answer after a re-ask; excluded and replaced", labels[n])
             k, units = block_of[id(row)]
             unit = pairs[k].take(str(row["task"]), str(row["policy_a"]))

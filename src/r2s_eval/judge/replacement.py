@@ -80,7 +80,7 @@ class Reserve:
         return {"episode_a": ea, "episode_b": eb, "init_id": r["init_id"], "source_index": int(r["pair_index"])}
 
 
-def _exclusion(row: dict[str, Any], answer: dict[str, Any]) -> dict[str, Any]:
+def exclusion_record(row: dict[str, Any], answer: dict[str, Any]) -> dict[str, Any]:
     """The record of one excluded comparison, with the judge's replies."""
     return {
         "policy_i": row.get("policy_i"), "policy_j": row.get("policy_j"), "pair_index": row.get("pair_index"),
@@ -100,7 +100,7 @@ def replace_invalid(rows: list[dict[str, Any]], labels: list[str], keys: list[st
         # Every comparison excluded in this round is marked first, so that no replacement drawn
         # in it is one of them.
         for n in pending:
-            exclusions.append(_exclusion(rows[n], ask.answers[keys[n]]))
+            exclusions.append(exclusion_record(rows[n], ask.answers[keys[n]]))
             reserve.exclude(rows[n])
             log.warning("%s: invalid answer after a re-ask; excluded and replaced", labels[n])
         for n in pending:

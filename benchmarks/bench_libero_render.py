@@ -30,7 +30,7 @@ import numpy as np
 from r2s_eval.libero import environment, selected_tasks
 from r2s_eval.libero.rollout import planned_episodes, run_world_processes, world_job
 from r2s_eval.policies.interface import ChunkPolicy, PolicySpec
-from r2s_eval.serving.server import PolicyServer
+from r2s_eval.serving.policy_server import PolicyServer
 
 CAMERAS = {"image": "agentview", "wrist_image": "robot0_eye_in_hand"}
 

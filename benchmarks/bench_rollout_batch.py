@@ -58,7 +58,7 @@ from r2s_eval.policies.interface import ActionMap
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.rollout import run_episode, sample_inits, write_video
 from r2s_eval.rollout.candidate import planned_episodes, run_candidate
-from r2s_eval.rollout.store import collect_episodes
+from r2s_eval.rollout.episode_store import collect_episodes
 from r2s_eval.sim import bundled_robot
 from r2s_eval.sim.build import configured_task, make_env
 from r2s_eval.utils.io import write_json, write_parquet

@@ -776,7 +776,7 @@ def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[
 def _cross_problems(cfg: dict) -> list[Problem]:
     """Contradictions between groups (run once every group has passed its own schema)."""
     from r2s_eval.sim.reading import WorldError
-    from r2s_eval.sim.robot import load_world
+    from r2s_eval.sim.assembly import load_world
 
     problems: list[Problem] = []
     real, world = cfg["real"], cfg["world"]

@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
 
     from r2s_eval.policies.lerobot_policy import load_lerobot_policy
-    from r2s_eval.serving.server import PolicyServer, ws_url
+    from r2s_eval.serving.policy_server import PolicyServer, ws_url
 
     try:
         policy = load_lerobot_policy(args.path, args.device, args.name)

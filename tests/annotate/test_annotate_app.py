@@ -13,7 +13,7 @@ import pytest
 from people import POLICIES, AnnotationServer, export_csv, fetch_json
 
 from r2s_eval.annotate import AnnotationError, AnswerStore
-from r2s_eval.annotate.store import EXPORT_COLUMNS
+from r2s_eval.annotate.answers import EXPORT_COLUMNS
 
 
 @pytest.fixture

@@ -24,7 +24,7 @@ import pytest
 
 from r2s_eval.config import select, to_json
 from r2s_eval.judge.base import CriterionNote, Description
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.mp4 import write_video
 from r2s_eval.stages._reads import declaration
 from r2s_eval.utils.io import write_json, write_parquet
 

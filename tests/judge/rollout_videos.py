@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.mp4 import write_video
 
 
 INSTRUCTIONS = {"lift": "lift the red cube", "stack": "stack the cube on the plate"}

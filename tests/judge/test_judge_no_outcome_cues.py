@@ -27,7 +27,7 @@ import pytest
 
 from r2s_eval.compare.sampling import sample_pairs
 from r2s_eval.judge import Description, describe_rollouts, judge_pairs, make_judge
-from r2s_eval.judge.frames import VIDEO_PART_FPS, Clip
+from r2s_eval.judge.clip_frames import VIDEO_PART_FPS, Clip
 from r2s_eval.judge.prompting import PROMPT_SETS, description_text
 from r2s_eval.judge.transformers_backend import TransformersJudge
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge

@@ -8,7 +8,7 @@ import pytest
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import CRITERIA, CriterionNote, Description, make_judge
 from r2s_eval.judge import prompting
-from r2s_eval.judge.frames import frame_indices, sample_clip
+from r2s_eval.judge.clip_frames import frame_indices, sample_clip
 from r2s_eval.judge.prompting import (
     PROMPT_SETS,
     TEMPLATES,
@@ -20,7 +20,7 @@ from r2s_eval.judge.prompting import (
     template,
     templates_sha,
 )
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.mp4 import write_video
 
 
 @pytest.mark.parametrize("reply,letter", [

@@ -13,7 +13,7 @@ import pytest
 
 from r2s_eval.compare import sample_pairs
 from r2s_eval.judge import CRITERIA, RolloutInput, VideoJudge, describe_rollouts, judge_pairs, make_judge
-from r2s_eval.judge.video import task_from_instruction
+from r2s_eval.judge.video_judge import task_from_instruction
 
 sys.path.insert(0, str(Path(__file__).parent))
 from rollout_videos import SIM_TASK, render_sim_episodes  # noqa: E402
@@ -139,7 +139,7 @@ def test_judge_video_smoke_and_demo_run_both_offline_judges():
 def test_goal_relations_come_from_the_tasks_success_conditions():
     # The relation the judge looks for in the pixels is read from each task's definition (the
     # table it replaced, pinned).
-    from r2s_eval.judge.video import goal_relation
+    from r2s_eval.judge.video_judge import goal_relation
     from r2s_eval.sim.tasks import TASKS
 
     assert {key: goal_relation(task) for key, task in TASKS.items()} == {

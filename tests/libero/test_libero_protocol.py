@@ -16,8 +16,8 @@ from r2s_eval.judge.trajectory import load_trajectory
 from r2s_eval.libero import SUITES, selected_tasks, suite_of
 from r2s_eval.libero.rollout import failure_text, keep_episode, planned_episodes, policy_cameras, shards, world_job
 from r2s_eval.policies.interface import PolicyError, PolicySpec
-from r2s_eval.rollout.store import collect_episodes, episode_store
-from r2s_eval.rollout.video import read_video
+from r2s_eval.rollout.episode_store import collect_episodes, episode_store
+from r2s_eval.rollout.mp4 import read_video
 
 CAMERAS = {"image": "agentview", "wrist_image": "robot0_eye_in_hand"}
 

@@ -7,7 +7,7 @@ import pandas as pd
 from PIL import Image
 
 from r2s_eval.report import save_figure
-from r2s_eval.report.fidelity import (ablation_figure, ablation_rows, ablation_table, fidelity_table, format_report,
+from r2s_eval.report.fidelity_report import (ablation_figure, ablation_rows, ablation_table, fidelity_table, format_report,
                                       joint_report)
 from r2s_eval.stats.fidelity import cross_evaluation
 

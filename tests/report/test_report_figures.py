@@ -18,7 +18,7 @@ from r2s_eval.report import (
     win_rate_figure,
     win_rate_matrix,
 )
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.mp4 import write_video
 
 from .conftest import figure_opts
 

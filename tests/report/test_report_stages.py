@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from r2s_eval.config import compose_config, select, to_json
-from r2s_eval.rollout.video import write_video
+from r2s_eval.rollout.mp4 import write_video
 from r2s_eval.stages._reads import declaration
 from r2s_eval.utils.io import read_json, write_json, write_parquet
 

@@ -9,7 +9,7 @@ import subprocess
 import pandas as pd
 import pytest
 
-from r2s_eval.report.fidelity import ablation_rows, ablation_table, fidelity_table
+from r2s_eval.report.fidelity_report import ablation_rows, ablation_table, fidelity_table
 from r2s_eval.stats.fidelity import cross_evaluation
 
 from r2s_eval.report import (

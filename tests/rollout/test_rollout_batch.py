@@ -161,7 +161,7 @@ def test_real_side_videos_are_the_policy_image_unless_sized(tmp_path, monkeypatc
     """No judge sees the real side's videos: by default they are the policy's own (noisy) image of
     the video camera; real_video_size renders them like the judges' videos. Sim videos keep
     video_size either way."""
-    from r2s_eval.rollout.video import read_video
+    from r2s_eval.rollout.mp4 import read_video
 
     rollout = {**ROLLOUT, "real_video_size": None}
     sizes = {}
@@ -228,7 +228,7 @@ def test_a_policy_error_names_the_episode_of_its_slot(tmp_path, monkeypatch, ini
 def test_a_policy_server_drives_the_batched_loop(tmp_path, inits, act):
     """A server answers one observation per request; the lanes' requests are sequential, one
     connection per episode, and the episodes are the same whatever runs beside them."""
-    from r2s_eval.serving.server import PolicyServer
+    from r2s_eval.serving.policy_server import PolicyServer
 
     server = PolicyServer(load_lerobot_policy(act), port=0)
     port = server.start()

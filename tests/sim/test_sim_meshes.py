@@ -12,7 +12,7 @@ import trimesh
 
 from r2s_eval.sim import TabletopEnv, world_robot
 from r2s_eval.sim.reading import WorldError
-from r2s_eval.sim.robot import load_world
+from r2s_eval.sim.assembly import load_world
 from r2s_eval.sim.tasks import bundled_world, load_tasks
 from r2s_eval.twin.operator import make_operator, run_episode
 

@@ -16,7 +16,7 @@ from r2s_eval.sim import meshes
 from r2s_eval.sim.reading import REPO_ROOT, WorldError
 from r2s_eval.sim.robot import load_robot, world_robot
 from r2s_eval.sim.tasks import bundled_world
-from r2s_eval.sim.world import build_robot_model
+from r2s_eval.sim.assembly import build_robot_model
 
 # Drawn-only mesh geoms (one mesh drawn twice) and a collision geom sharing the ball's mesh file,
 # on bodies whose inertia comes from their geoms (the bundled arm gives no <inertial>).

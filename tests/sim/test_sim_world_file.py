@@ -12,7 +12,7 @@ import pytest
 
 from r2s_eval.config import compose_config
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim.robot import load_world
+from r2s_eval.sim.assembly import load_world
 from r2s_eval.sim.tasks import BUNDLED_WORLD, TASKS, WorldError, bundled_world, load_tasks
 
 CONF = Path(__file__).resolve().parents[2] / "conf"

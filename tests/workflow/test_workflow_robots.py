@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 from r2s_eval.data.dataset import open_metadata
-from r2s_eval.report.world import build_report, format_table
+from r2s_eval.report.calibration_report import build_report, format_table
 from r2s_eval.stages.init_error import scored_errors
 from r2s_eval.utils.io import read_parquet_metadata
 

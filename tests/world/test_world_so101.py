@@ -28,8 +28,9 @@ from r2s_eval.data.dataset import ACTION_KEY, STATE_KEY, episode_frames, open_me
 from r2s_eval.sim import WorldParams, world_robot  # noqa: E402
 from r2s_eval.sim.build import make_env  # noqa: E402
 from r2s_eval.sim.predicates import centre_m  # noqa: E402
-from r2s_eval.sim.robot import WorldError, load_world  # noqa: E402
-from r2s_eval.sim.world import build_robot_model  # noqa: E402
+from r2s_eval.sim.assembly import load_world
+from r2s_eval.sim.robot import WorldError  # noqa: E402
+from r2s_eval.sim.assembly import build_robot_model  # noqa: E402
 from r2s_eval.twin import twin_world  # noqa: E402
 from r2s_eval.twin.operator import ArmIK, top_down_rotation  # noqa: E402
 from r2s_eval.twin.record import record_teleop  # noqa: E402

@@ -8,7 +8,7 @@ tokens), ``store`` keeps the answers in SQLite, ``server`` serves the page; run 
 
 from r2s_eval.annotate.media import write_annotation_set
 from r2s_eval.annotate.selection import CATEGORIES, candidate_pairs, draw_annotation_set, outcome_category
-from r2s_eval.annotate.store import AnnotationError, AnswerStore
+from r2s_eval.annotate.answers import AnnotationError, AnswerStore
 
 __all__ = [
     "CATEGORIES",

@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from r2s_eval.annotate.server import load_set, serve
-from r2s_eval.annotate.store import AnswerStore
+from r2s_eval.annotate.app import load_set, serve
+from r2s_eval.annotate.answers import AnswerStore
 from r2s_eval.errors import R2SError
 from r2s_eval.utils.io import atomic_path
 

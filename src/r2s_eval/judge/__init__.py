@@ -37,10 +37,10 @@ from r2s_eval.judge.base import (
 from r2s_eval.judge.drivers import describe_rollouts, judge_pairs
 from r2s_eval.judge.kinematic import KinematicJudge
 from r2s_eval.judge.openai_backend import OpenAIJudge
-from r2s_eval.judge.runner import StageStats
+from r2s_eval.judge.cached_runner import StageStats
 from r2s_eval.judge.swap_audit import swap_audited
 from r2s_eval.judge.transformers_backend import TransformersJudge
-from r2s_eval.judge.video import VideoJudge
+from r2s_eval.judge.video_judge import VideoJudge
 from r2s_eval.judge.vlm import VLMJudge
 
 __all__ = [

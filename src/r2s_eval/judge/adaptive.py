@@ -37,7 +37,7 @@ from r2s_eval.judge.cache import AnswerCache
 from r2s_eval.judge.drivers import _comparisons, _verdict_table, describe_rollouts
 from r2s_eval.judge.questions import description_questions
 from r2s_eval.judge.replacement import exclusion_record, pair_label
-from r2s_eval.judge.runner import Asker, StageStats, finish, require_columns, sum_stats
+from r2s_eval.judge.cached_runner import Asker, StageStats, finish, require_columns, sum_stats
 from r2s_eval.judge.scratch import clear_leftovers
 from r2s_eval.judge.swap_audit import ask_swapped, swap_columns, swap_stats
 from r2s_eval.utils.io import write_json

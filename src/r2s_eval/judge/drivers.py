@@ -30,7 +30,7 @@ from r2s_eval.judge.base import Description, Judge, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
 from r2s_eval.judge.questions import describe_call, description_questions, episode_files, video_questions
 from r2s_eval.judge.replacement import pair_label, replace_invalid
-from r2s_eval.judge.runner import Asker, Job, Question, StageStats, finish, require_columns, run_cached
+from r2s_eval.judge.cached_runner import Asker, Job, Question, StageStats, finish, require_columns, run_cached
 from r2s_eval.judge.scratch import clear_leftovers
 from r2s_eval.judge.swap_audit import ask_swapped, swap_columns, swap_stats
 

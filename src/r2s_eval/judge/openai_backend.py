@@ -42,7 +42,7 @@ from typing import Any
 
 from r2s_eval.errors import ConfigError, JudgeError
 from r2s_eval.judge.base import register_judge
-from r2s_eval.judge.frames import Clip, jpeg_data_urls, mp4_data_url
+from r2s_eval.judge.clip_frames import Clip, jpeg_data_urls, mp4_data_url
 from r2s_eval.judge.usage import record_usage
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, MalformedReply, Reply, VLMJudge
 

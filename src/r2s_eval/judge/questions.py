@@ -24,7 +24,7 @@ import pandas as pd
 
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import cache_key
-from r2s_eval.judge.runner import Question, require_columns
+from r2s_eval.judge.cached_runner import Question, require_columns
 from r2s_eval.judge.scratch import blind_copies
 from r2s_eval.utils.io import file_sha256
 

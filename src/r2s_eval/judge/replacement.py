@@ -15,7 +15,7 @@ from typing import Any
 import pandas as pd
 
 from r2s_eval.errors import JudgeError
-from r2s_eval.judge.runner import Asker, require_columns
+from r2s_eval.judge.cached_runner import Asker, require_columns
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ from typing import Any
 
 import pandas as pd
 
-from r2s_eval.judge.runner import Asker
+from r2s_eval.judge.cached_runner import Asker
 
 
 def swap_audited(policy_i: str, policy_j: str, pair_index: int, share: float) -> bool:

@@ -17,7 +17,7 @@ import threading
 from typing import Any
 
 from r2s_eval.judge.base import register_judge
-from r2s_eval.judge.frames import Clip, pil_frames
+from r2s_eval.judge.clip_frames import Clip, pil_frames
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge
 
 FAMILIES: dict[str, dict[str, Any]] = {

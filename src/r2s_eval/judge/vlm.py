@@ -41,7 +41,7 @@ from typing import Any, ClassVar
 
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
-from r2s_eval.judge.frames import Clip, sample_clip
+from r2s_eval.judge.clip_frames import Clip, sample_clip
 from r2s_eval.judge.prompting import (
     DEFAULT_PROMPT_SET,
     check_prompt_set,

@@ -31,7 +31,7 @@ from r2s_eval.libero.environment import WORLD_SCRIPT, requirements_hash
 from r2s_eval.policies.interface import IMAGE_PREFIX, ChunkPolicy, PolicyError, PolicySpec
 from r2s_eval.policies.sources import checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import PlannedEpisode
-from r2s_eval.rollout.store import EpisodeFolder, collect_episodes, episode_store
+from r2s_eval.rollout.episode_store import EpisodeFolder, collect_episodes, episode_store
 from r2s_eval.rollout.loop import episode_id, video_frame_every
 from r2s_eval.utils.io import config_hash
 
@@ -195,7 +195,7 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
     into `out`; returns the episode table. `python`: LIBERO's environment's interpreter;
     `workers`: LIBERO processes side by side (it changes no result); `world_log`: where their
     output goes."""
-    from r2s_eval.serving.server import PolicyServer
+    from r2s_eval.serving.policy_server import PolicyServer
 
     if not is_external(policy_cfg):
         raise PolicyError(f"policy {policy!r}: LIBERO candidates are `type: checkpoint` or `type: server` entries")

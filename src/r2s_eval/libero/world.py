@@ -35,7 +35,7 @@ import numpy as np
 
 CONTROL_HZ = 20  # LIBERO's control frequency
 SETTLE_ACTION = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]  # no motion, gripper open
-RESET_KEY = "r2s_eval"  # our server's reset message (see r2s_eval.serving.server)
+RESET_KEY = "r2s_eval"  # our server's reset message (see r2s_eval.serving.policy_server)
 
 
 def _fast_render_quality() -> None:

@@ -14,7 +14,7 @@ from r2s_eval.report.figures import (
     save_figure,
     win_rate_figure,
 )
-from r2s_eval.report.frames import sample_frames
+from r2s_eval.report.video_stills import sample_frames
 from r2s_eval.report.summaries import (
     fit_interval,
     human_agreement,

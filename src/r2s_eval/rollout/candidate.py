@@ -7,7 +7,7 @@ depend on how many run beside it). :func:`run_candidate` writes, into one folder
 episodes.parquet (one row per episode), videos/<id>.mp4 and trajectories/<id>.parquet. Episode
 ids are opaque hashes so no file name tells a judge which policy it is watching.
 
-Each finished episode is kept in a sibling folder (`.<folder>.episodes/`, `r2s_eval.rollout.store`)
+Each finished episode is kept in a sibling folder (`.<folder>.episodes/`, `r2s_eval.rollout.episode_store`)
 as soon as it ends, until
 the whole set is done, so a job that dies (a server gone, a killed machine) resumes with the
 episodes it had not finished yet; that folder is discarded when the config, inits, world or
@@ -27,7 +27,7 @@ from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, 
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
-from r2s_eval.rollout.store import EpisodeFolder, collect_episodes, episode_store
+from r2s_eval.rollout.episode_store import EpisodeFolder, collect_episodes, episode_store
 from r2s_eval.sim import get_task, load_world_params, world_robot
 from r2s_eval.sim.build import make_env
 from r2s_eval.utils.io import config_hash, file_sha256

@@ -11,7 +11,7 @@
 from r2s_eval.serving.client import ServerPolicy
 from r2s_eval.serving.keymap import PRESETS, KeyMap, resolve_key_map
 from r2s_eval.serving.protocol import ProtocolError, pack, unpack, unpack_dict
-from r2s_eval.serving.server import PolicyServer
+from r2s_eval.serving.policy_server import PolicyServer
 
 __all__ = ["PRESETS", "KeyMap", "PolicyServer", "ProtocolError", "ServerPolicy", "pack", "resolve_key_map", "unpack",
            "unpack_dict"]

@@ -28,7 +28,7 @@ from websockets.sync.client import ClientConnection, connect
 from r2s_eval.policies.interface import ChunkPolicy, PolicyError, PolicySpec
 from r2s_eval.serving.keymap import KeyMap, resolve_key_map
 from r2s_eval.serving.protocol import DEFAULT_MAX_MESSAGE_BYTES, ProtocolError, pack, unpack_dict
-from r2s_eval.serving.server import RESET_KEY, ws_url
+from r2s_eval.serving.policy_server import RESET_KEY, ws_url
 
 log = logging.getLogger(__name__)
 

@@ -44,7 +44,7 @@ FIELDS = (*STREAMS, "size", "dtype")
 DTYPES = ("uint8", "float32", "float64")
 IMAGE_DTYPES = ("uint8",)
 STATE_DTYPES = ("float32", "float64")
-RESERVED = ("r2s_eval",)  # our server's reset message (r2s_eval.serving.server.RESET_KEY)
+RESERVED = ("r2s_eval",)  # our server's reset message (r2s_eval.serving.policy_server.RESET_KEY)
 
 _IMG = {"size": [224, 224], "dtype": "uint8"}
 PRESETS: dict[str, dict] = {

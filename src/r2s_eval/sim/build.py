@@ -51,7 +51,7 @@ def feature_ranges(robot: Robot) -> dict[str, tuple[float, float]]:
     range from the model, a gripper's open..closed; unlimited joints are left out. Ingest checks a
     recording against it, so a wrong unit in ``robot.features`` (degrees read as radians, -100..100
     read as degrees) stops there instead of silently skewing the calibration."""
-    from r2s_eval.sim.world import build_robot_model
+    from r2s_eval.sim.assembly import build_robot_model
 
     model = build_robot_model(robot)
     ranges = {}

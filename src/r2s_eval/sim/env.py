@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 
 from r2s_eval.sim import cameras as cam_geom  # noqa: E402
 from r2s_eval.sim import objects as obj_geom  # noqa: E402
-from r2s_eval.sim import world  # noqa: E402
+from r2s_eval.sim import assembly  # noqa: E402
 from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.params import WorldParams  # noqa: E402
 from r2s_eval.sim.robot import Robot, bundled_robot  # noqa: E402
@@ -84,12 +84,12 @@ class TabletopEnv:
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.cameras = self.robot.camera_names if cameras is None else tuple(cameras)
         max_hw = (max(480, self.image_size[0]), max(640, self.image_size[1]))
-        self.model = model if model is not None else world.build_model(
+        self.model = model if model is not None else assembly.build_model(
             self.robot, self.task.objects, self.params, max_size_hw=max_hw)
         self.data = mujoco.MjData(self.model)
         self.table_top_z_m = self.robot.workspace_z_m
         self.control_dt_s = self.robot.control_dt_s
-        self.n_substeps = world.substeps(self.robot, self.model.opt.timestep)
+        self.n_substeps = assembly.substeps(self.robot, self.model.opt.timestep)
         self.action_dim = self.robot.action_dim
         self._owns_renderers = renderers is None
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {} if renderers is None else renderers
@@ -110,7 +110,7 @@ class TabletopEnv:
         self._grip_act = {a: m.actuator(arm.named(arm.gripper.actuator)).id for a, arm in arms.items()}
         self._grip_qpos_adr = {a: [int(m.joint(arm.named(j)).qposadr[0]) for j in arm.gripper.joints] for a, arm in arms.items()}
         self._grip_dof_adr = {a: int(m.joint(arm.named(arm.gripper.joints[0])).dofadr[0]) for a, arm in arms.items()}
-        self._ee_site = {a: m.site(world.ee_site(a)).id for a in arms}
+        self._ee_site = {a: m.site(assembly.ee_site(a)).id for a in arms}
         self._arm_root = {a: int(m.body_rootid[m.site_bodyid[sid]]) for a, sid in self._ee_site.items()}
         self._obj_body = {o.name: m.body(o.name).id for o in self.task.objects}
         self._obj_qpos_adr = {o.name: int(m.joint(f"{o.name}_free").qposadr[0]) for o in self.task.objects}

@@ -469,7 +469,7 @@ def _intrinsics(value: Any, where: str) -> dict[str, float]:
 def load_robot(world: Mapping) -> Robot:
     """The robot and camera rig of ``world`` (a ``world`` config slice), checked: a wrong entry is a
     ``WorldError`` naming its key. Names inside the model files are checked when it is compiled
-    (``r2s_eval.sim.world.check_model``)."""
+    (``r2s_eval.sim.assembly.load_world``)."""
     entry = as_mapping(world.get("robot"), "robot")
     check_keys(entry, {"type", "scene", "workspace", "control_hz", "timestep_s", "arms", "features"},
                {"scene", "workspace", "control_hz", "arms"}, "robot")
@@ -512,26 +512,5 @@ def bundled_robot() -> Robot:
 
 
 __all__ = ["Arm", "Collision", "CollisionGeom", "Feature", "Gripper", "RigCamera", "Robot", "WorldError", "bundled_robot",
-           "load_robot", "load_world", "model_path", "world_robot"]
+           "load_robot", "model_path", "world_robot"]
 
-
-def load_world(world: Mapping) -> tuple[Robot, dict]:
-    """The robot and the tasks of ``world`` (a ``world`` config slice), checked against each other
-    and against the model files: the joints, actuators, sites, bodies and cameras the robot and rig
-    name are the model's, a task's arm is one of the robot's, and its start regions leave room for
-    its objects."""
-    from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
-    from r2s_eval.sim.world import build_robot_spec, substeps
-
-    robot, tasks = world_robot(world), world_tasks(world)
-    substeps(robot, build_robot_spec(robot).option.timestep)  # the names given are the model's
-    for key, task in tasks.items():
-        if task.arm not in (*robot.arms, "nearest", "behind_axis"):
-            raise fail(f"tasks.{key}.arm", f"must be an arm of the robot {list(robot.arms)}, nearest or behind_axis, "
-                                           f"got {task.arm!r}")
-        try:
-            sample_initial_poses(task, np.random.default_rng(0))
-        except RuntimeError:
-            raise fail(f"tasks.{key}.start", f"leaves no room: no draw of 1000 keeps the objects' footprints "
-                                             f"{task.clearance_m:g} m apart (regions overlap too much)") from None
-    return robot, tasks

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.judge.runner import sum_stats
+from r2s_eval.judge.cached_runner import sum_stats
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import read_parquet_metadata, write_json, write_parquet
 

@@ -1,4 +1,4 @@
-"""Stage: the fidelity report (``r2s_eval.report.fidelity``) and its table and figure.
+"""Stage: the fidelity report (``r2s_eval.report.fidelity_report``) and its table and figure.
 
 Reads the real side's reference (pi^R on the robot), pi^S's sim rollouts, the cross-evaluation
 rollouts (pi^R in the calibrated sim; pi^S on the twin), optionally the ablation rollouts
@@ -12,7 +12,7 @@ import pandas as pd
 
 from r2s_eval.errors import DataError
 from r2s_eval.report import save_figure
-from r2s_eval.report.fidelity import (ablation_figure, ablation_table, build_report, fidelity_table, format_report,
+from r2s_eval.report.fidelity_report import (ablation_figure, ablation_table, build_report, fidelity_table, format_report,
                                       sim_rates)
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes

@@ -6,7 +6,7 @@ or ``--report PATH``)::
     python -m r2s_eval.stages.world_report
 
 As the workflow's stage, builds it from the artefacts, writes it as JSON (its layout:
-``r2s_eval.report.world``) and prints the table (to its log)::
+``r2s_eval.report.calibration_report``) and prints the table (to its log)::
 
     python -m r2s_eval.stages.world_report --cfg '{...}' --truth results/real/init_truth.parquet \\
         --errors results/init/error.parquet --replay results/replay/log.parquet \\
@@ -22,7 +22,7 @@ import json
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.world import DEFAULT_REPORT, build_report, fidelity_summary, format_table, saved_table
+from r2s_eval.report.calibration_report import DEFAULT_REPORT, build_report, fidelity_summary, format_table, saved_table
 from r2s_eval.stages import _cli
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import read_json, read_parquet_metadata, write_json

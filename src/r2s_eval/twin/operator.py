@@ -83,7 +83,7 @@ import mink
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from r2s_eval.sim import world
+from r2s_eval.sim import assembly
 from r2s_eval.sim.env import TabletopEnv
 from r2s_eval.sim.robot import Robot, bundled_robot, world_robot
 from r2s_eval.errors import ConfigError
@@ -151,7 +151,7 @@ REST_TILT_RAD = np.deg2rad(30.0)  # a hand tilted further from pointing down at 
 def robot_model(robot: Robot):
     """The robot-only model of ``robot`` (objects do not matter for kinematics), compiled once."""
     if id(robot) not in _ROBOT_MODELS:
-        _ROBOT_MODELS[id(robot)] = (robot, world.build_robot_model(robot))  # holds robot: its id stays its own
+        _ROBOT_MODELS[id(robot)] = (robot, assembly.build_robot_model(robot))  # holds robot: its id stays its own
     return _ROBOT_MODELS[id(robot)][1]
 
 
@@ -163,7 +163,7 @@ class ArmIK:
         self.model = robot_model(robot)
         self.configuration = mink.Configuration(self.model)
         self.frame_task = mink.FrameTask(
-            frame_name=world.ee_site(arm), frame_type="site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3
+            frame_name=assembly.ee_site(arm), frame_type="site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3
         )
         self.posture_task = mink.PostureTask(self.model, cost=1e-3)
         self.limits = [mink.ConfigurationLimit(self.model)]
@@ -180,7 +180,7 @@ class ArmIK:
         self._probe = mink.Configuration(self.model, q)  # a scratch configuration for reach probes
 
     def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        T = self.configuration.get_transform_frame_to_world(world.ee_site(self.arm), "site").as_matrix()
+        T = self.configuration.get_transform_frame_to_world(assembly.ee_site(self.arm), "site").as_matrix()
         return T[:3, 3].copy(), T[:3, :3].copy()
 
     def joints_for(self, pos_world_m: np.ndarray, R_world: np.ndarray) -> np.ndarray | None:
@@ -192,7 +192,7 @@ class ArmIK:
             vel = mink.solve_ik(self._probe, [self.frame_task, self.posture_task], self.robot.control_dt_s,
                                 solver="daqp", damping=1e-3, limits=self.limits)
             self._probe.integrate_inplace(vel, self.robot.control_dt_s)
-        T = self._probe.get_transform_frame_to_world(world.ee_site(self.arm), "site").as_matrix()
+        T = self._probe.get_transform_frame_to_world(assembly.ee_site(self.arm), "site").as_matrix()
         turn = Rotation.from_matrix(T[:3, :3] @ R_world.T).magnitude()
         if np.linalg.norm(T[:3, 3] - pos_world_m) > PROBE_TOLERANCE_M or turn > PROBE_TOLERANCE_RAD:
             return None

@@ -33,7 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.fidelity import joint_line, part_sentence
+from r2s_eval.report.fidelity_report import joint_line, part_sentence
 from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
 from r2s_eval.utils.io import read_json
 

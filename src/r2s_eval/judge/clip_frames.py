@@ -100,7 +100,7 @@ def jpeg_data_urls(clip: Clip, quality: int = 90) -> list[str]:
 
 def mp4_data_url(clip: Clip) -> str:
     """The frames as one H.264 video at ``VIDEO_PART_FPS`` (for servers that take video parts)."""
-    from r2s_eval.rollout.video import write_video
+    from r2s_eval.rollout.mp4 import write_video
 
     frames = clip.frames
     h, w = frames.shape[1:3]

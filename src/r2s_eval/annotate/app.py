@@ -22,7 +22,7 @@ import pandas as pd
 from aiohttp import web
 
 from r2s_eval.annotate.criteria import CRITERIA_TEXT, QUESTION
-from r2s_eval.annotate.store import AnnotationError, AnswerStore
+from r2s_eval.annotate.answers import AnnotationError, AnswerStore
 
 log = logging.getLogger("r2s_eval.annotate")
 

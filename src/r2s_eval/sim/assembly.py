@@ -11,6 +11,7 @@ The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from pathlib import Path
 
 import mujoco
@@ -21,7 +22,8 @@ from r2s_eval.sim.meshes import decimated_meshes
 from r2s_eval.sim.objects import ObjectSpec, add_object, yaw_quat
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
-from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot
+from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot, world_robot
+from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
 
 EE_SITE_GROUP = 5  # a site group no renderer shows by default
 
@@ -332,3 +334,22 @@ def build_model(
 def build_robot_model(robot: Robot) -> mujoco.MjModel:
     """Robot-only model (no free objects), used for inverse kinematics."""
     return build_robot_spec(robot).compile()
+
+
+def load_world(world: Mapping) -> tuple[Robot, dict]:
+    """The robot and the tasks of ``world`` (a ``world`` config slice), checked against each other
+    and against the model files: the joints, actuators, sites, bodies and cameras the robot and rig
+    name are the model's, a task's arm is one of the robot's, and its start regions leave room for
+    its objects."""
+    robot, tasks = world_robot(world), world_tasks(world)
+    substeps(robot, build_robot_spec(robot).option.timestep)  # the names given are the model's
+    for key, task in tasks.items():
+        if task.arm not in (*robot.arms, "nearest", "behind_axis"):
+            raise fail(f"tasks.{key}.arm", f"must be an arm of the robot {list(robot.arms)}, nearest or behind_axis, "
+                                           f"got {task.arm!r}")
+        try:
+            sample_initial_poses(task, np.random.default_rng(0))
+        except RuntimeError:
+            raise fail(f"tasks.{key}.start", f"leaves no room: no draw of 1000 keeps the objects' footprints "
+                                             f"{task.clearance_m:g} m apart (regions overlap too much)") from None
+    return robot, tasks

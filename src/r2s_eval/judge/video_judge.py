@@ -386,7 +386,7 @@ class VideoJudge(Judge):
     def describe(self, rollout: RolloutInput) -> Description:
         if rollout.video_path is None:
             raise ValueError("the video judge reads videos; the rollout input has no video_path")
-        from r2s_eval.rollout.video import read_video
+        from r2s_eval.rollout.mp4 import read_video
 
         c = self.cfg
         frames = read_video(rollout.video_path)

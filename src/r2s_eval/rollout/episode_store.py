@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.rollout.batch import PlannedEpisode
-from r2s_eval.rollout.video import VideoWriter
+from r2s_eval.rollout.mp4 import VideoWriter
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
 
 

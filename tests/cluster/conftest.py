@@ -74,7 +74,7 @@ def slurm(tmp_path_factory):
     if missing:
         pytest.skip(f"no Slurm here ({', '.join(missing)} missing): apt-get install {PACKAGES}")
     if importlib.util.find_spec("snakemake_executor_plugin_slurm") is None:
-        pytest.skip("snakemake-executor-plugin-slurm is not installed (see README, 'Running on a cluster')")
+        pytest.skip("snakemake-executor-plugin-slurm is not installed (see docs/cluster.md)")
     # A short path: munge's socket path must fit a sockaddr_un.
     with LocalSlurm(tmp_path_factory.mktemp("slurm")) as cluster:
         yield cluster

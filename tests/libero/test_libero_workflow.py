@@ -63,7 +63,7 @@ def test_libero_smoke_runs_to_the_table(libero_python, tmp_path):
     planned = _planned_rules(_snakemake(tmp_path, "-n", "reports/libero_table.tex", overrides="libero.episodes_per_task=4").stdout)
     assert "libero_env" not in planned and "libero_rollout" in planned
 
-    # The shared tables and figures are the `reports` target, as the README shows it.
+    # The shared tables and figures are the `reports` target, as docs/policies.md shows it.
     readme_command("snakemake -j 2 reports --config experiment=libero_smoke")
     _snakemake(tmp_path, "-j", "2", "reports")
     for name in ("bt_scores_table.tex", "judge_card_table.tex", "win_rate_matrix_kinematic.png", "bt_convergence.png",

@@ -26,22 +26,30 @@ REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 
 
+def shown_pages() -> dict[Path, str]:
+    """The text of every page a user reads commands from: README.md and the docs site's pages."""
+    pages = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
+    return {page: page.read_text() for page in pages}
+
+
 def readme_command(command: str) -> str:
-    """`command` exactly as the README shows it: a line of a code block (continuation lines
-    joined, a trailing `# comment` aside) or an inline code span; the test fails when the README
-    says otherwise."""
-    text = (REPO / "README.md").read_text()
-    blocks = re.findall(r"^```[a-z]*\n(.*?)^```", text, re.S | re.M)
-    lines = [re.sub(r"\s+#\s.*$", "", line) for block in blocks for line in block.replace("\\\n", " ").splitlines()]
-    spans = re.findall(r"`([^`\n]+)`", re.sub(r"^```.*?^```", "", text, flags=re.S | re.M))
-    shown = {" ".join(line.split()) for line in [*lines, *spans]}
-    assert " ".join(command.split()) in shown, f"the README shows no command {command!r}"
+    """`command` exactly as the README or a docs page shows it: a line of a code block
+    (continuation lines joined, a trailing `# comment` aside) or an inline code span; the test
+    fails when no page shows it."""
+    shown = set()
+    for text in shown_pages().values():
+        blocks = re.findall(r"^```[a-z]*\n(.*?)^```", text, re.S | re.M)
+        lines = [re.sub(r"\s+#\s.*$", "", line) for block in blocks for line in block.replace("\\\n", " ").splitlines()]
+        spans = re.findall(r"`([^`\n]+)`", re.sub(r"^```.*?^```", "", text, flags=re.S | re.M))
+        shown |= {" ".join(line.split()) for line in [*lines, *spans]}
+    assert " ".join(command.split()) in shown, f"the README and docs/ show no command {command!r}"
     return command
 
 
 def readme_block_after(command: str) -> str:
-    """The code block the README shows right after the block that holds `command` (its output)."""
-    text = (REPO / "README.md").read_text()
+    """The code block shown right after the block that holds `command` (its output), on the
+    first page (README, then the docs pages) that shows the command."""
+    text = next(text for text in shown_pages().values() if command in text)
     at = text.index(command)
     start = text.index("```", text.index("```", at) + 3)
     body = text[text.index("\n", start) + 1:]
@@ -66,8 +74,8 @@ def clone_checkout(dest: Path) -> Path:
 
 
 def run_as_written(command: str, cwd: Path) -> subprocess.CompletedProcess:
-    """Run a README command through bash in `cwd`, with this interpreter's environment first on
-    PATH (as after `. .venv/bin/activate`)."""
+    """Run a command the README or the docs show through bash in `cwd`, with this interpreter's
+    environment first on PATH (as after `. .venv/bin/activate`)."""
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
     return subprocess.run(["bash", "-c", command], cwd=cwd, env=env, capture_output=True, text=True)
 

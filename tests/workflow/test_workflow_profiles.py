@@ -10,7 +10,7 @@ import subprocess
 import pytest
 import yaml
 
-from .conftest import REPO, SNAKEMAKE, planned_job_blocks, planned_jobs, snakemake
+from .conftest import REPO, SNAKEMAKE, planned_job_blocks, planned_jobs, shown_pages, snakemake
 
 DEFAULT = yaml.safe_load((REPO / "workflow" / "profiles" / "default" / "config.yaml").read_text())
 needs_plugin = pytest.mark.skipif(importlib.util.find_spec("snakemake_executor_plugin_slurm") is None,
@@ -79,8 +79,8 @@ def test_slurm_profile_plans_the_paper_in_tens_of_jobs(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     jobs = job_requests(proc.stdout)
     assert len(jobs) == len(planned_jobs(proc.stdout)) < 200
-    # The README documents this count (the dry run's total counts `all` too).
-    readme = (REPO / "README.md").read_text()
+    # The docs (Running on a cluster) document this count (the dry run's total counts `all` too).
+    readme = "\n".join(shown_pages().values())
     assert f"| `paper` | {len(jobs)} |" in readme
     assert f"fresh directory: total {len(jobs) + 1}, {len(jobs)} Slurm jobs" in readme
     policies = {wc["policy"] for rule, wc, _ in jobs if rule == "train"}

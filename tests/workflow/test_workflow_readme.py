@@ -1,4 +1,4 @@
-"""The README's commands, run as written in a git clone of the checkout.
+"""The commands the README and the docs pages show, run as written in a git clone of the checkout.
 
 The fast ones plan only (seconds); the DVC round trip and the world report read a finished smoke
 run, copied into the clone (`-m slow`, sharing the workflow tests' smoke run).
@@ -25,6 +25,7 @@ from .conftest import (
     readme_block_after,
     readme_command,
     run_as_written,
+    shown_pages,
 )
 
 LAB_DATASET = ("snakemake -j 2 reports/realsim_table.tex --config "
@@ -60,7 +61,7 @@ def test_bad_overrides_are_listed_one_line_each_before_anything_runs(clone):
 
 def test_a_lab_dataset_that_is_not_there_stops_before_anything_runs(clone):
     if Path("/data/my_teleop").exists() or Path("/data/trials.csv").exists():
-        pytest.skip("this machine has the README's example paths")
+        pytest.skip("this machine has the example paths of docs/your-setup.md")
     proc = run_as_written(readme_command(LAB_DATASET), clone)
     assert proc.returncode == 1
     _no_traceback(proc.stdout + proc.stderr)
@@ -82,7 +83,7 @@ def test_the_panda_world_is_looked_at_then_pointed_at_a_lab_dataset(clone):
     starts = cv2.imread(str(clone / "reports" / "world_preview" / "starts.png"))
     assert starts.shape[1] == 3 * 128  # its three recorded cameras, one task
     if Path("/data/my_teleop").exists() or Path("/data/trials.csv").exists():
-        pytest.skip("this machine has the README's example paths")
+        pytest.skip("this machine has the example paths of docs/your-setup.md")
     proc = run_as_written(readme_command(PANDA_DATASET), clone)
     assert proc.returncode == 1
     _no_traceback(proc.stdout + proc.stderr)
@@ -117,7 +118,7 @@ def test_the_world_report_outside_a_run_says_where_it_comes_from(clone):
 
 
 def test_the_rollout_benchmark_renders_without_mujoco_gl(clone):
-    # The README runs it as `python benchmarks/bench_rollout_batch.py`; here two short episodes.
+    # docs/policies.md runs it as `python benchmarks/bench_rollout_batch.py`; here two short episodes.
     readme_command("python benchmarks/bench_rollout_batch.py")
     env_less = "env -u MUJOCO_GL python benchmarks/bench_rollout_batch.py --episodes 2 --batch 2 --cameras 1 " \
                "--repeats 1 --max-steps 10"
@@ -134,7 +135,7 @@ def _contents(root: Path) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_adaptive_allocation_judges_the_smoke_rollouts_again(smoke_run, clone):
-    # The README's adaptive command on a finished smoke run: only the comparison plan, the
+    # The adaptive command of docs/judges.md on a finished smoke run: only the comparison plan, the
     # judging and what follows rerun; each (task, init) is compared once per pair, a two-step
     # judge describes only what it compared, the ranking says what was decided, and a second
     # call plans nothing.
@@ -178,7 +179,7 @@ def test_dvc_push_and_pull_round_trip_in_a_clone(smoke_run, clone):
     pushed = run_as_written(readme_command(PUSH), clone)
     assert pushed.returncode == 0, pushed.stderr[-3000:]
     assert "tracked reports/browser" in pushed.stdout and "tracked results/real/dataset" in pushed.stdout
-    # What the README says to commit is not ignored by git.
+    # What docs/artefacts.md says to commit is not ignored by git.
     untracked = subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=clone,
                                capture_output=True, text=True, check=True).stdout
     pointers = {line[3:] for line in untracked.splitlines() if line.startswith("?? ")}
@@ -224,11 +225,11 @@ def test_readme_commands_in_a_finished_run(smoke_run, clone):
 def test_readme_helpers_read_the_readme_as_written():
     # readme_command joins continuation lines and drops trailing comments, nothing else.
     assert readme_command(LAB_DATASET) == LAB_DATASET
-    with pytest.raises(AssertionError, match="shows no command"):
+    with pytest.raises(AssertionError, match="show no command"):
         readme_command(LAB_DATASET.replace("-j 2", "-j 3"))
 
 
-NEW_TASK_COMMAND = next(line for line in (REPO / "README.md").read_text().splitlines()
+NEW_TASK_COMMAND = next(line for text in shown_pages().values() for line in text.splitlines()
                         if line.startswith("snakemake -j 2 reports/realsim_table.tex --config experiment=smoke "
                                            "overrides='[\"+world.tasks.ball_on_plate="))
 

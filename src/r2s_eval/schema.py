@@ -31,6 +31,7 @@ from typing import Annotated, Any, Literal, Union
 import yaml
 
 from r2s_eval.errors import ConfigError, R2SError
+from r2s_eval.horizon import Horizon
 
 # ----------------------------------------------------------------------------- field markers
 
@@ -297,9 +298,14 @@ class Replay:
 
 
 @dataclass
+class RolloutHorizon:  # r2s_eval.horizon.Horizon is built from it
+    chunk: PositiveInt  # predicted actions each query uses
+    execute: PositiveInt  # of which run before the next query
+
+
+@dataclass
 class Rollout:
-    chunk_size: PositiveInt
-    n_action_steps: PositiveInt
+    horizon: RolloutHorizon
     inits_per_task: PositiveInt
     real_inits_per_task: PositiveInt | None
     max_steps: PositiveInt
@@ -734,12 +740,24 @@ def _check_type(value: Any, tp: Any, path: str) -> list[Problem]:
     raise TypeError(f"schema type {tp!r} at {path} is not supported")
 
 
+# Keys that were renamed: a config still using the old name is told the new one.
+RENAMED = {
+    "rollout.chunk_size": "rollout.horizon.chunk",
+    "rollout.n_action_steps": "rollout.horizon.execute",
+}
+
+
+def _unknown_key(path: str, parent: str) -> Problem:
+    if path in RENAMED:
+        return Problem(path, f"was renamed {RENAMED[path]}")
+    return Problem(path, f"is not a key of {parent or 'the config'}", True)
+
+
 def _check_fields(value: Any, cls: type, path: str) -> list[Problem]:
     if not isinstance(value, dict):
         return [Problem(path, f"must be a mapping, got {_describe(value)}")]
     hints, fields = _hints(cls), {f.name: f for f in dataclasses.fields(cls)}
-    problems = [Problem(_join(path, k), f"is not a key of {path or 'the config'}", True)
-                for k in value if k not in fields]
+    problems = [_unknown_key(_join(path, k), path) for k in value if k not in fields]
     for name, f in fields.items():
         if name not in value:
             required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
@@ -830,8 +848,6 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     if control_hz % rollout["video_fps"]:
         problems.append(Problem("rollout.video_fps", f"must divide the control rate ({control_hz} Hz): the video "
                                                      f"keeps every k-th control step, got {rollout['video_fps']}"))
-    if rollout["n_action_steps"] > rollout["chunk_size"]:
-        problems.append(Problem("rollout.n_action_steps", f"must be <= rollout.chunk_size ({rollout['chunk_size']})"))
     trained = {name: p for name, entry in cfg["policies"].items()
                if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server")}
     for i, name in enumerate(cfg["fidelity"]["ablation"]["policies"]):
@@ -848,11 +864,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         if missing:
             problems.append(Problem(f"policies.{name}.image_keys",
                                     f"uses cameras {missing} that world.cameras {world['cameras']} does not record"))
-    if trained:
-        name = min(trained, key=lambda n: trained[n]["chunk_size"])
-        if rollout["chunk_size"] > trained[name]["chunk_size"]:
-            problems.append(Problem("rollout.chunk_size", f"must be <= the chunk that policies.{name} predicts "
-                                                          f"({trained[name]['chunk_size']})"))
+    problems += _horizon_problems(rollout["horizon"], trained)
     if cfg.get("libero") is not None:
         problems += _libero_problems(cfg)
     planted = cfg["report"]["judge_audit"]["planted_order"]
@@ -862,6 +874,18 @@ def _cross_problems(cfg: dict) -> list[Problem]:
                                 f"names {strangers}, not candidates of this line-up {sorted(cfg['policies'])}; "
                                 f"list the line-up's planted order (best first) or set it to null"))
     return problems
+
+
+def _horizon_problems(horizon: dict, trained: dict[str, dict]) -> list[Problem]:
+    """The receding horizon against the shortest chunk a candidate trained here predicts (its
+    `chunk_size`); external candidates are checked when they are opened."""
+    name = min(trained, key=lambda n: trained[n]["chunk_size"]) if trained else None
+    try:
+        Horizon.from_config(horizon).check(None if name is None else int(trained[name]["chunk_size"]),
+                                           f"policies.{name}")
+    except ConfigError as exc:
+        return [Problem("rollout.horizon", str(exc), owner=True)]
+    return []
 
 
 def _libero_problems(cfg: dict) -> list[Problem]:
@@ -1040,7 +1064,7 @@ def suggest(path: str, known: Sequence[str]) -> str | None:
 
 
 # What the LIBERO setting never reads: its protocol is libero.* (the receding horizon and the
-# model's device, rollout.chunk_size / n_action_steps / device, are shared with real-to-sim).
+# model's device, rollout.horizon / device, are shared with real-to-sim).
 LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "fidelity",
                  "rollout.inits_per_task",
                  "rollout.real_inits_per_task", "rollout.max_steps", "rollout.batch_episodes", "rollout.model_batch",
@@ -1092,6 +1116,8 @@ OPEN_MAPS = ("suite", "policies", "judges")  # groups whose entries are names ch
 def unknown_override_problem(key: str, line: str) -> str:
     """The problem line for an override of a key the composed config does not have (Hydra refused it)."""
     by = f"set by the command-line override {line!r}"
+    if key in RENAMED:
+        return f"{key} ({by}) was renamed {RENAMED[key]}"
     known = known_paths()
     if key in known or key.split(".", 1)[0] in OPEN_MAPS or any(k.startswith(key + ".") for k in known):
         return f"{key} ({by}) is not in the composed config; to add it, write '+{line.lstrip('+')}'"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -117,12 +118,33 @@ def test_judge_video_rate_must_divide_the_control_rate():
 
 def test_the_receding_horizon_has_one_owner():
     """How many actions run before the next query is the evaluation's, never a policy's."""
-    with pytest.raises(ConfigError, match=r"policies\.act\.n_action_steps .*receding horizon, rollout\.n_action_steps"):
+    with pytest.raises(ConfigError, match=r"policies\.act\.n_action_steps .*receding horizon, rollout\.horizon\.execute"):
         compose_config(CONF, "smoke", ["+policies.act.n_action_steps=5"])
     for experiment in ("smoke", "demo", "paper"):
         cfg = compose_config(CONF, experiment)
         assert not [name for name, p in cfg["policies"].items() if "n_action_steps" in p]
-        assert cfg["rollout"]["n_action_steps"] == 5
+        assert cfg["rollout"]["horizon"] == {"chunk": 25, "execute": 5}
+
+
+def test_the_horizon_rule_is_checked_at_composition():
+    with pytest.raises(ConfigError, match=r"rollout\.horizon .*execute \(30\) <= rollout\.horizon\.chunk \(25\)"):
+        compose_config(CONF, "smoke", ["rollout.horizon.execute=30"])
+    # Every trained candidate of smoke predicts 25 actions per call: a longer chunk cannot be used.
+    with pytest.raises(ConfigError, match=r"rollout\.horizon .*chunk \(30\) <= 25, the most actions policies\.\w+ "
+                                          r"predicts per call"):
+        compose_config(CONF, "smoke", ["rollout.horizon.chunk=30"])
+    assert compose_config(CONF, "smoke", ["rollout.horizon.execute=25"])["rollout"]["horizon"]["execute"] == 25
+
+
+@pytest.mark.parametrize(("old", "new"), [("chunk_size", "horizon.chunk"), ("n_action_steps", "horizon.execute")])
+def test_the_old_horizon_keys_name_their_new_names(conf_copy, old, new):
+    renamed = rf"was renamed rollout\.{re.escape(new)}$"
+    with pytest.raises(ConfigError, match=rf"rollout\.{old} \(set by the command-line override .*\) {renamed}"):
+        compose_config(CONF, "smoke", [f"rollout.{old}=5"])
+    # In an experiment file the same key is named with its file.
+    _edit(conf_copy / "experiment" / "smoke.yaml", "rollout:\n", f"rollout:\n  {old}: 5\n")
+    with pytest.raises(ConfigError, match=rf"rollout\.{old} \(set in conf/experiment/smoke\.yaml\) {renamed}"):
+        compose_config(conf_copy, "smoke")
 
 
 def test_keys_set_by_a_group_option_it_builds_on_are_located(conf_copy):

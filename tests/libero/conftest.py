@@ -26,5 +26,6 @@ def tiny_checkpoints(tmp_path_factory) -> dict[str, Path]:
     from r2s_eval.policies.tiny import build_tiny_checkpoint
 
     base = tmp_path_factory.mktemp("tiny_vla")
-    return {name: build_tiny_checkpoint(base / name, cameras=TINY_CAMERAS, state_dim=8, action_dim=7, seed=seed)
+    return {name: build_tiny_checkpoint(base / name, cameras=TINY_CAMERAS, state_dim=8, action_dim=7, chunk_size=25,
+                                        seed=seed)
             for seed, name in enumerate(("tiny_a", "tiny_b"))}

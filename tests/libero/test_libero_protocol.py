@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from r2s_eval.errors import ConfigError
+from r2s_eval.horizon import Horizon
 from r2s_eval.judge.trajectory import load_trajectory
 from r2s_eval.libero import SUITES, selected_tasks, suite_of
 from r2s_eval.libero.rollout import failure_text, keep_episode, planned_episodes, policy_cameras, shards, world_job
@@ -60,7 +61,8 @@ def test_config_validation_names_libero_mistakes():
         compose_config(conf, experiment="libero_smoke", overrides=["rollout.max_steps=50"])
     with pytest.raises(ConfigError, match="teleop.keep_failed.*not read in the LIBERO setting"):
         compose_config(conf, experiment="libero_smoke", overrides=["teleop.keep_failed=true"])
-    assert compose_config(conf, experiment="libero_smoke", overrides=["rollout.n_action_steps=4"])["rollout"]["n_action_steps"] == 4
+    assert compose_config(conf, experiment="libero_smoke",
+                          overrides=["rollout.horizon.execute=4"])["rollout"]["horizon"]["execute"] == 4
 
 
 def test_every_policy_runs_the_same_episodes():
@@ -131,8 +133,9 @@ def test_the_world_job_carries_the_protocol(tmp_path):
     planned = planned_episodes(tasks, 2, seed=0, policy="p")
     libero = {"observation": {"image_size": [224, 224], "rotate_180": True}, "settle_steps": 10, "render": "on_demand",
               "video": {"camera": "agentview", "size": [256, 256], "fps": 5}}
-    job = world_job(libero, {"n_action_steps": 5}, {"observation.images.image": "agentview"}, planned,
+    job = world_job(libero, Horizon(25, 5), {"observation.images.image": "agentview"}, planned,
                     {t.name: t for t in tasks}, 1234, tmp_path)
+    assert job["execute"] == 5  # the LIBERO side runs what the job says, it checks no rule
     assert job["video"]["every"] == 4 and job["server"] == {"host": "127.0.0.1", "port": 1234}
     assert [(e["suite"], e["task_index"], e["init_index"], e["max_steps"]) for e in job["episodes"]] == [
         ("libero_object", 2, 0, 40), ("libero_object", 2, 1, 40)]

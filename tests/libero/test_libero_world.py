@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 import r2s_eval.libero.rollout as libero_rollout
-from r2s_eval.libero.environment import WORLD_SCRIPT
+from r2s_eval.libero.environment import LIBERO_SIDE_SCRIPT
 from r2s_eval.libero.rollout import run_libero_candidate
 from r2s_eval.policies.interface import PolicyError
 
@@ -30,7 +30,7 @@ LIBERO = {
     "video": {"camera": "agentview", "size": [64, 64], "fps": 5},
     "render": "on_demand",
 }
-ROLLOUT = {"chunk_size": 25, "n_action_steps": 5, "device": "cpu"}
+ROLLOUT = {"horizon": {"chunk": 25, "execute": 5}, "device": "cpu"}
 
 
 def _run(out, name, ckpt, python, **kw):
@@ -56,7 +56,7 @@ def test_same_initial_state_for_every_policy_and_success_as_libero_checks_it(lib
             episode = {"suite": "libero_spatial", "task_index": 0, "init_index": row.init_id, "seed": row.seed,
                        "settle_steps": LIBERO["settle_steps"], "actions": trajectory["action"].map(list).tolist()}
             (tmp_path / "episode.json").write_text(json.dumps(episode))
-            proc = subprocess.run([str(libero_python), str(REPLAY_CHECK), str(tmp_path / "episode.json"), str(WORLD_SCRIPT)],
+            proc = subprocess.run([str(libero_python), str(REPLAY_CHECK), str(tmp_path / "episode.json"), str(LIBERO_SIDE_SCRIPT)],
                                   capture_output=True, text=True, env={"MUJOCO_GL": "egl", "PATH": "/usr/bin:/bin"})
             assert proc.returncode == 0, proc.stderr[-3000:]
             replayed = json.loads(proc.stdout.strip().splitlines()[-1])

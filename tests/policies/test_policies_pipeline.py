@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies import (
     DatasetContractError,
     PolicyConfigError,
@@ -146,7 +147,7 @@ def test_policies_missing_image_key_is_named(dataset_root, tmp_path):
     with pytest.raises(DataError, match="meta/info.json is missing"):
         train_policy(tmp_path / "nowhere", REPO_ID, _tiny("act"), tmp_path / "run2", seed=0)
     with pytest.raises(PolicyError, match="config.json"):
-        load_policy(tmp_path / "no_checkpoint", n_action_steps=5)
+        load_policy(tmp_path / "no_checkpoint", horizon=Horizon(25, 5))
 
 
 # -- training ---------------------------------------------------------------------------------
@@ -185,8 +186,8 @@ def test_policies_training_is_deterministic(dataset_root, tmp_path):
 
 @pytest.mark.parametrize("name", ["act", "diffusion"])
 def test_policies_receding_horizon(trained, name):
-    runner = load_policy(trained[name], n_action_steps=5)
-    assert (runner.chunk_size, runner.n_action_steps) == (25, 5)
+    runner = load_policy(trained[name], horizon=Horizon(25, 5))
+    assert runner.horizon == Horizon(25, 5)
     rng = np.random.default_rng(1)
     first_chunk = None
     for t in range(12):
@@ -202,7 +203,7 @@ def test_policies_receding_horizon(trained, name):
     runner.reset()
     assert runner.model_calls == 0
 
-    every_step = load_policy(trained[name], n_action_steps=1, chunk_size=10)
+    every_step = load_policy(trained[name], horizon=Horizon(10, 1))
     for _ in range(4):
         every_step.act(_obs(rng))
     assert every_step.model_calls == 4 and every_step.last_chunk.shape == (10, 14)
@@ -210,7 +211,7 @@ def test_policies_receding_horizon(trained, name):
 
 def test_policies_inference_deterministic_for_seed(trained):
     obs_seq = [_obs(np.random.default_rng(i)) for i in range(7)]
-    a, b = load_policy(trained["diffusion"], n_action_steps=5, seed=3), load_policy(trained["diffusion"], n_action_steps=5, seed=3)
+    a, b = load_policy(trained["diffusion"], horizon=Horizon(25, 5), seed=3), load_policy(trained["diffusion"], horizon=Horizon(25, 5), seed=3)
     run_a = np.stack([a.act(o) for o in obs_seq])
     np.testing.assert_array_equal(run_a, np.stack([b.act(o) for o in obs_seq]))
     b.reset(seed=4)  # another seed, other diffusion noise
@@ -220,7 +221,7 @@ def test_policies_inference_deterministic_for_seed(trained):
 
 
 def test_policies_observation_errors(trained):
-    runner = load_policy(trained["act"], n_action_steps=5)
+    runner = load_policy(trained["act"], horizon=Horizon(25, 5))
     obs = _obs(np.random.default_rng(0))
     del obs[HEAD]
     with pytest.raises(PolicyError, match=HEAD):

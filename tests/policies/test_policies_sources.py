@@ -8,6 +8,7 @@ import os
 import numpy as np
 import pytest
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies import ActionMap, PolicyError, PolicySpec, RecedingHorizon
 from r2s_eval.policies.config import PolicyConfigError
 from r2s_eval.policies.interface import ChunkPolicy
@@ -130,8 +131,8 @@ class _Counting(ChunkPolicy):
 def test_action_map_drives_mapped_joints_and_holds_the_rest():
     policy = _Counting()
     with pytest.raises(PolicyError, match="7-D actions, the robot takes 14-D"):
-        RecedingHorizon(policy, 25, 5, ActionMap(14))
-    runner = RecedingHorizon(policy, 25, 5, ActionMap(14, tuple(range(7))))
+        RecedingHorizon(policy, Horizon(25, 5), ActionMap(14))
+    runner = RecedingHorizon(policy, Horizon(25, 5), ActionMap(14, tuple(range(7))))
     state = np.arange(14, dtype=np.float32) / 10
     actions = np.stack([runner.act({"observation.state": state}) for _ in range(6)])
     assert actions.shape == (6, 14) and policy.calls == 2

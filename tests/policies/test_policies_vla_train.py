@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 import torch
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies import PolicyConfigError, PolicyError, load_policy, train_policy, validate_policy_cfg
 
 pytestmark = pytest.mark.timeout(600)
@@ -248,10 +249,10 @@ def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
     from r2s_eval.sim.build import make_env
     from r2s_eval.sim.tasks import bundled_world
 
-    runner = load_policy(trained[policy_type], n_action_steps=5)
+    runner = load_policy(trained[policy_type], horizon=Horizon(10, 5))
     spec = runner.policy.spec
     assert spec.cameras == CAMS and spec.action_dim == ROBOT_DIM and spec.uses_task
-    assert (runner.chunk_size, runner.n_action_steps) == (10, 5)
+    assert runner.horizon == Horizon(10, 5)
     world = {**bundled_world(), "image_height": 64, "image_width": 64, "cameras": [c.rsplit(".", 1)[1] for c in CAMS]}
     env = make_env("cup_on_plate", world)
     try:
@@ -269,7 +270,7 @@ def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
 
 
 def test_vla_sampling_is_seeded_per_episode(trained, offline):
-    runner = load_policy(trained["pi0"], n_action_steps=5)
+    runner = load_policy(trained["pi0"], horizon=Horizon(10, 5))
     rng = np.random.default_rng(0)
     obs = {"observation.state": rng.normal(0, 0.1, ROBOT_DIM).astype(np.float32), "task": "pick the cube"}
     for cam in CAMS:
@@ -319,14 +320,14 @@ def test_reload_refuses_weights_that_did_not_load(trained, offline, tmp_path):
     weights[key] = torch.zeros(weights[key].shape[0] + 1, weights[key].shape[1])
     save_file(weights, weights_file, metadata={"format": "pt"})
     with pytest.raises(PolicyError, match=r"pretrained_model.*did not load.*action_out_proj"):
-        load_policy(run, n_action_steps=5)
+        load_policy(run, horizon=Horizon(10, 5))
 
     runner_file = run / "pretrained_model" / "runner_config.json"
     runner_cfg = json.loads(runner_file.read_text())
     runner_cfg["tokenizer_path"] = str(tmp_path / "moved_away")
     runner_file.write_text(json.dumps(runner_cfg))
     with pytest.raises(PolicyError, match="moved_away"):
-        load_policy(run, n_action_steps=5)
+        load_policy(run, horizon=Horizon(10, 5))
 
 
 # -- configuration errors ---------------------------------------------------------------------

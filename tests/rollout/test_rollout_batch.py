@@ -14,6 +14,7 @@ import pytest
 
 import r2s_eval.rollout.candidate as candidate
 import r2s_eval.rollout.loop as loop
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies import PolicyError, RecedingHorizon
 from r2s_eval.policies.interface import ChunkPolicy, PolicySpec
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
@@ -27,7 +28,7 @@ from r2s_eval.utils.numerics import deterministic_torch
 
 TASKS = ["cup_on_plate", "stack_blocks"]
 WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
-ROLLOUT = {"chunk_size": 10, "n_action_steps": 5, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
+ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
            "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "real_video_size": [64, 64],
            "video_fps": 10}
 SEED = 3
@@ -90,7 +91,7 @@ def _one_at_a_time(tmp: Path, inits: Path, act: Path, twin: Path) -> dict[str, b
     files = {}
     for p in planned_episodes(pd.read_parquet(inits), "real", "act", SEED):
         env = make_env(p.task, WORLD, load_world_params(twin))
-        runner = RecedingHorizon(policy, ROLLOUT["chunk_size"], ROLLOUT["n_action_steps"], slot=p.slot, seed=p.seed)
+        runner = RecedingHorizon(policy, Horizon.from_config(ROLLOUT["horizon"]), slot=p.slot, seed=p.seed)
         result = run_episode(env, runner, p.object_poses, p.seed, ROLLOUT["max_steps"], ROLLOUT["video_camera"],
                              video_size=ROLLOUT["video_size"])
         env.close()

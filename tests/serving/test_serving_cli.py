@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from openpi_client.websocket_client_policy import WebsocketClientPolicy
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.serve import main as serve_main
@@ -53,7 +54,7 @@ def test_serving_cli_openpi_client(served, helpers, act_checkpoint):
 def test_serving_cli_server_policy_receding_horizon(served, helpers):
     policy = ServerPolicy("act", "127.0.0.1", served["open"].port)
     try:
-        runner = RecedingHorizon(policy, chunk_size=CHUNK, n_action_steps=5)
+        runner = RecedingHorizon(policy, Horizon(CHUNK, 5))
         actions = [runner.act(helpers.observation(t)) for t in range(12)]
         assert all(a.shape == (14,) and np.isfinite(a).all() for a in actions)
         assert runner.stats["model_calls"] == 3
@@ -82,7 +83,7 @@ def test_serving_cli_api_key(served, helpers, monkeypatch):
     policy = ServerPolicy("act", "127.0.0.1", srv.port, api_key_env="SERVING_TEST_KEY")
     try:
         assert srv.key not in repr(policy.metadata()) and srv.key not in repr(policy)
-        runner = RecedingHorizon(policy, chunk_size=CHUNK, n_action_steps=5)
+        runner = RecedingHorizon(policy, Horizon(CHUNK, 5))
         assert runner.act(helpers.observation()).shape == (14,)
     finally:
         policy.close()
@@ -109,7 +110,7 @@ def test_serving_cli_sim_episode_against_the_served_policy(served):
     env = TabletopEnv("cup_on_plate", image_size=(32, 32), cameras=("head_left",))
     policy = ServerPolicy("act", "127.0.0.1", served["open"].port)
     try:
-        runner = RecedingHorizon(policy, chunk_size=CHUNK, n_action_steps=5)
+        runner = RecedingHorizon(policy, Horizon(CHUNK, 5))
         runner.reset(seed=7)
         result = run_episode(env, runner, None, seed=7, max_steps=20, video_camera="head_left")
     finally:

@@ -7,6 +7,7 @@ import time
 import numpy as np
 import pytest
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.serving import ServerPolicy
 
@@ -32,7 +33,7 @@ def test_serving_fault_server_down(helpers):
     policy = _policy(port, cameras=[helpers.HEAD], action_dim=14, max_chunk=25)
     assert policy.spec.max_chunk == 25
     with pytest.raises(PolicyError, match=_names(port) + "connection refused"):
-        RecedingHorizon(policy, chunk_size=25, n_action_steps=5)
+        RecedingHorizon(policy, Horizon(25, 5))
 
 
 def test_serving_fault_refused_at_handshake(helpers):
@@ -51,7 +52,7 @@ def test_serving_fault_bad_replies(helpers, behaviour, match):
     with helpers.FaultServer(behaviour) as srv:
         policy = _policy(srv.port)
         try:
-            runner = RecedingHorizon(policy, chunk_size=25, n_action_steps=5)
+            runner = RecedingHorizon(policy, Horizon(25, 5))
             t0 = time.perf_counter()
             with pytest.raises(PolicyError, match=_names(srv.port) + match):
                 runner.act(helpers.observation())
@@ -68,7 +69,7 @@ def test_serving_fault_server_dies_mid_episode(helpers, behaviour):
     with helpers.FaultServer(behaviour) as srv:
         policy = _policy(srv.port)
         try:
-            runner = RecedingHorizon(policy, chunk_size=25, n_action_steps=5)
+            runner = RecedingHorizon(policy, Horizon(25, 5))
             for _ in range(5):  # the first chunk arrives and is executed
                 assert runner.act(helpers.observation()).shape == (14,)
             with pytest.raises(PolicyError, match=_names(srv.port) + "connection closed .*slot 0"):

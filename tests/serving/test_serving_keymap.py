@@ -11,6 +11,7 @@ from openpi_client import image_tools
 from openpi_client.websocket_client_policy import WebsocketClientPolicy
 from websockets.exceptions import ConnectionClosed
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.serving import PolicyServer, ServerPolicy
 from r2s_eval.serving.keymap import PRESETS, resize_with_pad, resolve_key_map
@@ -144,7 +145,7 @@ def test_keymap_droid_preset_is_accepted_by_a_strict_openpi_droid_server():
         policy = ServerPolicy("pi05_droid", "127.0.0.1", peer.port, preset="openpi_droid",
                               keys=DROID_CAMERAS, max_chunk=15)
         try:
-            horizon = RecedingHorizon(policy, chunk_size=10, n_action_steps=4)  # the evaluation's loop
+            horizon = RecedingHorizon(policy, Horizon(10, 4))  # the evaluation's loop
             actions = [horizon.act(panda_observation(seed)) for seed in range(5)]
         finally:
             policy.close()

@@ -13,6 +13,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect
 
 from r2s_eval import __version__
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.serving import PolicyServer, ServerPolicy
 from r2s_eval.serving.protocol import pack, unpack_dict
@@ -75,7 +76,7 @@ def test_serving_server_metadata_slots_and_reset(server, helpers):
 def test_serving_server_receding_horizon_model_calls(server, helpers):
     policy = ServerPolicy("fake", "127.0.0.1", server.port)
     try:
-        runner = RecedingHorizon(policy, chunk_size=25, n_action_steps=5, seed=3)
+        runner = RecedingHorizon(policy, Horizon(25, 5), seed=3)
         actions = [runner.act(helpers.observation(t)) for t in range(12)]
         assert all(a.shape == (14,) for a in actions)
         assert runner.stats["model_calls"] == 3 == server.policy.calls

@@ -31,7 +31,7 @@ from .conftest import (
 LAB_DATASET = ("snakemake -j 2 reports/realsim_table.tex --config "
                "overrides='[real=dataset,real.dataset_root=/data/my_teleop,real.reference_csv=/data/trials.csv]'")
 BAD_OVERRIDES = ("snakemake -j 2 reports/realsim_table.tex --config "
-                 "overrides='[stats.nboot=500,policies.act.steps=abc,rollout.chunk_size=0]'")
+                 "overrides='[stats.nboot=500,policies.act.steps=abc,rollout.horizon.chunk=0]'")
 PUSH, PULL = "python -m r2s_eval.artifacts push", "python -m r2s_eval.artifacts pull"
 WORLD_REPORT = "python -m r2s_eval.stages.world_report"
 PLAN_SMOKE = "snakemake -n --config experiment=smoke"

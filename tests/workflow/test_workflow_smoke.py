@@ -138,8 +138,8 @@ def test_real_side_change_reruns_only_real_rollouts_onward(smoke_run, override):
 
 
 def test_receding_horizon_change_reruns_rollouts_not_training(smoke_run):
-    # The evaluation owns n_action_steps: every candidate's rollouts rerun on both arms, no training.
-    proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.n_action_steps=4"])
+    # The evaluation owns the horizon: every candidate's rollouts rerun on both arms, no training.
+    proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.horizon.execute=4"])
     jobs = planned_jobs(proc.stdout)
     rollouts = {(wc["arm"], wc["policy"]) for rule, wc in jobs if rule == "rollout"}
     assert rollouts == {(arm, p) for arm in ("real", "sim") for p in ("act", "act_subset", "act_weak")}, rollouts

@@ -34,7 +34,7 @@ rule tiny_checkpoint:
         "logs/libero/tiny_checkpoint/{name}.log",
     shell:
         "{PY} -m r2s_eval.stages.tiny_checkpoint --cameras {TINY_CAMERAS} --state-dim {_LIBERO_STATE_DIM}"
-        " --action-dim {_LIBERO_ACTION_DIM} --seed {params.seed} --chunk-size {CFG[rollout][chunk_size]}"
+        " --action-dim {_LIBERO_ACTION_DIM} --seed {params.seed} --chunk-size {CFG[rollout][horizon][chunk]}"
         " --out {output} --log {log}"
 
 

@@ -1,7 +1,7 @@
 """The method's LIBERO setting: VLA checkpoints or policy servers ranked on LIBERO's tasks.
 
-LIBERO runs in its own Python environment (`r2s_eval.libero.environment`); `world.py` is the
-part that runs there. `r2s_eval.libero.rollout` serves the candidate on loopback, starts the
+LIBERO runs in its own Python environment (`r2s_eval.libero.environment`); `libero_side.py` is
+the part that runs there. `r2s_eval.libero.rollout` serves the candidate on loopback, starts the
 LIBERO processes as its clients, and writes the same rollout folder as our own world's rollouts
 (episodes.parquet, videos, trajectories), so judging, comparison, fit, validation and reports
 need no LIBERO special case. The reference is LIBERO's own success rate.

@@ -30,7 +30,7 @@ from r2s_eval.errors import ConfigError
 log = logging.getLogger(__name__)
 
 REQUIREMENTS = Path(__file__).with_name("requirements.txt")
-WORLD_SCRIPT = Path(__file__).with_name("world.py")
+LIBERO_SIDE_SCRIPT = Path(__file__).with_name("libero_side.py")  # runs in LIBERO's environment
 READY = "r2s_eval_ready.json"  # written last: an environment without it is unfinished
 
 

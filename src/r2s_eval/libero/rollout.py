@@ -1,7 +1,7 @@
 """Closed-loop LIBERO rollouts of one candidate, written as our rollout folder.
 
 The candidate (a checkpoint loaded here, or a policy server reached through our client) is served
-by our `PolicyServer` on loopback; `workers` LIBERO processes (`world.py`, in LIBERO's own
+by our `PolicyServer` on loopback; `workers` LIBERO processes (`libero_side.py`, in LIBERO's own
 environment) are its clients, each stepping a share of the episodes, one task's environment at
 a time. Each finished episode comes back as an npz and is turned here into what our own
 rollouts write (``r2s_eval.rollout.candidate``): an H.264 judge video, a trajectory parquet and a
@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.libero import ACTION_DIM, CAMERAS, CONTROL_HZ, OFFICIAL_INIT_STATES, STATE_DIM, LiberoTask, selected_tasks
-from r2s_eval.libero.environment import WORLD_SCRIPT, requirements_hash
+from r2s_eval.libero.environment import LIBERO_SIDE_SCRIPT, requirements_hash
 from r2s_eval.policies.interface import IMAGE_PREFIX, ChunkPolicy, PolicyError, PolicySpec
 from r2s_eval.policies.sources import checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import PlannedEpisode
@@ -86,7 +87,7 @@ def shards(todo: list[PlannedEpisode], workers: int) -> list[list[PlannedEpisode
     return [s for s in out if s]
 
 
-def world_job(libero: dict, rollout: dict, cameras: dict[str, str], episodes: list[PlannedEpisode],
+def world_job(libero: dict, horizon: Horizon, cameras: dict[str, str], episodes: list[PlannedEpisode],
               tasks: dict[str, LiberoTask], port: int, out: Path) -> dict:
     video = libero["video"]
     return {
@@ -96,7 +97,7 @@ def world_job(libero: dict, rollout: dict, cameras: dict[str, str], episodes: li
         "rotate_180": bool(libero["observation"]["rotate_180"]),
         "video": {"camera": video["camera"], "size": list(video["size"]), "every": video_frame_every(video["fps"], 1 / CONTROL_HZ)},
         "settle_steps": int(libero["settle_steps"]),
-        "n_action_steps": int(rollout["n_action_steps"]),
+        "execute": horizon.execute,  # actions of each chunk run before the next query
         "render": libero["render"],
         "out": str(out),
         "episodes": [{"episode_id": p.episode_id, "suite": tasks[p.task].suite, "task_index": tasks[p.task].index,
@@ -167,7 +168,7 @@ def run_world_processes(python: Path, jobs: list[dict], work: Path, on_episode, 
         job_file = work / f"job{i}.json"
         job_file.write_text(json.dumps(job))
         out = open(log_file or os.devnull, "a")
-        procs.append((subprocess.Popen([str(python), str(WORLD_SCRIPT), str(job_file)], stdout=out,
+        procs.append((subprocess.Popen([str(python), str(LIBERO_SIDE_SCRIPT), str(job_file)], stdout=out,
                                        stderr=subprocess.STDOUT, env=env), job, out))
     try:
         while True:
@@ -208,10 +209,9 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
     try:
         cameras = policy_cameras(model.spec, dict(libero["observation"]["cameras"]), policy,
                                  getattr(model, "key_map", None))
-        if not 1 <= rollout["n_action_steps"] <= rollout["chunk_size"] <= model.spec.max_chunk:
-            raise PolicyError(f"policy {policy!r}: need 1 <= n_action_steps <= chunk_size <= its chunk length "
-                              f"({rollout['n_action_steps']}, {rollout['chunk_size']}, {model.spec.max_chunk})")
-        identity = {"libero": libero, "rollout": {k: rollout[k] for k in ("chunk_size", "n_action_steps")},
+        horizon = Horizon.from_config(rollout["horizon"])
+        horizon.check(model.spec.max_chunk, f"policy {policy!r}")
+        identity = {"libero": libero, "rollout": {"horizon": horizon.to_dict()},
                     "seed": seed, "policy_cfg": policy_cfg, "requirements": requirements_hash(),
                     "policy": checkpoint_hash(source["path"]) if policy_cfg["type"] == "checkpoint" else model.metadata()}
         store = episode_store(out, config_hash(identity))
@@ -223,7 +223,7 @@ def run_libero_candidate(out: Path, *, policy: str, seed: int, libero: dict, rol
             work = store / ".world"
             shutil.rmtree(work, ignore_errors=True)
             work.mkdir()
-            jobs = [world_job(libero, rollout, cameras, shard, by_name, port, work / f"out{i}")
+            jobs = [world_job(libero, horizon, cameras, shard, by_name, port, work / f"out{i}")
                     for i, shard in enumerate(shards(todo, workers))]
             by_id = {p.episode_id: p for p in todo}
             fps = int(libero["video"]["fps"])

@@ -2,10 +2,10 @@
 
 Public API:
     ChunkPolicy, PolicySpec        one interface: a batch of observations in, action chunks out
-    RecedingHorizon(policy, chunk_size, n_action_steps).act(obs) -> np.ndarray (14,)
+    RecedingHorizon(policy, Horizon(chunk, execute)).act(obs) -> np.ndarray (14,)
     load_lerobot_policy(checkpoint_dir, device="cpu") -> LeRobotPolicy (a ChunkPolicy)
     train_policy(dataset_root, repo_id, policy_cfg, out_dir, seed, device="cpu") -> summary dict
-    load_policy(checkpoint_dir, n_action_steps=..., chunk_size=None, device="cpu", seed=0) -> RecedingHorizon
+    load_policy(checkpoint_dir, horizon=Horizon(...), device="cpu", seed=0) -> RecedingHorizon
     candidate_configs(experiment), candidate_config(name, experiment)   # read from conf/policies
 
 Names are imported on first use: validating a config (the workflow does it at every start) needs
@@ -31,8 +31,8 @@ _WHERE = {
     "RecedingHorizon": "interface",
     "LeRobotPolicy": "lerobot_policy",
     "load_lerobot_policy": "lerobot_policy",
-    "PolicyRunner": "runner",
-    "load_policy": "runner",
+    "PolicyRunner": "closed_loop",
+    "load_policy": "closed_loop",
     "train_policy": "train",
 }
 
@@ -62,5 +62,5 @@ if TYPE_CHECKING:
     from r2s_eval.policies.data import DatasetContractError
     from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError, PolicySpec, RecedingHorizon
     from r2s_eval.policies.lerobot_policy import LeRobotPolicy, load_lerobot_policy
-    from r2s_eval.policies.runner import PolicyRunner, load_policy
+    from r2s_eval.policies.closed_loop import PolicyRunner, load_policy
     from r2s_eval.policies.train import train_policy

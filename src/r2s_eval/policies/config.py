@@ -10,7 +10,7 @@ Top-level keys are ours (training loop, chunk length, camera selection); the key
 `overrides` go verbatim to the lerobot config class (`ACTConfig`, `DiffusionConfig`, `PI0Config`,
 `PI05Config`, `SmolVLAConfig`, `XVLAConfig`). Unknown keys at either level are an error that names
 the key. How many of a chunk's actions run before the next query is the evaluation's setting
-(`rollout.n_action_steps`), never the policy's: a policy config only says how long a chunk its
+(`rollout.horizon.execute`), never the policy's: a policy config only says how long a chunk its
 model predicts (`chunk_size`).
 
 Types: `act` and `diffusion` train from scratch. The VLA types `pi0`, `pi05`, `smolvla` and `xvla`
@@ -164,7 +164,7 @@ def validate_policy_cfg(policy_cfg: Mapping) -> dict:
     if "n_action_steps" in policy_cfg:
         raise PolicyConfigError(
             "policy config key 'n_action_steps' is not a policy setting: how many actions run before the "
-            "next query is the evaluation's receding horizon, rollout.n_action_steps"
+            "next query is the evaluation's receding horizon, rollout.horizon.execute"
         )
     unknown = sorted(set(policy_cfg) - set(TOP_LEVEL_DEFAULTS))
     if unknown:
@@ -260,7 +260,7 @@ def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
     for key in ("chunk_size", "horizon", "n_action_steps", "device", "input_features", "output_features"):
         if key in overrides:
             raise PolicyConfigError(
-                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.n_action_steps, "
+                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.horizon, "
                 f"the dataset features or the device argument); remove it"
             )
     if overrides.get("pretrained_backbone_weights") is not None:
@@ -353,7 +353,7 @@ def _vla_lerobot_config(cfg: dict, device: str):
     for key in pipeline_keys:
         if key in overrides:
             raise PolicyConfigError(
-                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.n_action_steps, "
+                f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.horizon, "
                 f"'image_size', 'pretrained_path', 'tokenizer_path', the dataset features or the device); remove it"
             )
     kwargs = {name: getattr(loaded, name) for name in field_names}

@@ -6,7 +6,8 @@ joint state and the task instruction, how wide its actions are and how many it c
 call. Every policy is offered the same observation streams; each takes what its spec names.
 
 The evaluation, not the checkpoint, owns the receding horizon: `RecedingHorizon` asks the
-policy for a chunk, executes its first `n_action_steps` actions and asks again.
+policy for a chunk, executes its first `horizon.execute` actions and asks again (`Horizon`,
+built once from ``rollout.horizon``).
 
 Observation dicts carry `observation.state` (float32, robot joint layout), the cameras as
 `observation.images.<name>` (uint8 HxWx3) and `task` (the instruction text).
@@ -22,6 +23,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from r2s_eval.errors import PolicyLoadError
+from r2s_eval.horizon import Horizon
 
 STATE_KEY = "observation.state"
 TASK_KEY = "task"
@@ -168,21 +170,16 @@ class EpisodeStats:
 
 
 class RecedingHorizon:
-    """Closed-loop stepping of one episode slot: query a chunk, execute `n_action_steps`, repeat.
+    """Closed-loop stepping of one episode slot: query a chunk, execute `horizon.execute`, repeat.
 
     `act(obs)` returns one robot action; the model is called only when the queue is empty.
     """
 
-    def __init__(self, policy: ChunkPolicy, chunk_size: int, n_action_steps: int,
+    def __init__(self, policy: ChunkPolicy, horizon: Horizon,
                  action_map: ActionMap | None = None, slot: int = 0, seed: int = 0):
-        if not 1 <= n_action_steps <= chunk_size <= policy.spec.max_chunk:
-            raise PolicyError(
-                f"policy {policy.name!r}: need 1 <= n_action_steps ({n_action_steps}) <= chunk_size "
-                f"({chunk_size}) <= the policy's chunk length ({policy.spec.max_chunk})"
-            )
+        horizon.check(policy.spec.max_chunk, f"policy {policy.name!r}")
         self.policy = policy
-        self.chunk_size = int(chunk_size)
-        self.n_action_steps = int(n_action_steps)
+        self.horizon = horizon
         self.action_map = action_map or ActionMap(policy.spec.action_dim)
         self.action_map.check(policy)
         self.slot = slot
@@ -219,18 +216,19 @@ class RecedingHorizon:
         return not self._queue
 
     def take_chunk(self, chunk: np.ndarray, state: np.ndarray, elapsed_s: float) -> None:
-        """Queue the first `n_action_steps` of a chunk predicted for this slot (batched callers)."""
+        """Queue the first `horizon.execute` of a chunk predicted for this slot (batched callers)."""
         chunk = np.asarray(chunk, dtype=np.float32)
-        if chunk.ndim != 2 or chunk.shape[0] < self.chunk_size or chunk.shape[1] != self.policy.spec.action_dim:
+        use = self.horizon.chunk
+        if chunk.ndim != 2 or chunk.shape[0] < use or chunk.shape[1] != self.policy.spec.action_dim:
             raise PolicyError(
                 f"policy {self.policy.name!r} returned a chunk of shape {chunk.shape}, expected at least "
-                f"({self.chunk_size}, {self.policy.spec.action_dim})"
+                f"({use}, {self.policy.spec.action_dim})"
             )
         if not np.isfinite(chunk).all():
             raise PolicyError(f"policy {self.policy.name!r} returned non-finite actions")
-        chunk = self.action_map.to_robot(chunk[: self.chunk_size], state)
+        chunk = self.action_map.to_robot(chunk[:use], state)
         self.last_chunk = chunk
-        self._queue.extend(chunk[: self.n_action_steps])
+        self._queue.extend(chunk[: self.horizon.execute])
         self._stats.model_calls += 1
         self._stats.inference_s += elapsed_s
         self._stats.chunk_times_s.append(elapsed_s)

@@ -8,7 +8,7 @@ post-processor with synthetic statistics) loads through the same code as a lab's
 that smoke experiments and tests drive a real VLA code path on a CPU in seconds.
 
     python -m r2s_eval.policies.tiny OUT --cameras observation.images.image observation.images.wrist_image \
-        --state-dim 8 --action-dim 7 [--seed 0] [--chunk-size 25]
+        --state-dim 8 --action-dim 7 --chunk-size 25 [--seed 0]
 """
 
 from __future__ import annotations
@@ -197,6 +197,8 @@ def tiny_smolvla_config(
         resize_imgs_with_padding=(image_hw[1], image_hw[0]),  # SmolVLA stores (width, height)
         tokenizer_max_length=16,
         num_steps=2,
+        # LeRobot's own fields of the test model (callers override them); the evaluation's
+        # receding horizon is rollout.horizon, never these.
         chunk_size=10,
         n_action_steps=5,
         max_state_dim=max(32, state_dim),
@@ -246,16 +248,18 @@ def synthetic_stats(state_dim: int, action_dim: int, seed: int = 0) -> dict[str,
 
 
 def build_tiny_checkpoint(folder: Path, *, cameras: Sequence[str], state_dim: int, action_dim: int,
-                          seed: int = 0, chunk_size: int = 25, image_hw: tuple[int, int] = (64, 64)) -> Path:
+                          chunk_size: int, seed: int = 0, image_hw: tuple[int, int] = (64, 64)) -> Path:
     """A self-contained tiny SmolVLA checkpoint in ``folder``: ``vlm/`` (its tiny SmolVLM config
-    and tokenizer) and ``pretrained_model/`` (config, weights, processors); returns the latter."""
+    and tokenizer) and ``pretrained_model/`` (config, weights, processors); returns the latter.
+    ``chunk_size``: actions the model predicts per call (the workflow gives rollout.horizon.chunk)."""
     from lerobot.policies.factory import make_pre_post_processors
 
     folder = Path(folder).absolute()
     vlm = build_tiny_smolvlm(folder / "vlm")
     ckpt = build_tiny_smolvla(folder / "pretrained_model", vlm, seed=seed, hub_name=None, cameras=tuple(cameras),
                               state_dim=state_dim, action_dim=action_dim, image_hw=tuple(image_hw),
-                              chunk_size=chunk_size, n_action_steps=min(5, chunk_size))
+                              # LeRobot's own action queue is unused (RecedingHorizon owns re-planning).
+                              chunk_size=chunk_size, n_action_steps=chunk_size)
     from lerobot.configs.policies import PreTrainedConfig
 
     config = PreTrainedConfig.from_pretrained(ckpt)
@@ -272,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--state-dim", type=int, required=True)
     p.add_argument("--action-dim", type=int, required=True)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--chunk-size", type=int, default=25)
+    p.add_argument("--chunk-size", type=int, required=True, help="actions the model predicts per call")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     ckpt = build_tiny_checkpoint(Path(args.out), cameras=args.cameras, state_dim=args.state_dim,

@@ -3,7 +3,7 @@
 `run_batched` keeps up to `batch_episodes` episodes in flight, one per *lane*. The lanes step in
 lockstep; at each step, the lanes whose receding horizon has run out of actions ask for a chunk
 together, in one `predict_chunks` call (one per instruction, for a policy that reads it). A lane
-whose episode has ended takes the next one at the next query step (every `n_action_steps` steps),
+whose episode has ended takes the next one at the next query step (every `horizon.execute` steps),
 so that the lanes keep querying at the same steps. Physics, rendering and video encoding run on
 `threads` worker threads (MuJoCo releases the GIL while it steps and renders); a lane always runs
 on the same worker, since a GL context belongs to the thread that made it.
@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.interface import STATE_KEY, TASK_KEY, ChunkPolicy, PolicyError, RecedingHorizon
 from r2s_eval.rollout.loop import EpisodeRecorder
 from r2s_eval.sim import TabletopEnv
@@ -144,8 +145,7 @@ def run_batched(
     envs: EnvPool,
     *,
     arm: str,
-    chunk_size: int,
-    n_action_steps: int,
+    horizon: Horizon,
     action_map,
     max_steps: int,
     video_camera: str,
@@ -213,12 +213,12 @@ def run_batched(
     try:
         step = 0
         while queue or any(lane.planned is not None for lane in lanes):
-            if step % n_action_steps == 0 and queue:
+            if step % horizon.execute == 0 and queue:
                 assigned = assign()
                 on_workers(start)
                 for lane in assigned:
                     try:
-                        lane.runner = RecedingHorizon(policy, chunk_size, n_action_steps, action_map,
+                        lane.runner = RecedingHorizon(policy, horizon, action_map,
                                                       slot=lane.planned.slot, seed=lane.planned.seed)
                     except BaseException as exc:
                         raise _named(exc, [lane.planned], arm)

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from r2s_eval.horizon import Horizon
 from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
@@ -100,6 +101,8 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"),
                         call_batch=rollout["model_batch"])
     try:
+        horizon = Horizon.from_config(rollout["horizon"])
+        horizon.check(model.spec.max_chunk, f"policy {policy!r}")  # before any episode starts
         store = episode_store(out, episodes_identity(cfg, policy_cfg, model, inits, world_params, trained_dir))
         # Render only what the policy looks at: the other cameras cost time and change nothing.
         cameras = [k.removeprefix("observation.images.") for k in model.spec.cameras]
@@ -121,7 +124,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
 
         run_batched(
             model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
-            arm=arm, chunk_size=rollout["chunk_size"], n_action_steps=rollout["n_action_steps"],
+            arm=arm, horizon=horizon,
             action_map=action_map(policy_cfg, world_robot(world).action_dim), max_steps=rollout["max_steps"],
             video_camera=rollout["video_camera"], video_size=video_size(rollout, arm),
             open_episode=lambda p: EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,

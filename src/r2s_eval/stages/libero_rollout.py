@@ -14,15 +14,14 @@ from r2s_eval.libero.rollout import run_libero_candidate
 from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
-READS = ("libero", "rollout.chunk_size", "rollout.n_action_steps", "rollout.device", "seed")  # see _reads.py
+READS = ("libero", "rollout.horizon", "rollout.device", "seed")  # see _reads.py
 PROVIDED = ("policy", "policy_cfg")  # keys the rule adds for this job
 
 
 def main(args) -> None:
     deterministic_torch(1)  # model calls on one thread: their rounding never depends on the job's threads
     cfg = args.cfg
-    rollout = {"chunk_size": cfg["rollout.chunk_size"], "n_action_steps": cfg["rollout.n_action_steps"],
-               "device": cfg["rollout.device"]}
+    rollout = {"horizon": cfg["rollout.horizon"], "device": cfg["rollout.device"]}
     run_libero_candidate(Path(args.out), policy=cfg["policy"], seed=cfg["seed"], libero=cfg["libero"], rollout=rollout,
                          policy_cfg=cfg["policy_cfg"], python=Path(args.python),
                          transport=json.loads(args.transport or "{}"), workers=args.threads,

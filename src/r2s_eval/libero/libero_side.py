@@ -1,6 +1,6 @@
 """The LIBERO side of a LIBERO rollout: runs in LIBERO's own Python environment, never in ours.
 
-    <libero-env>/bin/python world.py JOB.json
+    <libero-env>/bin/python libero_side.py JOB.json
 
 LIBERO pins robosuite 1.4, which needs an older mujoco than our world, so this file imports
 only the standard library, numpy, LIBERO and openpi-client. It steps LIBERO episodes and asks
@@ -170,10 +170,11 @@ def run_episode(env, client, job: dict, ep: dict, instruction: str, init_state: 
             infer_s += time.perf_counter() - t0
             calls += 1
             chunk = np.asarray(reply["actions"], dtype=np.float32)
-            if chunk.ndim != 2 or chunk.shape[1] != 7 or len(chunk) < int(job["n_action_steps"]):
+            # The horizon was checked on our side; this guards what the server actually sent.
+            if chunk.ndim != 2 or chunk.shape[1] != 7 or len(chunk) < int(job["execute"]):
                 raise ValueError(f"the policy returned a chunk of shape {chunk.shape}; LIBERO needs "
-                                 f"at least ({job['n_action_steps']}, 7)")
-            queue = list(chunk[: int(job["n_action_steps"])])
+                                 f"at least ({job['execute']}, 7)")
+            queue = list(chunk[: int(job["execute"])])
         action = queue.pop(0)
         obs, _, _, _ = env.step(action.tolist())
         cams = Cameras(env, render, obs)

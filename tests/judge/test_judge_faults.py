@@ -26,9 +26,9 @@ from r2s_eval.judge.base import CRITERIA
 from r2s_eval.judge.openai_backend import OpenAIJudge
 from r2s_eval.stages._rollouts import load_episodes
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chat_server import MALFORMED, ChatServer  # noqa: E402
-from rollout_videos import make_rollouts  # noqa: E402
+
+from tests.helpers.chat_server import MALFORMED, ChatServer
+from tests.helpers.videos import make_rollouts
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 GOOD, BAD = "GoodPolicyAlpha", "BadPolicyBeta"

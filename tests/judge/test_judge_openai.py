@@ -21,9 +21,9 @@ from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.stats import order_swap_consistency
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chat_server import ChatServer  # noqa: E402
-from rollout_videos import INSTRUCTIONS, make_rollouts, scene  # noqa: E402
+
+from tests.helpers.chat_server import ChatServer
+from tests.helpers.videos import INSTRUCTIONS, make_rollouts, scene
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 

@@ -19,10 +19,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "judge"))
+sys.path.insert(0, str(ROOT))  # the tests' helper package: tests.helpers
 
-from chat_server import ChatServer  # noqa: E402
-from rollout_videos import make_rollouts  # noqa: E402
+from tests.helpers.chat_server import ChatServer  # noqa: E402
+from tests.helpers.videos import make_rollouts  # noqa: E402
 
 from r2s_eval.judge import describe_rollouts, make_judge  # noqa: E402
 from r2s_eval.stages._rollouts import load_episodes  # noqa: E402

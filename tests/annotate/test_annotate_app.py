@@ -10,10 +10,11 @@ import time
 
 import pandas as pd
 import pytest
-from people import POLICIES, AnnotationServer, export_csv, fetch_json
 
 from r2s_eval.annotate import AnnotationError, AnswerStore
 from r2s_eval.annotate.answers import EXPORT_COLUMNS
+
+from tests.helpers.people import POLICIES, AnnotationServer, export_csv, fetch_json
 
 
 @pytest.fixture

@@ -6,7 +6,13 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from people import (
+from PIL import Image
+
+from r2s_eval.annotate import AnswerStore
+from r2s_eval.config import compose_config
+from r2s_eval.utils.io import read_json
+
+from tests.helpers.people import (
     POLICIES,
     AnnotationServer,
     answer_with_keyboard,
@@ -19,11 +25,6 @@ from people import (
     videos_state,
     wait_until,
 )
-from PIL import Image
-
-from r2s_eval.annotate import AnswerStore
-from r2s_eval.config import compose_config
-from r2s_eval.utils.io import read_json
 
 pytestmark = pytest.mark.browser
 CONF = Path(__file__).resolve().parents[2] / "conf"

@@ -5,11 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from people import POLICIES, browser, run_stage, screenshot_dir, videos_state, wait_until
 from PIL import Image
 
 from r2s_eval.annotate import AnswerStore
 from r2s_eval.config import compose_config
+
+from tests.helpers.people import POLICIES, browser, run_stage, screenshot_dir, videos_state, wait_until
 
 pytestmark = pytest.mark.browser
 CONF = Path(__file__).resolve().parents[2] / "conf"

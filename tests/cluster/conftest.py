@@ -1,4 +1,4 @@
-"""The smoke experiment on a real single-node Slurm, started by the test (see slurm.py).
+"""The smoke experiment on a real single-node Slurm, started by the test (see tests/helpers/slurm.py).
 
 One run goes through `--profile workflow/profiles/slurm` plus a site profile for this cluster
 (its partition and account, and the default profile's job sizes in place of the paper-scale ones:
@@ -21,8 +21,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.helpers.slurm import PACKAGES, LocalSlurm, missing_binaries
+
 from ..workflow.conftest import REPO, SNAKEMAKE, planned_jobs, smoke_run  # noqa: F401  (smoke_run: a fixture)
-from .slurm import PACKAGES, LocalSlurm, missing_binaries
 
 RUN_TIMEOUT_S = 2400
 CANCELLED = ("train", {"arm": "sim", "policy": "act"})  # has the longest training of the smoke

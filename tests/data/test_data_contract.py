@@ -115,12 +115,16 @@ def _duplicate_episode_row(root):
     _edit_parquet(root, EPISODES_FILE, lambda df: pd.concat([df, df[df["episode_index"] == 1]], ignore_index=True))
 
 
-def _renumber_episode(root):
+def _set_for_episode(rel: str, episode: int, column: str, value) -> Callable[[Path], None]:
+    """A corruption: the rows of `episode` in the parquet file `rel` get `value` in `column`."""
     def edit(df):
-        df.loc[df["episode_index"] == 2, "episode_index"] = 7
+        df.loc[df["episode_index"] == episode, column] = value
         return df
 
-    _edit_parquet(root, EPISODES_FILE, edit)
+    return lambda root: _edit_parquet(root, rel, edit)
+
+
+_renumber_episode = _set_for_episode(EPISODES_FILE, 2, "episode_index", 7)
 
 
 def _wrist_camera_resolution(root):
@@ -186,12 +190,7 @@ def _task_not_in_tasks_table(root):
     _edit_parquet(root, EPISODES_FILE, edit)
 
 
-def _rows_carry_other_task(root):
-    def edit(df):
-        df.loc[df["episode_index"] == 2, "task_index"] = 1
-        return df
-
-    _edit_parquet(root, DATA_0, edit)
+_rows_carry_other_task = _set_for_episode(DATA_0, 2, "task_index", 1)
 
 
 def _wrong_totals(root):

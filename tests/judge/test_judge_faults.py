@@ -10,7 +10,6 @@ import datetime as dt
 import email.utils
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -26,9 +25,9 @@ from r2s_eval.judge.base import CRITERIA
 from r2s_eval.judge.openai_backend import OpenAIJudge
 from r2s_eval.stages._rollouts import load_episodes
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chat_server import MALFORMED, ChatServer  # noqa: E402
-from rollout_videos import make_rollouts  # noqa: E402
+
+from tests.helpers.chat_server import MALFORMED, ChatServer, kill_when_hanging
+from tests.helpers.videos import make_rollouts
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 GOOD, BAD = "GoodPolicyAlpha", "BadPolicyBeta"
@@ -146,25 +145,19 @@ def test_retry_after_http_date_is_honoured(rollouts, tmp_path):
     assert _gap(server) >= 0.99
 
 
-def test_retry_after_past_the_ceiling_fails_at_once_saying_so(rollouts, tmp_path):
+@pytest.mark.parametrize("status, retry_after, limit, match", [
+    (429, "3600", {"retry_after_max_s": 2},
+     r"HTTP 429.*retry after 3600 s.*retry_after_max_s \(2 s\); raise retry_after_max_s"),
+    (503, "30", {"call_deadline_s": 2}, r"HTTP 503; the retry in 30.0 s would pass call_deadline_s \(2 s\)"),
+], ids=["past_the_ceiling", "past_the_call_deadline"])
+def test_retry_after_past_a_limit_fails_at_once_saying_so(rollouts, tmp_path, status, retry_after, limit, match):
+    # A Retry-After beyond retry_after_max_s, or beyond what is left of call_deadline_s, ends the
+    # retries at once, with an error naming the limit.
     dirs, episodes = rollouts
     t0 = time.monotonic()
-    with ChatServer(faults=[(429, {"Retry-After": "3600"})]) as server:
-        with pytest.raises(JudgeError, match=r"episode \S+: .*HTTP 429.*retry after 3600 s.*"
-                                             r"retry_after_max_s \(2 s\); raise retry_after_max_s"):
-            describe_rollouts(episodes.head(1), ".", make_judge(judge_cfg(server.url, retry_after_max_s=2)),
-                              tmp_path / "c")
-    assert len(server.log) == 1 and time.monotonic() - t0 < 3
-
-
-def test_retry_after_past_the_call_deadline_ends_the_retries(rollouts, tmp_path):
-    dirs, episodes = rollouts
-    t0 = time.monotonic()
-    with ChatServer(faults=[(503, {"Retry-After": "30"})]) as server:
-        with pytest.raises(JudgeError, match=r"episode \S+: .*HTTP 503; the retry in 30.0 s would pass "
-                                             r"call_deadline_s \(2 s\)"):
-            describe_rollouts(episodes.head(1), ".", make_judge(judge_cfg(server.url, call_deadline_s=2)),
-                              tmp_path / "c")
+    with ChatServer(faults=[(status, {"Retry-After": retry_after})]) as server:
+        with pytest.raises(JudgeError, match=r"episode \S+: .*" + match):
+            describe_rollouts(episodes.head(1), ".", make_judge(judge_cfg(server.url, **limit)), tmp_path / "c")
     assert len(server.log) == 1 and time.monotonic() - t0 < 3
 
 
@@ -259,14 +252,8 @@ def test_killed_describe_leaves_nothing_a_rerun_trips_over(rollouts, tmp_path):
         proc = subprocess.Popen([sys.executable, "-c", _DESCRIBE, server.url, str(cache), *dirs],
                                 env={**os.environ, "PYTHONPATH": str(SRC)}, cwd=tmp_path,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        deadline = time.time() + 60
         # Kill while requests hang on the server: their scratch folders are in use.
-        while len(list((cache / "describe").glob("*/*.json"))) < 1 or len(server.log) < 4:
-            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
-            assert time.time() < deadline, "the stage never got going"
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
+        kill_when_hanging(proc, server, cache, stored=1, requests=4)
         left = list((cache / "inputs").iterdir())
         assert left and all(p.name.startswith(f"in-{proc.pid}-") for p in left)
 

@@ -17,7 +17,6 @@ them beats the base rate of the task.
 
 from __future__ import annotations
 
-import sys
 from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
@@ -34,9 +33,9 @@ from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.utils.io import file_sha256
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chat_server import ChatServer  # noqa: E402
-from rollout_videos import INSTRUCTIONS, make_rollouts  # noqa: E402
+
+from tests.helpers.chat_server import ChatServer
+from tests.helpers.videos import INSTRUCTIONS, make_rollouts
 
 N_FRAMES = 16
 POLICIES = ["Fails", "Succeeds"]

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -21,9 +19,9 @@ from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.stages._rollouts import load_episodes
 from r2s_eval.stats import order_swap_consistency
 
-sys.path.insert(0, str(Path(__file__).parent))
-from chat_server import ChatServer  # noqa: E402
-from rollout_videos import INSTRUCTIONS, make_rollouts, scene  # noqa: E402
+
+from tests.helpers.chat_server import ChatServer, kill_when_hanging
+from tests.helpers.videos import INSTRUCTIONS, make_rollouts, scene
 
 SRC = Path(__file__).resolve().parents[2] / "src"
 
@@ -166,14 +164,8 @@ def test_openai_stage_killed_mid_run_resumes_without_repeating_a_request(rollout
                "--cache", str(cache), "--out", str(out)]
         env = {**os.environ, "PYTHONPATH": str(SRC)}
         proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        deadline = time.time() + 60
         # Kill once the five answered requests are stored and the next ones hang on the server.
-        while len(list((cache / "describe").glob("*/*.json"))) < 5 or len(server.log) < 7:
-            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
-            assert time.time() < deadline, "the stage never got going"
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
+        kill_when_hanging(proc, server, cache, stored=5, requests=7)
         server.release()
         assert not out.exists()
         held = [e for e in server.log if e["status"] != 200]

@@ -8,7 +8,6 @@ AutoModelForImageTextToText exactly as it would load a downloaded checkpoint.
 from __future__ import annotations
 
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,8 +17,8 @@ from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import CRITERIA, Description, describe_rollouts, judge_pairs, make_judge
 from r2s_eval.stages._rollouts import load_episodes
 
-sys.path.insert(0, str(Path(__file__).parent))
-from rollout_videos import make_rollouts  # noqa: E402
+
+from tests.helpers.videos import make_rollouts
 
 transformers = pytest.importorskip("transformers")
 torch = pytest.importorskip("torch")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import builtins
 import io
-import sys
 from pathlib import Path
 
 import pandas as pd
@@ -15,8 +14,8 @@ from r2s_eval.compare import sample_pairs
 from r2s_eval.judge import CRITERIA, RolloutInput, VideoJudge, describe_rollouts, judge_pairs, make_judge
 from r2s_eval.judge.video_judge import task_from_instruction
 
-sys.path.insert(0, str(Path(__file__).parent))
-from rollout_videos import SIM_TASK, render_sim_episodes  # noqa: E402
+
+from tests.helpers.videos import SIM_TASK, render_sim_episodes
 
 CFG = {"backend": "video"}
 

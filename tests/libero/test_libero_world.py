@@ -18,7 +18,7 @@ from r2s_eval.libero.rollout import run_libero_candidate
 from r2s_eval.policies.interface import PolicyError
 
 pytestmark = pytest.mark.libero
-REPLAY_CHECK = Path(__file__).with_name("replay_check.py")
+REPLAY_CHECK = Path(__file__).resolve().parents[1] / "helpers" / "libero_replay_check.py"
 
 LIBERO = {
     "tasks": ["libero_spatial_0"],

@@ -8,9 +8,6 @@ catch a torch or lerobot update after which that no longer holds."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,23 +15,15 @@ import pytest
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.utils.numerics import deterministic_torch
 
+from tests.helpers.policies import save_random_policy
+
 CAMERAS = ["head_left", "wrist_right"]
 HW = (48, 48)
 
 
-def _random_policies():
-    name = "policies_random_policies"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("random_policies.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
 @pytest.fixture(scope="module", params=["act", "diffusion"])
 def folder(request, tmp_path_factory):
-    return _random_policies().save_random_policy(tmp_path_factory.mktemp(request.param), CAMERAS, HW, request.param)
+    return save_random_policy(tmp_path_factory.mktemp(request.param), CAMERAS, HW, request.param)
 
 
 def _observations(n: int, seed: int) -> list[dict]:
@@ -93,7 +82,7 @@ def test_act_batched_calls_give_lerobots_own_chunks_from_one_backbone_pass(tmp_p
     import torch
 
     deterministic_torch(1)
-    folder = _random_policies().save_random_policy(tmp_path, CAMERAS, HW, "act")
+    folder = save_random_policy(tmp_path, CAMERAS, HW, "act")
     policy = load_lerobot_policy(folder, call_batch=3)
     observations = _observations(3, seed=7)
     passes = []

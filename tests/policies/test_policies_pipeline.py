@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +23,8 @@ from r2s_eval.policies import (
 from r2s_eval.errors import DataError
 from r2s_eval.utils.io import file_sha256
 
+from tests.helpers.datasets import build_dataset
+
 pytestmark = pytest.mark.timeout(300)
 
 REPO_ID = "test/synthetic_bimanual"
@@ -32,21 +32,10 @@ CAMS = ("observation.images.head_left", "observation.images.wrist_left")
 HEAD = "observation.images.head_left"
 
 
-def _synthetic():
-    # Imported by path: tests are collected with --import-mode=importlib (no package).
-    name = "policies_synthetic_dataset"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("synthetic_dataset.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
 @pytest.fixture(scope="module")
 def dataset_root(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("policies_data") / "synthetic"
-    return _synthetic().build_dataset(
+    return build_dataset(
         root, REPO_ID, n_episodes=3, n_steps=20, image_hw=(32, 32), cameras=CAMS
     )
 

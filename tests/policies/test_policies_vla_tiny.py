@@ -6,34 +6,19 @@ swaps the network sizes for the duration of the tests; see its module docstring.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import socket
-import sys
-from pathlib import Path
 
 import pytest
 import torch
+
+from tests.helpers import tiny_vla as tv
 
 pytestmark = pytest.mark.timeout(300)
 
 CHUNK = 10
 N_ACTION_STEPS = 5
 DIM = 14
-
-
-def _tiny_vla():
-    # Imported by path: tests are collected with --import-mode=importlib (no package).
-    name = "policies_tiny_vla"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("tiny_vla.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-tv = _tiny_vla()
 
 
 @pytest.fixture(scope="module")

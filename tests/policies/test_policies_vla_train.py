@@ -13,10 +13,8 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import importlib.util
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +23,9 @@ import torch
 
 from r2s_eval.horizon import Horizon
 from r2s_eval.policies import PolicyConfigError, PolicyError, load_policy, train_policy, validate_policy_cfg
+
+from tests.helpers import datasets as synthetic
+from tests.helpers import tiny_vla as tv
 
 pytestmark = pytest.mark.timeout(600)
 
@@ -44,20 +45,6 @@ RESIZED = {
     "xvla": {"model.transformer.action_encoder.fc.weight", "model.transformer.action_decoder.fc.weight",
              "model.transformer.action_decoder.bias.weight"},
 }
-
-
-def _load(name: str, filename: str):
-    # Imported by path: tests are collected with --import-mode=importlib (no package).
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(filename))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-tv = _load("policies_tiny_vla", "tiny_vla.py")
-synthetic = _load("policies_synthetic_dataset", "synthetic_dataset.py")
 
 
 @pytest.fixture(scope="module")

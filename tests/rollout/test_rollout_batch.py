@@ -3,9 +3,7 @@ killed mid-batch resumes with the episodes it had not finished, and an error nam
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,23 +24,14 @@ from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.utils.numerics import deterministic_torch
 
+from tests.helpers.policies import save_random_policy
+
 TASKS = ["cup_on_plate", "stack_blocks"]
 WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
 ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
            "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "real_video_size": [64, 64],
            "video_fps": 10}
 SEED = 3
-
-
-def _random_policies():
-    name = "policies_random_policies"
-    if name not in sys.modules:
-        path = Path(__file__).resolve().parents[1] / "policies" / "random_policies.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +44,7 @@ def inits(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def act(tmp_path_factory) -> Path:
     """The CPU line-up's ACT, randomly initialised, reading both cameras."""
-    return _random_policies().save_random_policy(tmp_path_factory.mktemp("act"), WORLD["cameras"], (48, 48))
+    return save_random_policy(tmp_path_factory.mktemp("act"), WORLD["cameras"], (48, 48))
 
 
 @pytest.fixture(scope="module")

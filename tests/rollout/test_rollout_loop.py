@@ -8,36 +8,8 @@ import pytest
 import r2s_eval  # noqa: F401
 from r2s_eval.rollout import episode_id, read_video, run_episode, video_frame_every, write_video
 from r2s_eval.sim import TabletopEnv
-from r2s_eval.twin.operator import make_operator
 
-
-class OperatorPolicy:
-    """The scripted operator behind the policy interface (a policy that knows the task)."""
-
-    def __init__(self, env):
-        self.env, self.op = env, None
-
-    def reset(self):
-        self.op = None
-
-    def act(self, obs):
-        if self.op is None:
-            self.op = make_operator("cup_on_plate", self.env, np.random.default_rng(0))
-        action = self.op.act(obs)
-        return action
-
-
-class FrozenPolicy:
-    def __init__(self):
-        self.action = None
-
-    def reset(self):
-        self.action = None
-
-    def act(self, obs):
-        if self.action is None:
-            self.action = np.asarray(obs["observation.state"], dtype=float).copy()
-        return self.action
+from tests.helpers.policies import FrozenPolicy, OperatorPolicy
 
 
 @pytest.fixture(scope="module")

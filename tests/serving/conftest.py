@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import queue
 import subprocess
@@ -14,41 +13,19 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import policy_server
+from tests.helpers.datasets import build_dataset
+
 REPO_ID = "test/serving_synthetic"
 HEAD = "observation.images.head_left"
 API_KEY_ENV = "R2S_SERVING_TEST_KEY"
 START_TIMEOUT_S = 120
 
 
-def _synthetic():
-    # Imported by path: tests are collected with --import-mode=importlib (no package).
-    name = "policies_synthetic_dataset"
-    if name not in sys.modules:
-        path = Path(__file__).resolve().parents[1] / "policies" / "synthetic_dataset.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-def _helpers():
-    name = "serving_test_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("serving_helpers.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-_helpers()  # importable as serving_test_helpers by this folder's test modules (their servers' base class)
-
-
 @pytest.fixture(scope="session")
 def helpers():
-    """tests/serving/serving_helpers.py (free ports, observations, fake policy, fault server)."""
-    return _helpers()
+    """tests/helpers/policy_server.py (free ports, observations, fake policy, fault server)."""
+    return policy_server
 
 
 @pytest.fixture(scope="session")
@@ -57,8 +34,8 @@ def act_checkpoint(tmp_path_factory) -> Path:
     from r2s_eval.policies import candidate_config, train_policy
 
     base = tmp_path_factory.mktemp("serving")
-    root = _synthetic().build_dataset(base / "data", REPO_ID, n_episodes=2, n_steps=20,
-                                      image_hw=(32, 32), cameras=(HEAD,))
+    root = build_dataset(base / "data", REPO_ID, n_episodes=2, n_steps=20,
+                         image_hw=(32, 32), cameras=(HEAD,))
     cfg = candidate_config("act", "smoke", steps=3, batch_size=4, image_keys=[HEAD], image_size=[24, 24])
     out = base / "act"
     train_policy(root, REPO_ID, cfg, out, seed=0)
@@ -78,7 +55,7 @@ class Served:
 
 
 def _launch(ckpt: Path, log_dir: Path, name: str, key: str | None) -> tuple[subprocess.Popen, int, Path, queue.Queue]:
-    port = _helpers().free_port()
+    port = policy_server.free_port()
     cmd = [sys.executable, "-m", "r2s_eval.serve", str(ckpt), "--port", str(port), "--name", name]
     env = dict(os.environ, MUJOCO_GL="egl")
     env.pop(API_KEY_ENV, None)

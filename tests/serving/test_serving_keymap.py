@@ -16,7 +16,8 @@ from r2s_eval.policies.interface import PolicyError, RecedingHorizon
 from r2s_eval.serving import PolicyServer, ServerPolicy
 from r2s_eval.serving.keymap import PRESETS, resize_with_pad, resolve_key_map
 from r2s_eval.serving.protocol import pack, unpack_dict
-from serving_test_helpers import ThreadedServer  # loaded by this folder's conftest
+
+from tests.helpers.policy_server import ThreadedServer
 
 pytestmark = [
     pytest.mark.timeout(60),

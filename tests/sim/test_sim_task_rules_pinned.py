@@ -1,5 +1,5 @@
 """The tasks' success and progress rules give the answers pinned before they became world
-predicates (`task_rule_states.py` recorded the states and the hand-written rules' answers)."""
+predicates (`tests/helpers/task_rule_states.py` recorded the states and the hand-written rules' answers)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from r2s_eval.sim import TASKS, TabletopEnv
 
-from .task_rule_states import evaluate, load, world_params
+from tests.helpers.task_rule_states import evaluate, load, world_params
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))

@@ -6,16 +6,12 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from .conftest import planned_jobs, snakemake
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "browser"))
-from people import (  # noqa: E402
+from tests.helpers.people import (
     AnnotationServer,
     answer_with_keyboard,
     answered,
@@ -26,6 +22,8 @@ from people import (  # noqa: E402
     videos_state,
     wait_until,
 )
+
+from .conftest import planned_jobs, snakemake
 
 pytestmark = pytest.mark.slow
 LINE_UP = ["act", "act_subset", "act_weak"]  # the smoke line-up, best first by construction

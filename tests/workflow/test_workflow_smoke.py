@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import sys
 from collections import Counter, defaultdict
-from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -212,8 +210,7 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
     from r2s_eval.judge import describe_rollouts, make_judge
     from r2s_eval.stages._rollouts import load_episodes
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "judge"))
-    from chat_server import ChatServer
+    from tests.helpers.chat_server import ChatServer
 
     rollouts = sorted((smoke_run.workdir / "results" / "rollout" / "sim").glob("act*"))
     episodes = load_episodes([str(d) for d in rollouts if d.is_dir()])

@@ -37,9 +37,12 @@ import hashlib
 import io
 import json
 import re
+import signal
+import subprocess
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
 
 import numpy as np
 from PIL import Image
@@ -251,3 +254,16 @@ class ChatServer:
         if sa != sb:
             return "A" if sa else "B"
         return "**A**" if ba >= bb else "B."
+
+
+def kill_when_hanging(proc: subprocess.Popen, server: ChatServer, cache: Path, stored: int, requests: int,
+                      timeout_s: float = 60.0) -> None:
+    """SIGKILL `proc`, a describe run against `server` (held with `hold_after`), once `stored`
+    answers are in `cache` and the server has seen `requests` requests: the later ones hang there."""
+    deadline = time.time() + timeout_s
+    while len(list((cache / "describe").glob("*/*.json"))) < stored or len(server.log) < requests:
+        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+        assert time.time() < deadline, "the stage never got going"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()

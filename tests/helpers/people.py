@@ -1,4 +1,5 @@
-"""Shared pieces of the browser tests: Debian's chromium driven by Playwright, the annotation
+"""Shared pieces of the annotation and browser tests (their fixtures `run` and `annotation_set`
+are in tests/conftest.py): Debian's chromium driven by Playwright, the annotation
 server as a process of its own (so it can be killed like a crashed machine), a small run
 directory with real videos, and annotators who answer with the keyboard."""
 
@@ -284,24 +285,3 @@ def export_csv(set_dir: Path, db: Path, out: Path) -> pd.DataFrame:
 def fetch_json(url: str) -> dict:
     with urllib.request.urlopen(url, timeout=10) as r:
         return json.loads(r.read())
-
-
-# ------------------------------------------------------------------------- fixtures
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    root = tmp_path_factory.mktemp("run")
-    return {"root": root, **build_run(root)}
-
-
-@pytest.fixture(scope="module")
-def annotation_set(run):
-    """The run's annotation set (9 pairs, 3 per outcome category) under results/annotate."""
-    from r2s_eval.annotate import draw_annotation_set, write_annotation_set
-
-    pairs = pd.read_parquet(run["root"] / "results" / "compare" / "pairs.parquet")
-    items, summary = draw_annotation_set(pairs, run["sim"], n_pairs=9, seed=0)
-    folder = run["root"] / "results" / "annotate"
-    items = write_annotation_set(items, summary, run["sim"], set_path=folder / "set.parquet",
-                                 videos_dir=folder / "videos", summary_path=folder / "summary.json")
-    return {"dir": folder, "items": items, "summary": summary}

@@ -1,4 +1,5 @@
-"""Rollout folders with tiny mp4 videos whose brightness stands for how well the policy did."""
+"""Rollout folders with tiny mp4 videos whose brightness stands for how well the policy did, and
+real simulator episodes of a policy that succeeds and one that fails."""
 
 from __future__ import annotations
 
@@ -66,37 +67,15 @@ def render_sim_episodes(root: Path, max_steps: int = 100) -> pd.DataFrame:
     """
     from r2s_eval.rollout import run_episode
     from r2s_eval.sim import TabletopEnv
-    from r2s_eval.twin.operator import make_operator
 
-    class Operator:
-        def __init__(self, env):
-            self.env, self.op = env, None
-
-        def reset(self):
-            self.op = None
-
-        def act(self, obs):
-            if self.op is None:
-                self.op = make_operator(SIM_TASK, self.env, np.random.default_rng(0))
-            return self.op.act(obs)
-
-    class Frozen:
-        def __init__(self):
-            self.action = None
-
-        def reset(self):
-            self.action = None
-
-        def act(self, obs):
-            if self.action is None:
-                self.action = np.asarray(obs["observation.state"], dtype=float).copy()
-            return self.action
+    from tests.helpers.policies import FrozenPolicy, OperatorPolicy
 
     env = TabletopEnv(SIM_TASK, image_size=(128, 128), cameras=("head_left",))
     rows = []
     try:
         poses = env.sample_initial_poses(np.random.default_rng(4))
-        for n, (policy, pol) in enumerate((("ScriptedOperator", Operator(env)), ("FrozenPolicy", Frozen()))):
+        policies = (("ScriptedOperator", OperatorPolicy(env)), ("FrozenPolicy", FrozenPolicy()))
+        for n, (policy, pol) in enumerate(policies):
             pol.reset()
             result = run_episode(env, pol, poses, seed=1, max_steps=max_steps, video_camera="head_left")
             outcome = "SUCCESS" if result.success else "FAILURE"

@@ -1,6 +1,7 @@
-"""Randomly initialised LeRobot policies saved as training folders (no data, no training): the
-CPU line-up's ACT architecture and a small DDPM Diffusion Policy, for tests of the model call
-and the rollout loops."""
+"""Policies for the tests: two behind the rollout loop's policy interface (the scripted operator,
+which succeeds, and a frozen policy, which fails), and randomly initialised LeRobot policies saved
+as training folders (no data, no training): the CPU line-up's ACT architecture and a small DDPM
+Diffusion Policy, for tests of the model call and the rollout loops."""
 
 from __future__ import annotations
 
@@ -8,9 +9,42 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
+
+from r2s_eval.twin.operator import make_operator
 
 ACTION_DIM = 14
+
+
+class OperatorPolicy:
+    """The scripted operator behind the policy interface (a policy that knows the task): it
+    succeeds. Its operator is made at the first action, on the environment as the episode left it."""
+
+    def __init__(self, env):
+        self.env, self.op = env, None
+
+    def reset(self):
+        self.op = None
+
+    def act(self, obs):
+        if self.op is None:
+            self.op = make_operator(self.env.task.key, self.env, np.random.default_rng(0))
+        return self.op.act(obs)
+
+
+class FrozenPolicy:
+    """Holds the first state it sees: it never moves, so it fails."""
+
+    def __init__(self):
+        self.action = None
+
+    def reset(self):
+        self.action = None
+
+    def act(self, obs):
+        if self.action is None:
+            self.action = np.asarray(obs["observation.state"], dtype=float).copy()
+        return self.action
+
 
 # A small Diffusion Policy that still goes through every part of the model call: two
 # observation steps (a history per episode) and DDPM (fresh noise at every denoising step).
@@ -34,6 +68,7 @@ def save_random_policy(folder: Path, cameras: list[str], image_hw: tuple[int, in
                        seed: int = 0) -> Path:
     """`kind` "act": the CPU line-up's ACT (conf/policies/cpu.yaml) reading `cameras` of
     `image_hw` pixels; "diffusion": `DIFFUSION`. Saved as a training output folder."""
+    import torch
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep

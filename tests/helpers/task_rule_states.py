@@ -1,11 +1,12 @@
 """Pinned states of the seven tasks and what the task rules said of them.
 
-`python tests/sim/task_rule_states.py` records scripted-operator episodes of every task, in the
-nominal world and in twin worlds (whose objects are resized and whose joints are offset, so some
-episodes fail), keeps every other control step's physics state and evaluates the tasks' success
-and progress on it, and writes them to `data/task_rule_states.npz`. It was run once with the
-rules as hand-written Python functions, before they became predicates of the world config: the test
-beside it checks that the rules of today give the same answers on the same states.
+`python -m tests.helpers.task_rule_states` (from the repository root) records scripted-operator
+episodes of every task, in the nominal world and in twin worlds (whose objects are resized and whose
+joints are offset, so some episodes fail), keeps every other control step's physics state and
+evaluates the tasks' success and progress on it, and writes them to
+`tests/sim/data/task_rule_states.npz`. It was run once with the rules as hand-written Python
+functions, before they became predicates of the world config: tests/sim/test_sim_task_rules_pinned.py
+checks that the rules of today give the same answers on the same states.
 
 A state is evaluated after `mj_forward`, so its contacts are those of its own positions: a pure
 function of (qpos, qvel), whatever the simulation did before.
@@ -26,7 +27,7 @@ from r2s_eval.sim import TASKS, TabletopEnv  # noqa: E402
 from r2s_eval.twin import sample_twin_params  # noqa: E402
 from r2s_eval.twin.operator import make_operator  # noqa: E402
 
-PINNED = Path(__file__).resolve().parent / "data" / "task_rule_states.npz"
+PINNED = Path(__file__).resolve().parents[1] / "sim" / "data" / "task_rule_states.npz"
 EPISODES = {"nominal": 2, "twin": 3}
 KEEP_EVERY = 2
 MAX_STEPS = 150

@@ -142,7 +142,7 @@ def _pair_units(pairs: Sequence[tuple[str, str]], sim_episodes: pd.DataFrame) ->
 
 
 def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episodes: pd.DataFrame, *,
-                    source: str = "annotations", n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+                    source: str = "annotations", n_boot: int, level: float, seed: int) -> dict:
     """Human annotators among themselves and against the judge, overall and by outcome category.
 
     ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or 'B'
@@ -243,8 +243,8 @@ def _units(verdicts: pd.DataFrame) -> list:
     return [("", str(k)) for k in range(len(verdicts))]
 
 
-def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boot: int = 1000,
-                      level: float = 0.95, seed=0) -> dict:
+def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boot: int,
+                      level: float, seed: int) -> dict:
     """On pairs where one rollout succeeded and the other failed (sim outcomes): the share of
     verdicts preferring the successful one, with its unit-bootstrap interval over the
     distinct (task, init) units (:func:`~r2s_eval.stats.unit_share`)."""
@@ -259,7 +259,7 @@ def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boo
 
 
 def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], planted_order: Sequence[str] | None,
-                            *, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict | None:
+                            *, n_boot: int, level: float, seed: int) -> dict | None:
     """On pairs with the same outcome (both succeeded or both failed) between two policies of
     ``planted_order`` (best first): the share of verdicts preferring the policy placed
     earlier, with its unit-bootstrap interval. None when no order is given."""
@@ -280,8 +280,8 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
     return out
 
 
-def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot: int = 1000, level: float = 0.95,
-                    seed=0) -> dict | None:
+def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot: int, level: float,
+                    seed: int) -> dict | None:
     """The shuffled-label control of the BT fit (:func:`~r2s_eval.stats.shuffled_label_control`)
     on all judged comparisons; None without (task, init_id) columns or permutations."""
     if n_permutations <= 0 or not {"task", "init_id"} <= set(verdicts.columns):
@@ -299,7 +299,7 @@ def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot:
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
                 annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
                 swapped_winner_columns: Sequence[str] = (), planted_order: Sequence[str] | None = None,
-                n_boot: int = 1000, ci_level: float = 0.95, seed=0, shuffled_permutations: int = 20) -> dict:
+                n_boot: int, ci_level: float, seed: int, shuffled_permutations: int = 20) -> dict:
     """How far one judge can be trusted beyond the ranking metrics: its report card.
 
     Position bias (share of A answers, overall and on pairs whose two rollouts had the same

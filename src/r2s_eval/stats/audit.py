@@ -26,7 +26,7 @@ SHARE_KEY = 0x73686172  # spawn-key tag of the share bootstrap ("shar")
 SHUFFLE_KEY = 0x73687566  # spawn-key tag of the label permutations ("shuf")
 
 
-def unit_share(hits, units: Sequence, *, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+def unit_share(hits, units: Sequence, *, n_boot: int, level: float, seed=0) -> dict:
     """Share of ``hits`` (booleans, one per verdict) with its unit-bootstrap percentile interval.
 
     ``units``: one hashable label per verdict (e.g. ``(task, init_id)``). Returns ``share``,
@@ -75,7 +75,7 @@ def _fit_with_ci(i, j, i_won, task, init, P, n_boot, level, seed) -> tuple[np.nd
 
 
 def shuffled_label_control(policy_i, policy_j, i_won, task, init, *, policies: Sequence[str],
-                           n_permutations: int = 20, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+                           n_permutations: int = 20, n_boot: int, level: float, seed=0) -> dict:
     """The BT fit with unit-bootstrap CIs on the real labels and on ``n_permutations`` label
     permutations (all comparisons given: the last checkpoint).
 

@@ -378,7 +378,7 @@ def _matrix_seeds(seed, n_matrices: int) -> list:
     ]
 
 
-def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
+def bootstrap_wins(wins, n_boot: int, seed=0) -> np.ndarray:
     """The resampled win matrices behind :func:`bootstrap_bradley_terry`: ``(..., n_boot, P, P)``.
 
     For each unordered pair with ``n_ij > 0``, ``wins[i, j]* ~ Binomial(n_ij,
@@ -398,7 +398,7 @@ def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
 
 def bootstrap_bradley_terry(
     wins,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
     names: Sequence[str] | None = None,
@@ -462,7 +462,7 @@ def bt_scores(strengths) -> np.ndarray:
     return 100.0 * np.asarray(strengths, dtype=np.float64)
 
 
-def bt_confidence_intervals(boot_strengths, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+def bt_confidence_intervals(boot_strengths, level: float) -> tuple[np.ndarray, np.ndarray]:
     """Percentile bootstrap intervals of the score ``s = 100 b``.
 
     ``boot_strengths`` has shape ``(..., n_boot, P)`` (replicates on the second to
@@ -479,7 +479,7 @@ def bt_confidence_intervals(boot_strengths, level: float = 0.95) -> tuple[np.nda
     return lower, upper
 
 
-def bt_ci_width(boot_strengths, level: float = 0.95):
+def bt_ci_width(boot_strengths, level: float):
     """Mean over policies of the percentile-interval width of ``s`` (score points).
 
     A float for ``(n_boot, P)`` input, an array ``(...)`` for ``(..., n_boot, P)``.

@@ -40,7 +40,7 @@ def check_interval(interval: str) -> str:
     return interval
 
 
-def percentile_interval(values, level: float = 0.95, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+def percentile_interval(values, level: float, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles along ``axis``, ignoring NaN
     replicates (a metric undefined on a replicate, e.g. a constant ranking); NaN where
     every replicate is NaN."""
@@ -63,7 +63,7 @@ def metric_replicates(boot_scores, reference) -> dict[str, np.ndarray]:
     return {name: fn(boot_scores, reference) for name, fn in RANKING_METRICS.items()}
 
 
-def metric_intervals(boot_scores, reference, level: float = 0.95) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def metric_intervals(boot_scores, reference, level: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Percentile intervals of the ranking metrics from :func:`metric_replicates`:
     ``{metric: (lower, upper)}``, each ``(...)``."""
     return {name: percentile_interval(v, level) for name, v in metric_replicates(boot_scores, reference).items()}
@@ -171,10 +171,10 @@ def metric_ci_tables(boot_scores, ref, reference_boot, level, labels, coupled) -
 def checkpoint_metrics(
     wins,
     reference,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
-    level: float = 0.95,
+    level: float,
     names: Sequence[str] | None = None,
     checkpoints: Sequence | None = None,
     n_threads: int | None = 1,

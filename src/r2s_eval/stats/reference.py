@@ -46,7 +46,7 @@ def task_mean_success(successes, trials) -> np.ndarray:
     return np.nanmean(rates, axis=1)
 
 
-def bootstrap_task_mean_success(successes, trials, n_boot: int = 1000, seed=0) -> np.ndarray:
+def bootstrap_task_mean_success(successes, trials, n_boot: int, seed=0) -> np.ndarray:
     """Bootstrap replicates of :func:`task_mean_success`: ``(n_boot, P)``.
 
     Trials are resampled within each task and policy (binomially, see the module

@@ -231,7 +231,7 @@ def _draw_block(units: ComparisonUnits, rows: int, seq: np.random.SeedSequence) 
     return out_ij, out_ji
 
 
-def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int = 1000, seed=0) -> np.ndarray:
+def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int, seed=0) -> np.ndarray:
     """The resampled win matrices behind :func:`unit_bootstrap_bradley_terry`: ``(C, n_boot, P, P)``."""
     n_boot = _check_n_boot(n_boot)
     P, C = units.n_policies, len(units.checkpoints)
@@ -246,7 +246,7 @@ def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int = 1000, seed=0) -> n
 
 def unit_bootstrap_bradley_terry(
     units: ComparisonUnits,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
     names: Sequence[str] | None = None,

@@ -14,6 +14,7 @@ and folder names carry no meaning.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.utils.io import config_hash
 
 CRITERIA: tuple[str, ...] = (
@@ -162,12 +164,23 @@ class InvalidAnswer(Exception):
 
 # Options of the stage drivers, not of the judge: they decide which questions are asked and how
 # fast, never how one is answered, so they stay out of the judge identity and its cache keys.
-STAGE_DEFAULTS: dict[str, Any] = {
-    "mode": "two_step",  # two_step: describe each video, compare descriptions; one_step: compare videos
-    "concurrency": 1,  # parallel judge calls (server backends)
-    "swap_share": 0.0,  # share of pairs also asked in swapped order (order-swap audit)
-    "reserve": 50,  # seeded replacement comparisons per policy pair for excluded ones
-}
+STAGE_OPTIONS: tuple[str, ...] = ("mode", "concurrency", "swap_share", "reserve")
+# Their defaults live in conf/ only, beside the judge configs that may set them.
+STAGE_DEFAULTS_FILE = Path(__file__).resolve().parents[3] / "conf" / "judge_options.yaml"
+
+
+@functools.cache
+def stage_defaults() -> dict[str, Any]:
+    """The stage options a judge entry leaves out (conf/judge_options.yaml)."""
+    import yaml
+
+    with open(STAGE_DEFAULTS_FILE) as f:
+        values = yaml.safe_load(f) or {}
+    if sorted(values) != sorted(STAGE_OPTIONS):
+        raise ConfigError(f"{STAGE_DEFAULTS_FILE} must set exactly {list(STAGE_OPTIONS)}, got {sorted(values)}")
+    return values
+
+
 MODES: tuple[str, ...] = ("two_step", "one_step")
 
 
@@ -190,8 +203,9 @@ class Judge(ABC):
     ``inputs`` (which recordings the judge reads: "video", "trajectory" or both; the cache key
     covers exactly these bytes and the other paths are withheld).
 
-    The stage options in ``STAGE_DEFAULTS`` (mode, concurrency, swap_share, reserve) are taken out
-    of the config into ``stage_cfg`` before a backend sees it.
+    The stage options (``STAGE_OPTIONS``: mode, concurrency, swap_share, reserve) are taken out of
+    the config into ``stage_cfg`` before a backend sees it; those it leaves out come from
+    :func:`stage_defaults`.
     """
 
     backend: ClassVar[str] = ""
@@ -200,7 +214,8 @@ class Judge(ABC):
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         self.cfg: dict[str, Any] = plain_config(cfg or {})
-        self.stage_cfg: dict[str, Any] = {k: self.cfg.pop(k, v) for k, v in STAGE_DEFAULTS.items()}
+        defaults = stage_defaults()
+        self.stage_cfg: dict[str, Any] = {k: self.cfg.pop(k, defaults[k]) for k in STAGE_OPTIONS}
         bad = set(self.inputs) - set(INPUT_KINDS)
         if not self.inputs or bad:
             raise ValueError(f"{type(self).__name__}.inputs must be a non-empty subset of {INPUT_KINDS}")

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from r2s_eval.errors import ConfigError
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.utils.io import config_hash
 
 CRITERIA: tuple[str, ...] = (
@@ -87,7 +87,7 @@ class Description:
     def __post_init__(self) -> None:
         unknown = set(self.criteria) - set(CRITERIA)
         if unknown:
-            raise ValueError(f"unknown description criteria {sorted(unknown)}; expected {list(CRITERIA)}")
+            raise DataError(f"unknown description criteria {sorted(unknown)}; expected {list(CRITERIA)}")
         object.__setattr__(self, "criteria", {k: self.criteria[k] for k in CRITERIA if k in self.criteria})
         missing = [c for c in CRITERIA if _section_missing(c, self.criteria.get(c))]
         if not self.summary.strip():
@@ -141,7 +141,7 @@ class Verdict:
 
     def __post_init__(self) -> None:
         if self.letter not in ("A", "B"):
-            raise ValueError(f"verdict letter must be 'A' or 'B', got {self.letter!r}")
+            raise DataError(f"verdict letter must be 'A' or 'B', got {self.letter!r}")
 
     def to_dict(self) -> dict[str, str]:
         return {"letter": self.letter, "rationale": self.rationale}
@@ -191,7 +191,7 @@ def plain_config(cfg: Any) -> Any:
     if isinstance(cfg, (list, tuple)):
         return [plain_config(v) for v in cfg]
     if isinstance(cfg, float) and not math.isfinite(cfg):
-        raise ValueError(f"judge config values must be finite numbers, got {cfg}")
+        raise ConfigError(f"judge config values must be finite numbers, got {cfg}")
     return cfg
 
 
@@ -221,13 +221,13 @@ class Judge(ABC):
             raise ValueError(f"{type(self).__name__}.inputs must be a non-empty subset of {INPUT_KINDS}")
         sc = self.stage_cfg
         if sc["mode"] not in MODES:
-            raise ValueError(f"judge mode must be one of {MODES}, got {sc['mode']!r}")
+            raise ConfigError(f"judge mode must be one of {MODES}, got {sc['mode']!r}")
         if not (isinstance(sc["concurrency"], int) and sc["concurrency"] >= 1):
-            raise ValueError(f"judge concurrency must be an integer >= 1, got {sc['concurrency']!r}")
+            raise ConfigError(f"judge concurrency must be an integer >= 1, got {sc['concurrency']!r}")
         if not 0.0 <= float(sc["swap_share"]) <= 1.0:
-            raise ValueError(f"judge swap_share must be within [0, 1], got {sc['swap_share']!r}")
+            raise ConfigError(f"judge swap_share must be within [0, 1], got {sc['swap_share']!r}")
         if not (isinstance(sc["reserve"], int) and sc["reserve"] >= 0):
-            raise ValueError(f"judge reserve must be an integer >= 0, got {sc['reserve']!r}")
+            raise ConfigError(f"judge reserve must be an integer >= 0, got {sc['reserve']!r}")
 
     @property
     def name(self) -> str:
@@ -294,9 +294,9 @@ def make_judge(cfg: Mapping[str, Any]) -> Judge:
     """Build the judge named by ``cfg["backend"]``; the whole dict is its configuration."""
     backend = cfg.get("backend") if isinstance(cfg, Mapping) else None
     if not backend:
-        raise ValueError(f"judge config needs a 'backend' key (one of {available_backends()})")
+        raise ConfigError(f"judge config needs a 'backend' key (one of {available_backends()})")
     if backend not in _BACKENDS:
-        raise ValueError(f"unknown judge backend {backend!r}; available: {available_backends()}")
+        raise ConfigError(f"unknown judge backend {backend!r}; available: {available_backends()}")
     return _BACKENDS[backend](cfg)
 
 

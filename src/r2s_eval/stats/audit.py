@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import StatsError
 from r2s_eval.stats.bradley_terry import bt_confidence_intervals, bt_scores, fit_bradley_terry
 from r2s_eval.stats.units import comparison_units, tagged_seed, unit_bootstrap_bradley_terry
 
@@ -35,7 +36,7 @@ def unit_share(hits, units: Sequence, *, n_boot: int, level: float, seed=0) -> d
     """
     hit = np.asarray(hits, dtype=bool)
     if hit.ndim != 1 or len(units) != hit.size:
-        raise ValueError("hits and units must be 1-D of equal length")
+        raise StatsError("hits and units must be 1-D of equal length")
     out = {"share": None, "ci_low": None, "ci_high": None, "n_pairs": int(hit.size), "n_units": 0,
            "ci_level": float(level), "interval": "unit bootstrap over (task, init)"}
     if hit.size == 0:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import ConfigError, StatsError
 from r2s_eval.stats.bradley_terry import (
     bootstrap_bradley_terry,
     bt_confidence_intervals,
@@ -36,7 +37,7 @@ COUPLED = {"unit": True, "binomial": False}
 
 def check_interval(interval: str) -> str:
     if interval not in INTERVALS:
-        raise ValueError(f"interval must be one of {list(INTERVALS)}, got {interval!r}")
+        raise ConfigError(f"interval must be one of {list(INTERVALS)}, got {interval!r}")
     return interval
 
 
@@ -45,7 +46,7 @@ def percentile_interval(values, level: float, axis: int = -1) -> tuple[np.ndarra
     replicates (a metric undefined on a replicate, e.g. a constant ranking); NaN where
     every replicate is NaN."""
     if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1, got {level}")
+        raise ConfigError(f"level must lie strictly between 0 and 1, got {level}")
     tail = 50.0 * (1.0 - level)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices
@@ -206,18 +207,18 @@ def checkpoint_metrics(
         raise ValueError(f"wins must have shape (C, P, P) or (P, P), got {arr.shape}")
     interval = check_interval(interval or ("unit" if units is not None else "binomial"))
     if interval == "unit" and units is None:
-        raise ValueError("the unit bootstrap needs ComparisonUnits (which comparisons share a rollout pair)")
+        raise ConfigError("the unit bootstrap needs ComparisonUnits (which comparisons share a rollout pair)")
     C, P = arr.shape[0], arr.shape[-1]
     ref = np.asarray(reference, dtype=np.float64)
     if ref.shape != (P,):
-        raise ValueError(f"reference must have one value per policy ({P}), got shape {ref.shape}")
+        raise StatsError(f"reference must have one value per policy ({P}), got shape {ref.shape}")
     if reference_boot is not None:
         reference_boot = np.asarray(reference_boot, dtype=np.float64)
         if reference_boot.shape != (n_boot, P):
-            raise ValueError(f"reference_boot must have shape ({n_boot}, {P}), got {reference_boot.shape}")
+            raise StatsError(f"reference_boot must have shape ({n_boot}, {P}), got {reference_boot.shape}")
     names = [f"policy_{i}" for i in range(P)] if names is None else [str(n) for n in names]
     if len(names) != P:
-        raise ValueError(f"names has {len(names)} entries for {P} policies")
+        raise StatsError(f"names has {len(names)} entries for {P} policies")
     if checkpoints is None:
         labels = np.asarray(units.checkpoints) if units is not None else np.arange(C)
     else:

@@ -6,6 +6,7 @@ import choix
 import numpy as np
 import pytest
 
+from r2s_eval.errors import ConfigError, StatsError
 from r2s_eval.stats import (
     DisconnectedComparisonsError,
     bootstrap_bradley_terry,
@@ -145,14 +146,16 @@ def test_disconnected_graph_names_the_groups():
 
 
 def test_invalid_inputs_are_named():
-    with pytest.raises(ValueError, match="non-zero diagonal"):
+    with pytest.raises(StatsError, match="non-zero diagonal"):
         fit_bradley_terry(np.array([[1, 2], [3, 0]]))
-    with pytest.raises(ValueError, match="negative"):
+    with pytest.raises(StatsError, match="negative"):
         fit_bradley_terry(np.array([[0, -1], [3, 0]]))
-    with pytest.raises(ValueError, match=r"shape \(\.\.\., P, P\)"):
+    with pytest.raises(StatsError, match=r"shape \(\.\.\., P, P\)"):
         fit_bradley_terry(np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="integer"):
+    with pytest.raises(StatsError, match="integer"):
         bootstrap_bradley_terry(np.array([[0, 1.5], [2, 0]]), n_boot=5)
+    with pytest.raises(ConfigError, match="n_boot"):  # a bad stats.n_boot is a config error
+        bootstrap_bradley_terry(np.array([[0, 1], [2, 0]]), n_boot=0)
 
 
 def test_batch_matches_plain_mm_per_matrix():

@@ -281,7 +281,7 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
     return out
 
 
-def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot: int, level: float,
+def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int, n_boot: int, level: float,
                     seed: int) -> dict | None:
     """The shuffled-label control of the BT fit (:func:`~r2s_eval.stats.shuffled_label_control`)
     on all judged comparisons; None without (task, init_id) columns or permutations."""
@@ -300,7 +300,7 @@ def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot:
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
                 annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
                 swapped_winner_columns: Sequence[str] = (), planted_order: Sequence[str] | None = None,
-                n_boot: int, ci_level: float, seed: int, shuffled_permutations: int = 20) -> dict:
+                n_boot: int, ci_level: float, seed: int, shuffled_permutations: int) -> dict:
     """How far one judge can be trusted beyond the ranking metrics: its report card.
 
     Position bias (share of A answers, overall and on pairs whose two rollouts had the same

@@ -76,7 +76,7 @@ def _fit_with_ci(i, j, i_won, task, init, P, n_boot, level, seed) -> tuple[np.nd
 
 
 def shuffled_label_control(policy_i, policy_j, i_won, task, init, *, policies: Sequence[str],
-                           n_permutations: int = 20, n_boot: int, level: float, seed=0) -> dict:
+                           n_permutations: int, n_boot: int, level: float, seed=0) -> dict:
     """The BT fit with unit-bootstrap CIs on the real labels and on ``n_permutations`` label
     permutations (all comparisons given: the last checkpoint).
 

@@ -71,9 +71,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from itertools import combinations
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from omegaconf import OmegaConf
 
 from r2s_eval.compare.sampling import sample_pairs
 from r2s_eval.compare.sequential import PairState, allocate, pair_alpha, unit_order
@@ -81,9 +83,11 @@ from r2s_eval.compare.sequential import PairState, allocate, pair_alpha, unit_or
 NU = 1.0  # Davidson tie parameter
 EPS = 0.1  # chance that the judge prefers the worse rollout of a decisive unit
 BETA = 0.1  # position bias: on a tie the judge picks side A with probability 0.5 + BETA
-ALPHA = 0.05
+# The configured error rate and bootstrap (conf/compare, conf/stats), read rather than copied.
+_CONF = Path(__file__).resolve().parents[1] / "conf"
+ALPHA = float(OmegaConf.load(_CONF / "compare" / "default.yaml").alpha)
 CONCURRENCY = 16
-N_BOOT = 1000
+N_BOOT = int(OmegaConf.load(_CONF / "stats" / "default.yaml").n_boot)
 RUNS = 1000
 DESIGNS = 10
 _SHIFT = 20  # a unit's answers packed as n + (wins << _SHIFT): one gather per bootstrap

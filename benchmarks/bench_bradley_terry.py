@@ -25,8 +25,10 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
 from r2s_eval.stats import (
     bootstrap_bradley_terry,
@@ -41,7 +43,10 @@ from r2s_eval.stats import (
 N_POLICIES = 6
 CHECKPOINTS = np.arange(500, 2001, 100)  # comparisons per policy pair
 N_JUDGES = 8
-N_BOOT = 1000
+# The configured bootstrap (conf/stats/default.yaml), read rather than copied.
+_STATS = OmegaConf.load(Path(__file__).resolve().parents[1] / "conf" / "stats" / "default.yaml")
+N_BOOT = int(_STATS.n_boot)
+LEVEL = float(_STATS.ci_level)
 TRUE_SCORES = np.array([30.0, 24.0, 17.0, 13.0, 9.0, 7.0])  # 100 b, sums to 100
 
 
@@ -195,7 +200,7 @@ def main() -> None:
         unit_boot = unit_bootstrap_bradley_terry(units, n_boot=args.n_boot, seed=args.seed)
         walls.append(time.perf_counter() - wall)
     binom_boot = bootstrap_bradley_terry(units.wins(), n_boot=args.n_boot, seed=args.seed)
-    ratio = bt_ci_width(unit_boot)[-1] / bt_ci_width(binom_boot)[-1]
+    ratio = bt_ci_width(unit_boot, LEVEL)[-1] / bt_ci_width(binom_boot, LEVEL)[-1]
     print(
         f"unit bootstrap, one judge ({units.n_units:,} units, {len(CHECKPOINTS)} checkpoints, "
         f"{len(CHECKPOINTS) * args.n_boot:,} fits, 1 thread): wall " + ", ".join(f"{t:.3f}" for t in walls)

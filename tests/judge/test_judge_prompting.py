@@ -161,6 +161,21 @@ def test_judge_reserve_continues_the_seeded_pair_sequences(episode_table, tmp_pa
     assert sample_reserve(episodes, ["P1", "P2", "P3"], [4, 8], seed=7, n_reserve=0).empty
 
 
+def test_judge_stage_options_default_from_conf():
+    """A judge entry that leaves out its stage options gets conf/judge_options.yaml's values."""
+    from pathlib import Path
+
+    import yaml
+
+    from r2s_eval.judge import STAGE_OPTIONS, stage_defaults
+
+    conf = yaml.safe_load((Path(__file__).resolve().parents[2] / "conf" / "judge_options.yaml").read_text())
+    assert stage_defaults() == conf and sorted(conf) == sorted(STAGE_OPTIONS)
+    assert make_judge({"backend": "kinematic"}).stage_cfg == conf
+    own = make_judge({"backend": "kinematic", "reserve": 7}).stage_cfg
+    assert own["reserve"] == 7 and own["mode"] == conf["mode"]
+
+
 @pytest.mark.parametrize("group", ["default", "vllm", "transformers"])
 def test_judge_shipped_configs_build(group):
     """Every judge the configs ship builds (no model is loaded or contacted)."""

@@ -35,6 +35,9 @@ def test_task_summary_names_unreplayed_episodes():
     with pytest.raises(ValueError, match=r"\[7\]"):
         task_summary(index, log)
 
+# The values conf/ gives every stage (conf/stats/default.yaml ci_level, config.yaml seed).
+STATS = {"ci_level": 0.95, "seed": 0}
+
 
 @pytest.fixture
 def success():
@@ -70,7 +73,7 @@ def test_success_gaps_in_percentage_points(success):
 
 
 def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes):
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"])
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"], n_boot=1000, **STATS, shuffled_permutations=20)
     assert audit["a_share"] == pytest.approx(4 / 6)
     # Same outcome: a1/b1 (both succeed, answered A) and c2/b2 (both fail, answered B).
     assert audit["n_same_outcome"] == 2 and audit["a_share_same_outcome"] == pytest.approx(0.5)
@@ -80,7 +83,7 @@ def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes
 
 def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
     verdicts["swapped_letter"] = ["A", None, "B", "B", "B", None]  # original letters A, B, A, A, A, B
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict", "swapped_letter"])
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict", "swapped_letter"], n_boot=1000, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 4 and audit["swap_column"] == "swapped_letter"
     assert audit["swap_consistency"] == pytest.approx(3 / 4)  # only the first audited row kept its letter
 
@@ -88,15 +91,15 @@ def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
 def test_audit_swap_consistency_skips_empty_answers(verdicts, sim_episodes):
     # The judge stage writes "" where a pair was not audited or its swapped answer was invalid.
     verdicts["verdict_swapped"] = ["B", "", "", "B", "", "A"]  # original letters A, B, A, A, A, B
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"])
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=1000, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 3 and audit["swap_consistency"] == pytest.approx(1.0)
     verdicts["verdict_swapped"] = ""
-    assert judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"])["swap_consistency"] is None
+    assert judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=1000, **STATS, shuffled_permutations=20)["swap_consistency"] is None
 
 
 def test_audit_swap_consistency_from_winners(verdicts, sim_episodes):
     verdicts["swapped_winner"] = ["a", None, "a", "a", "c", None]  # winners a, a, c, a, b, b
-    audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"])
+    audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"], n_boot=1000, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 4 and audit["swap_consistency"] == pytest.approx(0.5)
 
 
@@ -107,7 +110,7 @@ def test_audit_human_agreement_majority_and_flipped_order(verdicts, sim_episodes
         "choice": ["A", "a", "B", "A", "B", "A", "B"],
         "annotator": ["x", "y", "z", "x", "x", "x", "y"],
     })
-    audit = judge_audit(verdicts, sim_episodes, annotations=annotations)
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
     # a1/b1: majority A, judge A (agree). a2/b2 was shown to the judge as b2/a2 and answered B (a2):
     # the annotator's A for a2 agrees. c1/a1: annotator B, judge A. b1/c1: tied vote, left out.
     assert audit["human_agreement"] == pytest.approx(2 / 3)
@@ -124,7 +127,7 @@ def test_audit_human_agreement_by_outcome_category(verdicts, sim_episodes):
         "choice": ["A", "A", "B", "A", "A", "A", "A", "A", "B"],
         "annotator": ["x", "y", "z"] * 3,
     })
-    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=200)
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=200, **STATS, shuffled_permutations=20)
     human = audit["human"]
     assert audit["human_agreement"] == pytest.approx(2 / 3) and human["n_annotators"] == 3
     assert human["votes_per_pair"] == {"3": 3} and human["n_tied_pairs"] == 0 and human["n_unjudged_pairs"] == 0
@@ -146,7 +149,7 @@ def test_audit_human_agreement_by_outcome_category(verdicts, sim_episodes):
 def test_audit_counts_annotated_pairs_the_judge_never_compared(verdicts, sim_episodes):
     # A judge may lack an annotated pair (an excluded comparison): it is counted, not scored.
     annotations = pd.DataFrame({"episode_a": ["a1", "a1"], "episode_b": ["c2", "b1"], "choice": ["A", "A"]})
-    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv")
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=1000, **STATS, shuffled_permutations=20)
     assert audit["human"]["n_unjudged_pairs"] == 1 and audit["n_annotated_pairs"] == 2
     assert audit["human_agreement"] == 1.0 and audit["human"]["judge_agreement"]["n_pairs"] == 1
 
@@ -154,20 +157,20 @@ def test_audit_counts_annotated_pairs_the_judge_never_compared(verdicts, sim_epi
 def test_audit_names_annotation_of_unknown_episode(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["zz"], "choice": ["A"]})
     with pytest.raises(ValueError, match=r"ann\.csv, row 0: episode zz has no sim rollout"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv")
+        judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=1000, **STATS, shuffled_permutations=20)
 
 
 def test_audit_names_an_annotator_answering_a_pair_twice(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1", "b1"], "episode_b": ["b1", "a1"], "choice": ["A", "A"],
                                 "annotator": ["x", "x"]})
     with pytest.raises(ValueError, match=r"rows 0 and 1: annotator x answered episodes b1 / a1 twice"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations)
+        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
 
 
 def test_audit_rejects_bad_choice(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["b1"], "choice": ["left"]})
     with pytest.raises(ValueError, match="choice must be A or B"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations)
+        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
 
 
 def test_win_rate_matrix_ordered_by_win_share(verdicts):
@@ -233,23 +236,23 @@ def test_fit_interval_and_reference_interval(make_fit):
 
 def test_judge_card_outcome_and_planted_order_agreement(verdicts, sim_episodes):
     # Mixed-outcome pairs: a2>b2 (hit), c1 over a1 (miss), a2>c2 (hit), b1>c1 (hit), at inits 1, 0, 1, 0.
-    audit = judge_audit(verdicts, sim_episodes, planted_order=["a", "b", "c"], n_boot=200, shuffled_permutations=0)
+    audit = judge_audit(verdicts, sim_episodes, planted_order=["a", "b", "c"], n_boot=200, shuffled_permutations=0, **STATS)
     outcome = audit["outcome_agreement"]
     assert outcome["share"] == pytest.approx(0.75) and outcome["n_pairs"] == 4 and outcome["n_units"] == 2
     assert outcome["ci_low"] <= 0.75 <= outcome["ci_high"]
     # Same-outcome pairs: a1 over b1 and b2 over c2, both following a > b > c.
     planted = audit["planted_order_agreement"]
     assert planted["share"] == 1.0 and planted["n_pairs"] == 2 and planted["n_unranked_pairs"] == 0
-    reverse = judge_audit(verdicts, sim_episodes, planted_order=["c", "b", "a"], n_boot=200, shuffled_permutations=0)
+    reverse = judge_audit(verdicts, sim_episodes, planted_order=["c", "b", "a"], n_boot=200, shuffled_permutations=0, **STATS)
     assert reverse["planted_order_agreement"]["share"] == 0.0
-    partial = judge_audit(verdicts, sim_episodes, planted_order=["a", "c"], n_boot=200, shuffled_permutations=0)
+    partial = judge_audit(verdicts, sim_episodes, planted_order=["a", "c"], n_boot=200, shuffled_permutations=0, **STATS)
     assert partial["planted_order_agreement"]["share"] is None
     assert partial["planted_order_agreement"]["n_unranked_pairs"] == 2
     assert audit["shuffled_label_control"] is None
 
 
 def test_judge_card_keeps_the_audit_keys_and_adds_counts(verdicts, sim_episodes):
-    audit = judge_audit(verdicts, sim_episodes, n_boot=100, shuffled_permutations=3)
+    audit = judge_audit(verdicts, sim_episodes, n_boot=100, shuffled_permutations=3, **STATS)
     assert audit["a_share"] == pytest.approx(4 / 6) and audit["n_a_answers"] == 4
     assert audit["a_share_same_outcome"] == 0.5 and audit["n_same_outcome"] == 2 and audit["n_a_same_outcome"] == 1
     assert audit["swap_consistency"] is None and audit["n_swapped"] == 0 and audit["n_swap_consistent"] == 0
@@ -263,6 +266,6 @@ def test_judge_card_keeps_the_audit_keys_and_adds_counts(verdicts, sim_episodes)
 def test_judge_card_counts_consistent_swaps(verdicts, sim_episodes):
     verdicts["swapped_verdict"] = ["B", "A", "A", "", None, "A"]  # consistent, consistent, not, -, -, consistent
     audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"], n_boot=50,
-                        shuffled_permutations=0)
+                        shuffled_permutations=0, **STATS)
     assert audit["n_swapped"] == 4 and audit["n_swap_consistent"] == 3
     assert audit["swap_consistency"] == pytest.approx(0.75)

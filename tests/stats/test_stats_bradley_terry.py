@@ -6,6 +6,7 @@ import choix
 import numpy as np
 import pytest
 
+from r2s_eval.errors import ConfigError, StatsError
 from r2s_eval.stats import (
     DisconnectedComparisonsError,
     bootstrap_bradley_terry,
@@ -145,14 +146,16 @@ def test_disconnected_graph_names_the_groups():
 
 
 def test_invalid_inputs_are_named():
-    with pytest.raises(ValueError, match="non-zero diagonal"):
+    with pytest.raises(StatsError, match="non-zero diagonal"):
         fit_bradley_terry(np.array([[1, 2], [3, 0]]))
-    with pytest.raises(ValueError, match="negative"):
+    with pytest.raises(StatsError, match="negative"):
         fit_bradley_terry(np.array([[0, -1], [3, 0]]))
-    with pytest.raises(ValueError, match=r"shape \(\.\.\., P, P\)"):
+    with pytest.raises(StatsError, match=r"shape \(\.\.\., P, P\)"):
         fit_bradley_terry(np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="integer"):
-        bootstrap_bradley_terry(np.array([[0, 1.5], [2, 0]]))
+    with pytest.raises(StatsError, match="integer"):
+        bootstrap_bradley_terry(np.array([[0, 1.5], [2, 0]]), n_boot=5)
+    with pytest.raises(ConfigError, match="n_boot"):  # a bad stats.n_boot is a config error
+        bootstrap_bradley_terry(np.array([[0, 1], [2, 0]]), n_boot=0)
 
 
 def test_batch_matches_plain_mm_per_matrix():
@@ -266,7 +269,7 @@ def test_bootstrap_is_deterministic_and_thread_invariant():
 def test_bootstrap_intervals_cover_known_strengths():
     truth = np.array([0.3, 0.25, 0.2, 0.15, 0.1])
     wins = simulate(truth, full_counts(5, 2000), np.random.default_rng(21))
-    lower, upper = bt_confidence_intervals(bootstrap_bradley_terry(wins, n_boot=1000, seed=0))
+    lower, upper = bt_confidence_intervals(bootstrap_bradley_terry(wins, n_boot=1000, seed=0), level=0.95)
     assert np.all(lower <= 100 * truth) and np.all(100 * truth <= upper)
     assert np.all(upper - lower < 3.0)  # score points
 
@@ -277,8 +280,8 @@ def test_percentile_intervals_by_hand():
     lower, upper = bt_confidence_intervals(boot, level=0.95)
     np.testing.assert_allclose(lower, [2.5, 2.5])
     np.testing.assert_allclose(upper, [97.5, 97.5])
-    assert bt_ci_width(boot) == pytest.approx(95.0)
-    np.testing.assert_allclose(bt_ci_width(np.stack([boot, boot / 2])), [95.0, 47.5])
+    assert bt_ci_width(boot, level=0.95) == pytest.approx(95.0)
+    np.testing.assert_allclose(bt_ci_width(np.stack([boot, boot / 2]), level=0.95), [95.0, 47.5])
     lower90, upper90 = bt_confidence_intervals(boot, level=0.9)
     np.testing.assert_allclose([lower90[0], upper90[0]], [5.0, 95.0])
     with pytest.raises(ValueError, match="level"):

@@ -39,7 +39,7 @@ def result():
     wins = nested_wins(truth, [100, 200, 400], seed=3)
     reference = np.array([0.80, 0.78, 0.55, 0.40, 0.20])
     metrics = checkpoint_metrics(
-        wins, reference, n_boot=300, seed=5, names=list("abcde"), checkpoints=[100, 200, 400]
+        wins, reference, n_boot=300, seed=5, level=0.95, names=list("abcde"), checkpoints=[100, 200, 400]
     )
     return wins, reference, metrics
 
@@ -55,7 +55,7 @@ def test_per_checkpoint_values_match_the_building_blocks(result):
     assert np.all(m.ci_lower <= m.ci_upper)
     assert list(m.per_checkpoint.index) == [100, 200, 400]
     assert list(m.per_checkpoint.columns) == ["ci_width", "spearman", "pearson", "mmrv"]
-    np.testing.assert_allclose(m.per_checkpoint["ci_width"], bt_ci_width(m.boot_strengths))
+    np.testing.assert_allclose(m.per_checkpoint["ci_width"], bt_ci_width(m.boot_strengths, level=0.95))
     for c in range(3):
         assert m.per_checkpoint["spearman"].iloc[c] == pytest.approx(spearman(m.scores[c], reference))
         assert m.per_checkpoint["mmrv"].iloc[c] == pytest.approx(mmrv(m.scores[c], reference))
@@ -82,8 +82,8 @@ def test_policy_table(result):
 def test_input_checks():
     wins = np.array([[0, 3], [2, 0]])
     with pytest.raises(ValueError, match="one value per policy"):
-        checkpoint_metrics(wins, [0.5, 0.4, 0.3], n_boot=10)
-    single = checkpoint_metrics(wins, [0.6, 0.4], n_boot=10)
+        checkpoint_metrics(wins, [0.5, 0.4, 0.3], n_boot=10, level=0.95)
+    single = checkpoint_metrics(wins, [0.6, 0.4], n_boot=10, level=0.95)
     assert single.per_checkpoint.shape == (1, 4)
 
 
@@ -104,7 +104,7 @@ def unit_result():
     units = comparison_units(i, j, won, init, n_policies=4, stratum=task, position=pos, checkpoints=[40, 80, 120])
     reference = np.array([0.7, 0.5, 0.45, 0.2])
     reference_boot = np.random.default_rng(0).normal(reference, 0.08, size=(400, 4))
-    metrics = checkpoint_metrics(units, reference, n_boot=400, seed=2, names=list("abcd"),
+    metrics = checkpoint_metrics(units, reference, n_boot=400, seed=2, level=0.95, names=list("abcd"),
                                  reference_boot=reference_boot)
     return units, reference, reference_boot, metrics
 
@@ -116,17 +116,17 @@ def test_units_give_both_intervals_and_show_the_unit_one(unit_result):
     np.testing.assert_array_equal(m.boot_strengths, unit_bootstrap_bradley_terry(units, n_boot=400, seed=2))
     binomial_boot = bootstrap_bradley_terry(units.wins(), n_boot=400, seed=2)
     np.testing.assert_array_equal(m.boot_by_interval["binomial"], binomial_boot)
-    np.testing.assert_allclose(m.per_checkpoint["ci_width"], bt_ci_width(m.boot_strengths))
+    np.testing.assert_allclose(m.per_checkpoint["ci_width"], bt_ci_width(m.boot_strengths, level=0.95))
     np.testing.assert_allclose(m.ci_width_by_interval["unit"], m.per_checkpoint["ci_width"])
-    np.testing.assert_allclose(m.ci_width_by_interval["binomial"], bt_ci_width(m.boot_by_interval["binomial"]))
+    np.testing.assert_allclose(m.ci_width_by_interval["binomial"], bt_ci_width(m.boot_by_interval["binomial"], level=0.95))
     # Repeated rollout pairs: the unit interval is the wider one at every checkpoint.
     assert (m.ci_width_by_interval["unit"] > m.ci_width_by_interval["binomial"]).all()
-    binomial = checkpoint_metrics(units, reference, n_boot=400, seed=2, interval="binomial")
+    binomial = checkpoint_metrics(units, reference, n_boot=400, seed=2, level=0.95, interval="binomial")
     np.testing.assert_allclose(binomial.per_checkpoint["ci_width"], m.ci_width_by_interval["binomial"])
     with pytest.raises(ValueError, match="ComparisonUnits"):
-        checkpoint_metrics(units.wins(), reference, n_boot=10, interval="unit")
+        checkpoint_metrics(units.wins(), reference, n_boot=10, level=0.95, interval="unit")
     with pytest.raises(ValueError, match="interval must be one of"):
-        checkpoint_metrics(units, reference, n_boot=10, interval="poisson")
+        checkpoint_metrics(units, reference, n_boot=10, level=0.95, interval="poisson")
 
 
 def test_metric_intervals_come_from_the_replicates(unit_result):
@@ -149,5 +149,5 @@ def test_metric_intervals_come_from_the_replicates(unit_result):
     # The unit bootstrap's replicates are coupled across checkpoints: the average has an interval.
     per_replicate = np.mean([[spearman(s, reference) for s in boot_scores[c]] for c in range(3)], axis=0)
     assert m.average_ci["spearman_low"] == pytest.approx(np.percentile(per_replicate, 2.5))
-    binomial = checkpoint_metrics(unit_result[0], reference, n_boot=50, seed=2, interval="binomial")
+    binomial = checkpoint_metrics(unit_result[0], reference, n_boot=50, seed=2, level=0.95, interval="binomial")
     assert np.isnan(binomial.average_ci["spearman_low"])  # independent draws per checkpoint: none

@@ -155,13 +155,13 @@ def test_every_comparison_its_own_unit_matches_the_binomial_width():
     d = design(5, tasks=1, inits=10**9, n=300, rng=rng, spread=0.0)
     d["unit"] = np.arange(len(d["unit"]))  # every comparison its own rollout pair
     units = comparison_units(**d, n_policies=5, checkpoints=[100, 300])
-    unit_w = bt_ci_width(unit_bootstrap_bradley_terry(units, n_boot=2000, seed=0))
-    binom_w = bt_ci_width(bootstrap_bradley_terry(units.wins(), n_boot=2000, seed=0))
+    unit_w = bt_ci_width(unit_bootstrap_bradley_terry(units, n_boot=2000, seed=0), level=0.95)
+    binom_w = bt_ci_width(bootstrap_bradley_terry(units.wins(), n_boot=2000, seed=0), level=0.95)
     np.testing.assert_allclose(unit_w / binom_w, 1.0, atol=0.06)
     # Stratified by task with the same rate in every task: still the binomial width.
     d["stratum"] = d["position"] % 4
     strata = comparison_units(**d, n_policies=5, checkpoints=[100, 300])
-    strat_w = bt_ci_width(unit_bootstrap_bradley_terry(strata, n_boot=2000, seed=0))
+    strat_w = bt_ci_width(unit_bootstrap_bradley_terry(strata, n_boot=2000, seed=0), level=0.95)
     np.testing.assert_allclose(strat_w / binom_w, 1.0, atol=0.06)
 
 
@@ -173,8 +173,8 @@ def test_repeated_rollout_pairs_widen_the_intervals():
     units = comparison_units(**design(4, tasks=7, inits=3, n=400, rng=rng, spread=2.5), n_policies=4,
                              checkpoints=[400])
     assert units.units_per_pair().max() <= 21
-    unit_w = bt_ci_width(unit_bootstrap_bradley_terry(units, n_boot=1000, seed=0))
-    binom_w = bt_ci_width(bootstrap_bradley_terry(units.wins(), n_boot=1000, seed=0))
+    unit_w = bt_ci_width(unit_bootstrap_bradley_terry(units, n_boot=1000, seed=0), level=0.95)
+    binom_w = bt_ci_width(bootstrap_bradley_terry(units.wins(), n_boot=1000, seed=0), level=0.95)
     assert unit_w > 2.0 * binom_w, (unit_w, binom_w)
 
 

@@ -59,7 +59,7 @@ def test_a_foreign_robot_runs_through_the_smoke_chain_as_the_readme_shows(experi
     truth_file = results / "real" / "init_truth.parquet"
     errors = scored_errors(pd.read_parquet(results / "init" / "estimates.parquet"), pd.read_parquet(truth_file))
     report = build_report(read_parquet_metadata(truth_file)["attempts"], errors,
-                          pd.read_parquet(results / "replay" / "log.parquet"), n_boot=200)
+                          pd.read_parquet(results / "replay" / "log.parquet"), level=0.95, n_boot=200, seed=0)
     print(format_table(report))
     for task, entry in report["tasks"].items():
         assert entry["teleop"]["success_rate"] >= 0.75, (task, entry["teleop"])

@@ -18,18 +18,18 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.calib.estimate import wrap_yaw
-from r2s_eval.errors import DataError
+from r2s_eval.errors import ConfigError, DataError
 
 
 def calibration_subset(index: pd.DataFrame, per_task: int) -> pd.DataFrame:
     """The first ``per_task`` episodes (by episode index) of each task: the held-out calibration set."""
     if per_task < 0:
-        raise ValueError(f"calibration episodes per task must be >= 0, got {per_task}")
+        raise ConfigError(f"calibration episodes per task must be >= 0, got {per_task}")
     ordered = index.sort_values("episode_index")
     subset = ordered.groupby("task", sort=True).head(per_task)
     for task, n in ordered.groupby("task").size().items():
         if per_task and n <= per_task:
-            raise ValueError(
+            raise DataError(
                 f"task {task!r} has {n} episode(s): holding out {per_task} for calibration leaves none to score"
             )
     return subset
@@ -54,7 +54,7 @@ def fit_offsets(estimates: pd.DataFrame, measured: pd.DataFrame) -> dict[str, di
     missing = merged[merged["x_m_true"].isna()]
     if len(missing):
         pairs = sorted(zip(missing["episode_index"], missing["object"]))[:5]
-        raise ValueError(f"calibration episodes without a measured pose (episode, object): {pairs}")
+        raise DataError(f"calibration episodes without a measured pose (episode, object): {pairs}")
     offsets: dict[str, dict[str, list[float]]] = {}
     for (task, obj), g in merged.groupby(["task", "object"], sort=True):
         symmetry = int(g["yaw_symmetry"].iloc[0])

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError
+
 
 def _load(label: str, path: str | Path, cls):
     """``cls.from_pretrained`` on a local folder only; a failure names the config key and the folder."""
@@ -112,7 +114,7 @@ def make_grounded_sam(cfg: Mapping, prompts: Mapping[str, str | None]) -> Ground
     prompts = {name: prompt or f"a {name.replace('_', ' ')}" for name, prompt in prompts.items()}
     for key in ("detector_path", "sam_path"):
         if not cfg.get(key):
-            raise ValueError(f"calib.segmenter.{key} is required for type grounded_sam (a local checkpoint folder)")
+            raise ConfigError(f"calib.segmenter.{key} is required for type grounded_sam (a local checkpoint folder)")
     return GroundedSAMSegmenter(cfg["detector_path"], cfg["sam_path"], prompts,
                                 box_threshold=float(cfg.get("box_threshold", 0.3)),
                                 text_threshold=float(cfg.get("text_threshold", 0.25)), device=cfg.get("device", "cpu"))

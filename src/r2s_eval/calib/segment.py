@@ -15,6 +15,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from r2s_eval.errors import ConfigError
+
 
 class Segmenter(Protocol):
     def segment(self, image_rgb: np.ndarray) -> dict[str, np.ndarray]:
@@ -86,7 +88,7 @@ def make_segmenter(cfg: Mapping, object_rgba: Mapping[str, Sequence[float]],
 
         return make_grounded_sam(cfg, {name: (find.get(name) or {}).get("prompt") for name in object_rgba})
     if kind != "hsv":
-        raise ValueError(f"unknown segmenter type {kind!r} (available: hsv, grounded_sam)")
+        raise ConfigError(f"unknown segmenter type {kind!r} (available: hsv, grounded_sam)")
     ranges = {}
     for name, rgba in object_rgba.items():
         if (find.get(name) or {}).get("hue"):

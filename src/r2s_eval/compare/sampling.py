@@ -81,7 +81,7 @@ def checkpoint_sizes(spec: dict) -> list[int]:
 def _check_checkpoints(checkpoints: Sequence[int]) -> list[int]:
     ck = [int(c) for c in checkpoints]
     if not ck or any(c <= 0 for c in ck) or any(c != x for c, x in zip(ck, checkpoints)):
-        raise ValueError(f"checkpoints must be a non-empty list of positive integers, got {list(checkpoints)}")
+        raise ConfigError(f"checkpoints must be a non-empty list of positive integers, got {list(checkpoints)}")
     return sorted(set(ck))
 
 
@@ -149,7 +149,7 @@ def sample_reserve(
     """
     n = _check_checkpoints(checkpoints)[-1]
     if int(n_reserve) < 0:
-        raise ValueError(f"n_reserve must be >= 0, got {n_reserve}")
+        raise ConfigError(f"n_reserve must be >= 0, got {n_reserve}")
     if int(n_reserve) == 0:
         return pd.DataFrame(columns=list(PAIR_COLUMNS))
     extended = sample_pairs(episodes_df, policies, [n + int(n_reserve)], seed)

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.compare.sampling import _check_checkpoints
+from r2s_eval.errors import ConfigError, DataError
 
 _NEEDED = ("pair_index", "policy_i", "policy_j", "policy_a", "policy_b", "winner")
 
@@ -38,11 +39,11 @@ def wins_at_checkpoints(
     """
     lacking = [c for c in _NEEDED if c not in judged_pairs_df.columns]
     if lacking:
-        raise ValueError(f"judged pairs table lacks columns {lacking}")
+        raise DataError(f"judged pairs table lacks columns {lacking}")
     policies = [str(p) for p in policies]
     index = {p: k for k, p in enumerate(policies)}
     if len(index) != len(policies):
-        raise ValueError(f"duplicate policies in {policies}")
+        raise ConfigError(f"duplicate policies in {policies}")
     _check_checkpoints(checkpoints)
     ck = [int(c) for c in checkpoints]
     df = judged_pairs_df[list(_NEEDED)].astype({c: str for c in _NEEDED[1:]})
@@ -51,11 +52,11 @@ def wins_at_checkpoints(
 
     unknown = sorted((set(df["policy_i"]) | set(df["policy_j"])) - set(index))
     if unknown:
-        raise ValueError(f"judged pairs name policies {unknown} that are not in {policies}")
+        raise DataError(f"judged pairs name policies {unknown} that are not in {policies}")
     bad = df[(df["winner"] != df["policy_a"]) & (df["winner"] != df["policy_b"])]
     if len(bad):
         r = bad.iloc[0]
-        raise ValueError(f"pair {r.policy_i} vs {r.policy_j}, pair_index {r.pair_index}: winner {r.winner!r} is neither side")
+        raise DataError(f"pair {r.policy_i} vs {r.policy_j}, pair_index {r.pair_index}: winner {r.winner!r} is neither side")
 
     wins = np.zeros((len(ck), len(policies), len(policies)), dtype=np.int64)
     n_max = max(ck)
@@ -64,7 +65,7 @@ def wins_at_checkpoints(
         seen.add(frozenset((pi, pj)))
         idx = np.sort(g["pair_index"].to_numpy())
         if not adaptive and (len(idx) < n_max or not np.array_equal(idx[:n_max], np.arange(n_max))):
-            raise ValueError(
+            raise DataError(
                 f"pair {pi} vs {pj}: checkpoints need judged comparisons with pair_index 0..{n_max - 1}, "
                 f"found {len(idx)} comparisons"
             )
@@ -76,5 +77,5 @@ def wins_at_checkpoints(
             wins[c, index[pj], index[pi]] = int(np.sum(first & ~win_i))
     missing = [(a, b) for k, a in enumerate(policies) for b in policies[k + 1:] if frozenset((a, b)) not in seen]
     if missing:
-        raise ValueError(f"judged pairs lack policy pairs {missing}")
+        raise DataError(f"judged pairs lack policy pairs {missing}")
     return wins

@@ -116,7 +116,7 @@ class DatasetRecorder:
             self._dataset.add_frame(frame)
             n += 1
         if n == 0:
-            raise ValueError(f"episode {self.num_episodes} of {self.root} has no frames")
+            raise DataError(f"episode {self.num_episodes} of {self.root} has no frames")
         self._dataset.save_episode()
         self._check_videos(n)
         self.num_episodes += 1
@@ -155,7 +155,7 @@ class DatasetRecorder:
         self._shutdown()
         self._dataset.finalize()
         if self.num_episodes == 0:
-            raise ValueError(f"no episode was recorded into {self.root}")
+            raise DataError(f"no episode was recorded into {self.root}")
         # LeRobot's own meta files stay as LeRobot writes them; what made the dataset sits beside them.
         provenance = current_provenance()
         if provenance:

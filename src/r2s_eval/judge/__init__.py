@@ -24,7 +24,7 @@ from r2s_eval.judge.base import (
     CRITERIA,
     PROGRESS_LABELS,
     CriterionNote,
-    STAGE_DEFAULTS,
+    STAGE_OPTIONS,
     Description,
     InvalidAnswer,
     Judge,
@@ -33,6 +33,7 @@ from r2s_eval.judge.base import (
     available_backends,
     make_judge,
     register_judge,
+    stage_defaults,
 )
 from r2s_eval.judge.drivers import describe_rollouts, judge_pairs
 from r2s_eval.judge.kinematic import KinematicJudge
@@ -45,7 +46,7 @@ from r2s_eval.judge.vlm import VLMJudge
 
 __all__ = [
     "CRITERIA",
-    "STAGE_DEFAULTS",
+    "STAGE_OPTIONS",
     "PROGRESS_LABELS",
     "CriterionNote",
     "Description",
@@ -64,5 +65,6 @@ __all__ = [
     "judge_pairs",
     "make_judge",
     "register_judge",
+    "stage_defaults",
     "swap_audited",
 ]

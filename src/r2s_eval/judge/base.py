@@ -14,6 +14,7 @@ and folder names carry no meaning.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.utils.io import config_hash
 
 CRITERIA: tuple[str, ...] = (
@@ -85,7 +87,7 @@ class Description:
     def __post_init__(self) -> None:
         unknown = set(self.criteria) - set(CRITERIA)
         if unknown:
-            raise ValueError(f"unknown description criteria {sorted(unknown)}; expected {list(CRITERIA)}")
+            raise DataError(f"unknown description criteria {sorted(unknown)}; expected {list(CRITERIA)}")
         object.__setattr__(self, "criteria", {k: self.criteria[k] for k in CRITERIA if k in self.criteria})
         missing = [c for c in CRITERIA if _section_missing(c, self.criteria.get(c))]
         if not self.summary.strip():
@@ -139,7 +141,7 @@ class Verdict:
 
     def __post_init__(self) -> None:
         if self.letter not in ("A", "B"):
-            raise ValueError(f"verdict letter must be 'A' or 'B', got {self.letter!r}")
+            raise DataError(f"verdict letter must be 'A' or 'B', got {self.letter!r}")
 
     def to_dict(self) -> dict[str, str]:
         return {"letter": self.letter, "rationale": self.rationale}
@@ -162,12 +164,23 @@ class InvalidAnswer(Exception):
 
 # Options of the stage drivers, not of the judge: they decide which questions are asked and how
 # fast, never how one is answered, so they stay out of the judge identity and its cache keys.
-STAGE_DEFAULTS: dict[str, Any] = {
-    "mode": "two_step",  # two_step: describe each video, compare descriptions; one_step: compare videos
-    "concurrency": 1,  # parallel judge calls (server backends)
-    "swap_share": 0.0,  # share of pairs also asked in swapped order (order-swap audit)
-    "reserve": 50,  # seeded replacement comparisons per policy pair for excluded ones
-}
+STAGE_OPTIONS: tuple[str, ...] = ("mode", "concurrency", "swap_share", "reserve")
+# Their defaults live in conf/ only, beside the judge configs that may set them.
+STAGE_DEFAULTS_FILE = Path(__file__).resolve().parents[3] / "conf" / "judge_options.yaml"
+
+
+@functools.cache
+def stage_defaults() -> dict[str, Any]:
+    """The stage options a judge entry leaves out (conf/judge_options.yaml)."""
+    import yaml
+
+    with open(STAGE_DEFAULTS_FILE) as f:
+        values = yaml.safe_load(f) or {}
+    if sorted(values) != sorted(STAGE_OPTIONS):
+        raise ConfigError(f"{STAGE_DEFAULTS_FILE} must set exactly {list(STAGE_OPTIONS)}, got {sorted(values)}")
+    return values
+
+
 MODES: tuple[str, ...] = ("two_step", "one_step")
 
 
@@ -178,7 +191,7 @@ def plain_config(cfg: Any) -> Any:
     if isinstance(cfg, (list, tuple)):
         return [plain_config(v) for v in cfg]
     if isinstance(cfg, float) and not math.isfinite(cfg):
-        raise ValueError(f"judge config values must be finite numbers, got {cfg}")
+        raise ConfigError(f"judge config values must be finite numbers, got {cfg}")
     return cfg
 
 
@@ -190,8 +203,9 @@ class Judge(ABC):
     ``inputs`` (which recordings the judge reads: "video", "trajectory" or both; the cache key
     covers exactly these bytes and the other paths are withheld).
 
-    The stage options in ``STAGE_DEFAULTS`` (mode, concurrency, swap_share, reserve) are taken out
-    of the config into ``stage_cfg`` before a backend sees it.
+    The stage options (``STAGE_OPTIONS``: mode, concurrency, swap_share, reserve) are taken out of
+    the config into ``stage_cfg`` before a backend sees it; those it leaves out come from
+    :func:`stage_defaults`.
     """
 
     backend: ClassVar[str] = ""
@@ -200,19 +214,20 @@ class Judge(ABC):
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
         self.cfg: dict[str, Any] = plain_config(cfg or {})
-        self.stage_cfg: dict[str, Any] = {k: self.cfg.pop(k, v) for k, v in STAGE_DEFAULTS.items()}
+        defaults = stage_defaults()
+        self.stage_cfg: dict[str, Any] = {k: self.cfg.pop(k, defaults[k]) for k in STAGE_OPTIONS}
         bad = set(self.inputs) - set(INPUT_KINDS)
         if not self.inputs or bad:
             raise ValueError(f"{type(self).__name__}.inputs must be a non-empty subset of {INPUT_KINDS}")
         sc = self.stage_cfg
         if sc["mode"] not in MODES:
-            raise ValueError(f"judge mode must be one of {MODES}, got {sc['mode']!r}")
+            raise ConfigError(f"judge mode must be one of {MODES}, got {sc['mode']!r}")
         if not (isinstance(sc["concurrency"], int) and sc["concurrency"] >= 1):
-            raise ValueError(f"judge concurrency must be an integer >= 1, got {sc['concurrency']!r}")
+            raise ConfigError(f"judge concurrency must be an integer >= 1, got {sc['concurrency']!r}")
         if not 0.0 <= float(sc["swap_share"]) <= 1.0:
-            raise ValueError(f"judge swap_share must be within [0, 1], got {sc['swap_share']!r}")
+            raise ConfigError(f"judge swap_share must be within [0, 1], got {sc['swap_share']!r}")
         if not (isinstance(sc["reserve"], int) and sc["reserve"] >= 0):
-            raise ValueError(f"judge reserve must be an integer >= 0, got {sc['reserve']!r}")
+            raise ConfigError(f"judge reserve must be an integer >= 0, got {sc['reserve']!r}")
 
     @property
     def name(self) -> str:
@@ -279,9 +294,9 @@ def make_judge(cfg: Mapping[str, Any]) -> Judge:
     """Build the judge named by ``cfg["backend"]``; the whole dict is its configuration."""
     backend = cfg.get("backend") if isinstance(cfg, Mapping) else None
     if not backend:
-        raise ValueError(f"judge config needs a 'backend' key (one of {available_backends()})")
+        raise ConfigError(f"judge config needs a 'backend' key (one of {available_backends()})")
     if backend not in _BACKENDS:
-        raise ValueError(f"unknown judge backend {backend!r}; available: {available_backends()}")
+        raise ConfigError(f"unknown judge backend {backend!r}; available: {available_backends()}")
     return _BACKENDS[backend](cfg)
 
 

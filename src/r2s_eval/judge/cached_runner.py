@@ -21,7 +21,7 @@ from typing import Any
 
 import pandas as pd
 
-from r2s_eval.errors import JudgeError, R2SError
+from r2s_eval.errors import DataError, JudgeError, R2SError
 from r2s_eval.judge.cache import AnswerCache
 from r2s_eval.judge.usage import Usage, metered
 from r2s_eval.utils.io import write_json
@@ -76,7 +76,7 @@ def sum_stats(parts: list[dict[str, Any]]) -> dict[str, Any]:
 def require_columns(df: pd.DataFrame, cols: tuple[str, ...], what: str) -> None:
     lacking = [c for c in cols if c not in df.columns]
     if lacking:
-        raise ValueError(f"{what} lacks columns {lacking}")
+        raise DataError(f"{what} lacks columns {lacking}")
 
 
 # One question for the judge: (label for errors, cache key inputs, the call that answers it).

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from r2s_eval.errors import DataError
+
 # Frame rate written into the video part of ``video`` mode. Fixed, never the clip's own, so the
 # container's duration and timestamps (which e.g. Qwen-VL servers turn into text) are the same for
 # every clip: n_frames / VIDEO_PART_FPS seconds. 2 is the rate vLLM samples Qwen-VL videos at, so
@@ -52,9 +54,9 @@ def _decode(path: Path) -> list[np.ndarray]:
             for f in container.decode(video=0):
                 frames.append(f.to_ndarray(format="rgb24"))
     except (av.error.FFmpegError, IndexError) as e:
-        raise ValueError(f"{path}: cannot decode video ({e})") from e
+        raise DataError(f"{path}: cannot decode video ({e})") from e
     if not frames:
-        raise ValueError(f"{path}: the video has no frames")
+        raise DataError(f"{path}: the video has no frames")
     return frames
 
 

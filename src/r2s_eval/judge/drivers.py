@@ -26,6 +26,7 @@ from typing import Any
 
 import pandas as pd
 
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.base import Description, Judge, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
 from r2s_eval.judge.questions import describe_call, description_questions, episode_files, video_questions
@@ -70,7 +71,7 @@ def describe_rollouts(episodes_df: pd.DataFrame, episodes_dir: str | Path, judge
     ids = episodes_df["episode_id"].astype(str)
     dup = ids[ids.duplicated()].unique().tolist()
     if dup:
-        raise ValueError(f"episode table has duplicate episode_id values: {dup[:5]}")
+        raise DataError(f"episode table has duplicate episode_id values: {dup[:5]}")
     episodes_dir = Path(episodes_dir)
     clear_leftovers(Path(cache_dir), ("describe", "requests"))
     judge.attach_cache(cache_dir)
@@ -172,10 +173,10 @@ def _comparisons(mode: str, judge: Judge, cache_dir: str | Path, descriptions_df
     identity = judge.identity()
     if mode == "two_step":
         if descriptions_df is None:
-            raise ValueError(f"judge {judge.name!r} compares descriptions (mode two_step): give the descriptions table")
+            raise ConfigError(f"judge {judge.name!r} compares descriptions (mode two_step): give the descriptions table")
         return description_questions(descriptions_df, judge, identity), AnswerCache(cache_dir, "compare")
     if episodes_df is None or episodes_dir is None:
-        raise ValueError(f"judge {judge.name!r} compares videos (mode one_step): give the episode table and folder")
+        raise ConfigError(f"judge {judge.name!r} compares videos (mode one_step): give the episode table and folder")
     question = video_questions(episodes_df, Path(episodes_dir), judge, identity, Path(cache_dir) / "inputs")
     return question, AnswerCache(cache_dir, "compare_videos")
 

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.judge.base import CriterionNote, Description
 
 
@@ -18,14 +19,14 @@ def merge_config(judge: str, defaults: dict[str, Any], cfg: Mapping[str, Any], n
     at either level are an error naming them."""
     unknown = set(cfg) - set(defaults)
     if unknown:
-        raise ValueError(f"{judge} judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
+        raise ConfigError(f"{judge} judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
     nested = set(nested)
     out = copy.deepcopy(defaults)
     for k, v in cfg.items():
         if k in nested:
             bad = set(v) - set(defaults[k])
             if bad:
-                raise ValueError(f"{judge} judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
+                raise ConfigError(f"{judge} judge: unknown {k} keys {sorted(bad)}; known: {sorted(defaults[k])}")
             out[k].update(v)
         else:
             out[k] = v

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
 from r2s_eval.judge import trajectory as T
@@ -103,10 +104,10 @@ class KinematicJudge(Judge):
             raise ValueError(f"kinematic judge built with backend {self.cfg['backend']!r}")
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
         if bad_ref:
-            raise ValueError(f"kinematic judge: ref levels must be > 0, got {bad_ref}")
+            raise ConfigError(f"kinematic judge: ref levels must be > 0, got {bad_ref}")
         w = self.cfg["weights"]
         if any(float(v) < 0 for v in w.values()) or not sum(float(v) for v in w.values()) > 0:
-            raise ValueError(f"kinematic judge: weights must be >= 0 and not all 0, got {w}")
+            raise ConfigError(f"kinematic judge: weights must be >= 0 and not all 0, got {w}")
         self._unit_scale: np.ndarray | None = None  # dataset units -> model units, per state entry
 
     def know_robot(self, robot: Any) -> None:
@@ -126,14 +127,14 @@ class KinematicJudge(Judge):
         if scale is None:
             return tr
         if tr.state.shape[1] != len(scale):
-            raise ValueError(f"the trajectory's state has {tr.state.shape[1]} entries, the world's robot "
+            raise DataError(f"the trajectory's state has {tr.state.shape[1]} entries, the world's robot "
                              f"{len(scale)} (robot.features)")
         return dataclasses.replace(tr, state=tr.state * scale, action=tr.action * scale)
 
     # ---------------------------------------------------------------- describe
     def describe(self, rollout: RolloutInput) -> Description:
         if rollout.trajectory_path is None:
-            raise ValueError("the kinematic judge reads trajectories; the rollout input has no trajectory_path")
+            raise DataError("the kinematic judge reads trajectories; the rollout input has no trajectory_path")
         c = self.cfg
         tr = self._in_model_units(T.load_trajectory(rollout.trajectory_path))
         smooth = T.smoothness_metrics(tr, c["joint_dims"])

@@ -26,6 +26,7 @@ from functools import cache
 from importlib import resources
 from typing import Any
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.judge.base import CRITERIA, CriterionNote, Description
 
 TEMPLATES: tuple[str, ...] = ("system", "describe", "compare", "compare_videos", "reask")
@@ -81,7 +82,7 @@ _LETTER_RE = re.compile(
 
 def check_prompt_set(prompt_set: str) -> str:
     if prompt_set not in PROMPT_FILES:
-        raise ValueError(f"unknown prompt_set {prompt_set!r}; known: {list(PROMPT_SETS)}")
+        raise ConfigError(f"unknown prompt_set {prompt_set!r}; known: {list(PROMPT_SETS)}")
     return prompt_set
 
 

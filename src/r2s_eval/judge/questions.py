@@ -22,6 +22,7 @@ from typing import Any
 
 import pandas as pd
 
+from r2s_eval.errors import DataError
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import cache_key
 from r2s_eval.judge.cached_runner import Question, require_columns
@@ -36,7 +37,7 @@ def episode_files(eid: str, row: Any, kinds: tuple[str, ...], episodes_dir: Path
     for kind in kinds:
         rel = getattr(row, f"{kind}_path")
         if rel is None or (isinstance(rel, float) and pd.isna(rel)) or str(rel) == "":
-            raise ValueError(f"episode {eid}: no {kind}_path, but judge {judge.name!r} reads the {kind}")
+            raise DataError(f"episode {eid}: no {kind}_path, but judge {judge.name!r} reads the {kind}")
         src = episodes_dir / str(rel)
         if not src.is_file():
             raise FileNotFoundError(f"episode {eid}: {kind} file not found: {src}")
@@ -70,7 +71,7 @@ def description_questions(descriptions_df: pd.DataFrame, judge: Judge, identity:
                     "descriptions table")
     ids = descriptions_df["episode_id"].astype(str)
     if ids.duplicated().any():
-        raise ValueError("descriptions table has duplicate episode_id values")
+        raise DataError("descriptions table has duplicate episode_id values")
     by_id = {
         e: {"instruction": str(i), "description": str(d), "description_sha": str(h)}
         for e, i, d, h in zip(ids, descriptions_df["instruction"], descriptions_df["description"],
@@ -83,7 +84,7 @@ def description_questions(descriptions_df: pd.DataFrame, judge: Judge, identity:
                 raise KeyError(f"{label}: episode {e} has no description")
         da, db = by_id[ea], by_id[eb]
         if da["instruction"] != db["instruction"]:
-            raise ValueError(f"{label}: the two episodes have different instructions")
+            raise DataError(f"{label}: the two episodes have different instructions")
         instruction = da["instruction"]
         inputs = {"a": da["description_sha"], "b": db["description_sha"], "instruction": instruction, "judge": identity}
         return cache_key(inputs), inputs, _compare_call(judge, da["description"], db["description"], instruction)
@@ -106,7 +107,7 @@ def video_questions(episodes_df: pd.DataFrame, episodes_dir: Path, judge: Judge,
             files[side] = episode_files(e, by_id[e], ("video",), episodes_dir, judge, hashes)["video"]
             instructions.add(str(by_id[e].instruction))
         if len(instructions) != 1:
-            raise ValueError(f"{label}: the two episodes have different instructions")
+            raise DataError(f"{label}: the two episodes have different instructions")
         instruction = instructions.pop()
         inputs = {"a": files["a"][1], "b": files["b"][1], "instruction": instruction, "judge": identity}
         return cache_key(inputs), inputs, _compare_videos_call(judge, files, instruction, stage_root)

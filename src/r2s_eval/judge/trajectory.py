@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from r2s_eval.errors import DataError
+
 _LIST_COLUMNS = ("state", "action")
 _EE_PREFIX = "ee_pos_"  # one column per arm: ee_pos_<arm>
 _SCALAR_COLUMNS = ("step", "time_s", "contact_force_n", "progress")
@@ -44,7 +46,7 @@ def _list_column(table: Any, name: str, path: Path) -> np.ndarray:
     n = len(col)
     flat = np.asarray(col.flatten().to_numpy(zero_copy_only=False), dtype=float)
     if n == 0 or flat.size % n:
-        raise ValueError(f"{path}: column {name!r} rows do not all have the same length")
+        raise DataError(f"{path}: column {name!r} rows do not all have the same length")
     return flat.reshape(n, flat.size // n)
 
 
@@ -59,18 +61,18 @@ def load_trajectory(path: str | Path) -> Trajectory:
     ee_columns = [c for c in names if c.startswith(_EE_PREFIX)]
     lacking = [c for c in (*_SCALAR_COLUMNS, *_LIST_COLUMNS) if c not in names] + ([] if ee_columns else [f"{_EE_PREFIX}<arm>"])
     if lacking:
-        raise ValueError(f"{path}: trajectory lacks columns {lacking}")
+        raise DataError(f"{path}: trajectory lacks columns {lacking}")
     list_columns = [*_LIST_COLUMNS, *ee_columns]
     table = pq.read_table(path, columns=[*_SCALAR_COLUMNS, *list_columns])
     if table.num_rows == 0:
-        raise ValueError(f"{path}: trajectory has no steps")
+        raise DataError(f"{path}: trajectory has no steps")
     # Rows are control steps; sort by step in case a writer appended out of order.
     order = np.argsort(table.column("step").to_numpy(), kind="stable")
     scalar = {c: np.asarray(table.column(c).to_numpy(), dtype=float)[order] for c in _SCALAR_COLUMNS}
     lists = {c: _list_column(table, c, path)[order] for c in list_columns}
     for c, arr in {**scalar, **lists}.items():
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{path}: column {c!r} has NaN or infinite values")
+            raise DataError(f"{path}: column {c!r} has NaN or infinite values")
     return Trajectory(
         time_s=scalar["time_s"],
         state=lists["state"],

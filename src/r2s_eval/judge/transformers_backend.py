@@ -16,6 +16,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.judge.base import register_judge
 from r2s_eval.judge.clip_frames import Clip, pil_frames
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge
@@ -47,7 +48,7 @@ class TransformersJudge(VLMJudge):
     def __init__(self, cfg=None):
         super().__init__(cfg)
         if self.cfg["family"] not in FAMILIES:
-            raise ValueError(f"transformers judge: unknown family {self.cfg['family']!r}; known: {sorted(FAMILIES)}")
+            raise ConfigError(f"transformers judge: unknown family {self.cfg['family']!r}; known: {sorted(FAMILIES)}")
         self._model = self._processor = None
         self._lock = threading.Lock()  # one generate at a time on one model
 

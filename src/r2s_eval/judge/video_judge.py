@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.cache import cache_key
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
@@ -138,7 +139,7 @@ def goal_relation(task) -> tuple[str, str, str | None]:
     upright = [params["object"] for name, params in found if name == "upright"]
     if upright:
         return "upright", upright[0], None
-    raise ValueError(f"video judge: task {task.key!r} has no goal the judge can see (on_top_of, inside, "
+    raise ConfigError(f"video judge: task {task.key!r} has no goal the judge can see (on_top_of, inside, "
                      f"covered_by, apart or upright in its success)")
 
 
@@ -159,7 +160,7 @@ def task_from_instruction(instruction: str, tasks: Mapping[str, Any] | None = No
         if score > best_score:
             best, best_score = key, score
     if best is None or best_score < 0.5:
-        raise ValueError(f"video judge: no known task matches the instruction {instruction!r}")
+        raise DataError(f"video judge: no known task matches the instruction {instruction!r}")
     return best
 
 
@@ -346,11 +347,11 @@ class VideoJudge(Judge):
             raise ValueError(f"video judge built with backend {self.cfg['backend']!r}")
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
         if bad_ref:
-            raise ValueError(f"video judge: ref levels must be > 0, got {bad_ref}")
+            raise ConfigError(f"video judge: ref levels must be > 0, got {bad_ref}")
         if int(self.cfg["blur_px"]) and int(self.cfg["blur_px"]) % 2 == 0:
-            raise ValueError(f"video judge: blur_px must be odd or 0, got {self.cfg['blur_px']}")
+            raise ConfigError(f"video judge: blur_px must be odd or 0, got {self.cfg['blur_px']}")
         if not int(self.cfg["end_frames"]) >= 1:
-            raise ValueError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
+            raise ConfigError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
         self._segmenters: dict[str, Any] = {}
         from r2s_eval.sim.tasks import TASKS
 
@@ -385,7 +386,7 @@ class VideoJudge(Judge):
     # ---------------------------------------------------------------- describe
     def describe(self, rollout: RolloutInput) -> Description:
         if rollout.video_path is None:
-            raise ValueError("the video judge reads videos; the rollout input has no video_path")
+            raise DataError("the video judge reads videos; the rollout input has no video_path")
         from r2s_eval.rollout.mp4 import read_video
 
         c = self.cfg

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.base import Description, InvalidAnswer, Judge, RolloutInput, Verdict
 from r2s_eval.judge.cache import AnswerCache, cache_key
 from r2s_eval.judge.clip_frames import Clip, sample_clip
@@ -93,7 +94,7 @@ class MalformedReply(Exception):
 def merge_config(kind: str, defaults: Mapping[str, Any], cfg: Mapping[str, Any]) -> dict[str, Any]:
     unknown = set(cfg) - set(defaults)
     if unknown:
-        raise ValueError(f"{kind} judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
+        raise ConfigError(f"{kind} judge: unknown config keys {sorted(unknown)}; known: {sorted(defaults)}")
     out = copy.deepcopy(dict(defaults))
     out.update(copy.deepcopy(dict(cfg)))
     return out
@@ -112,7 +113,7 @@ class VLMJudge(Judge):
         super().__init__(cfg)
         removed = sorted({"fps", "over_budget"} & set(self.cfg))
         if removed:
-            raise ValueError(
+            raise ConfigError(
                 f"{self.backend} judge: {removed} no longer exist; every video is shown as exactly max_frames "
                 "frames spread over the whole clip, so the number of frames cannot reveal its length"
             )
@@ -120,13 +121,13 @@ class VLMJudge(Judge):
         if self.cfg["backend"] != self.backend:
             raise ValueError(f"{self.backend} judge built with backend {self.cfg['backend']!r}")
         if not self.cfg["model"]:
-            raise ValueError(f"{self.backend} judge needs a 'model'")
+            raise ConfigError(f"{self.backend} judge needs a 'model'")
         try:
             check_prompt_set(self.cfg["prompt_set"])
         except ValueError as e:
-            raise ValueError(f"{self.backend} judge: {e}") from None
+            raise ConfigError(f"{self.backend} judge: {e}") from None
         if int(self.cfg["max_frames"]) < 1 or int(self.cfg["max_new_tokens"]) < 1:
-            raise ValueError(f"{self.backend} judge: max_frames and max_new_tokens must be positive")
+            raise ConfigError(f"{self.backend} judge: max_frames and max_new_tokens must be positive")
         self.prompt_set = str(self.cfg["prompt_set"])
         self._requests: AnswerCache | None = None
         self._local = threading.local()  # the deadline of the judge call running in this thread
@@ -204,7 +205,7 @@ class VLMJudge(Judge):
 
     def _clip(self, path: Path | None) -> Clip:
         if path is None:
-            raise ValueError(f"the {self.backend} judge watches videos; the rollout input has no video_path")
+            raise DataError(f"the {self.backend} judge watches videos; the rollout input has no video_path")
         return sample_clip(path, int(self.cfg["max_frames"]), self.cfg["max_side_px"])
 
     def _ask_letter(self, content: list[Any]) -> Verdict:

@@ -79,7 +79,7 @@ def _ci(interval: tuple[float, float] | None) -> list[float] | None:
     return None if interval is None else [interval[0], interval[1]]
 
 
-def replay_summary(log_table: pd.DataFrame, level: float = 0.95) -> dict:
+def replay_summary(log_table: pd.DataFrame, level: float) -> dict:
     test = log_table[~log_table["calibration"]] if "calibration" in log_table else log_table
     out = {}
     for task, rows in test.groupby("task", sort=False):
@@ -114,8 +114,8 @@ def gap_by_task(cells: pd.DataFrame) -> dict[str, list[dict]]:
 
 def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.DataFrame,
                  init_s_per_episode: float | None = None, reference: pd.DataFrame | None = None,
-                 sim_episodes: pd.DataFrame | None = None, level: float = 0.95, n_boot: int = 1000,
-                 seed=0) -> dict:
+                 sim_episodes: pd.DataFrame | None = None, *, level: float, n_boot: int,
+                 seed: int) -> dict:
     """The report above; the real-sim gap needs both ``reference`` and ``sim_episodes``."""
     teleop, init = teleop_summary(attempts), init_error_summary(errors)
     replay = replay_summary(replay_log, level)

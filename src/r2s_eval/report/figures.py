@@ -19,6 +19,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from r2s_eval.errors import DataError
 from r2s_eval.report.summaries import fit_interval
 from r2s_eval.stats import spearman
 from r2s_eval.utils.io import atomic_path, provenance_line
@@ -87,7 +88,7 @@ def convergence_figure(fits: Mapping[str, pd.DataFrame], opts: Mapping) -> Figur
     (panels per row), band_alpha, marker; width_in and height_in are per panel."""
     judges = sorted(fits)
     if not judges:
-        raise ValueError("no fit tables to plot")
+        raise DataError("no fit tables to plot")
     ncols = max(1, min(int(opts["columns"]), len(judges)))
     nrows = math.ceil(len(judges) / ncols)
     with matplotlib.rc_context(_rc(opts)):
@@ -133,7 +134,7 @@ def ranking_figure(averaged: pd.DataFrame, reference_rate: Mapping[str, float], 
     Options: score_color, reference_color."""
     missing = sorted(set(averaged.index) - set(reference_rate))
     if missing:
-        raise ValueError(f"no reference success rate for policies {missing}")
+        raise DataError(f"no reference success rate for policies {missing}")
     policies = sorted(averaged.index, key=lambda p: (reference_rate[p], p))  # best at the top of a barh plot
     avg = averaged.loc[policies]
     ref = np.array([100 * reference_rate[p] for p in policies])
@@ -175,7 +176,7 @@ def operator_hours(seconds_per_trial: Mapping[str, float], n_policies: int, task
     real trials each (``trials_per_task`` may be an array)."""
     missing = [c for c in HARDWARE_COMPONENTS if c not in seconds_per_trial]
     if missing:
-        raise ValueError(f"seconds_per_trial lacks components {missing}")
+        raise DataError(f"seconds_per_trial lacks components {missing}")
     trials = n_policies * tasks * np.asarray(trials_per_task, dtype=float)
     return {c: trials * float(seconds_per_trial[c]) / 3600 for c in HARDWARE_COMPONENTS}
 

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.compare import wins_at_checkpoints
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.stats import (
     OUTCOME_CATEGORIES,
     fleiss,
@@ -30,7 +31,7 @@ from r2s_eval.stats import (
 def _require(df: pd.DataFrame, cols: Sequence[str], what: str) -> None:
     lacking = [c for c in cols if c not in df.columns]
     if lacking:
-        raise ValueError(f"{what} lacks columns {lacking} (has {list(df.columns)})")
+        raise DataError(f"{what} lacks columns {lacking} (has {list(df.columns)})")
 
 
 def _nan_to_none(value: float) -> float | None:
@@ -52,7 +53,7 @@ def task_summary(index: pd.DataFrame, replay_log: pd.DataFrame) -> pd.DataFrame:
     _require(replay_log, ["episode_index", "task", "success"], "replay log")
     missing = sorted(set(index["episode_index"]) - set(replay_log["episode_index"]))
     if missing:
-        raise ValueError(f"replay log has no row for ingested episodes {missing[:10]}")
+        raise DataError(f"replay log has no row for ingested episodes {missing[:10]}")
     real = index.groupby("task").size().rename("real")
     log = replay_log[replay_log["episode_index"].isin(index["episode_index"])]
     sim = log.groupby("task")["success"].agg(["sum", "size"])
@@ -117,15 +118,15 @@ def _annotation_votes(annotations: pd.DataFrame, known: set[str], source: str) -
             annotations["episode_a"].astype(str), annotations["episode_b"].astype(str),
             annotations["choice"].astype(str).str.strip().str.upper(), who)):
         if choice not in flip:
-            raise ValueError(f"{source}, row {row} (episodes {ea} / {eb}): choice must be A or B, got {choice!r}")
+            raise DataError(f"{source}, row {row} (episodes {ea} / {eb}): choice must be A or B, got {choice!r}")
         for e in (ea, eb):
             if e not in known:
-                raise ValueError(f"{source}, row {row}: episode {e} has no sim rollout")
+                raise DataError(f"{source}, row {row}: episode {e} has no sim rollout")
         if ea == eb:
-            raise ValueError(f"{source}, row {row}: episode {ea} is compared with itself")
+            raise DataError(f"{source}, row {row}: episode {ea} is compared with itself")
         pair = oriented.setdefault(frozenset((ea, eb)), (ea, eb))
         if (annotator, pair) in seen:
-            raise ValueError(f"{source}, rows {seen[(annotator, pair)]} and {row}: annotator {annotator} answered "
+            raise DataError(f"{source}, rows {seen[(annotator, pair)]} and {row}: annotator {annotator} answered "
                              f"episodes {ea} / {eb} twice")
         seen[(annotator, pair)] = row
         rows.append((pair, choice if pair == (ea, eb) else flip[choice], annotator))
@@ -142,7 +143,7 @@ def _pair_units(pairs: Sequence[tuple[str, str]], sim_episodes: pd.DataFrame) ->
 
 
 def human_agreement(verdicts: pd.DataFrame, annotations: pd.DataFrame, sim_episodes: pd.DataFrame, *,
-                    source: str = "annotations", n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+                    source: str = "annotations", n_boot: int, level: float, seed: int) -> dict:
     """Human annotators among themselves and against the judge, overall and by outcome category.
 
     ``annotations``: one row per (pair, annotator) with episode_a, episode_b, choice ('A' or 'B'
@@ -243,8 +244,8 @@ def _units(verdicts: pd.DataFrame) -> list:
     return [("", str(k)) for k in range(len(verdicts))]
 
 
-def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boot: int = 1000,
-                      level: float = 0.95, seed=0) -> dict:
+def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boot: int,
+                      level: float, seed: int) -> dict:
     """On pairs where one rollout succeeded and the other failed (sim outcomes): the share of
     verdicts preferring the successful one, with its unit-bootstrap interval over the
     distinct (task, init) units (:func:`~r2s_eval.stats.unit_share`)."""
@@ -259,7 +260,7 @@ def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boo
 
 
 def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], planted_order: Sequence[str] | None,
-                            *, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict | None:
+                            *, n_boot: int, level: float, seed: int) -> dict | None:
     """On pairs with the same outcome (both succeeded or both failed) between two policies of
     ``planted_order`` (best first): the share of verdicts preferring the policy placed
     earlier, with its unit-bootstrap interval. None when no order is given."""
@@ -280,8 +281,8 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
     return out
 
 
-def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot: int = 1000, level: float = 0.95,
-                    seed=0) -> dict | None:
+def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int, n_boot: int, level: float,
+                    seed: int) -> dict | None:
     """The shuffled-label control of the BT fit (:func:`~r2s_eval.stats.shuffled_label_control`)
     on all judged comparisons; None without (task, init_id) columns or permutations."""
     if n_permutations <= 0 or not {"task", "init_id"} <= set(verdicts.columns):
@@ -299,7 +300,7 @@ def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int = 20, n_boot:
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
                 annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
                 swapped_winner_columns: Sequence[str] = (), planted_order: Sequence[str] | None = None,
-                n_boot: int = 1000, ci_level: float = 0.95, seed=0, shuffled_permutations: int = 20) -> dict:
+                n_boot: int, ci_level: float, seed: int, shuffled_permutations: int) -> dict:
     """How far one judge can be trusted beyond the ranking metrics: its report card.
 
     Position bias (share of A answers, overall and on pairs whose two rollouts had the same
@@ -316,7 +317,7 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
     success = dict(zip(sim_episodes["episode_id"].astype(str), sim_episodes["success"].astype(bool)))
     unknown = sorted((set(verdicts["episode_a"].astype(str)) | set(verdicts["episode_b"].astype(str))) - set(success))
     if unknown:
-        raise ValueError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
+        raise DataError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
     same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
                                                                verdicts["episode_b"].astype(str))], dtype=bool)
     bias = position_bias(verdicts["verdict"].tolist(), same)
@@ -372,13 +373,13 @@ def judge_averaged_scores(fits: dict[str, pd.DataFrame]) -> pd.DataFrame:
     """Per policy at the last checkpoint: the score, CI bounds and checkpoint averaged over
     judges, plus one ``score:<judge>`` column per judge."""
     if not fits:
-        raise ValueError("no fit tables given")
+        raise DataError("no fit tables given")
     last = {judge: last_checkpoint(fit) for judge, fit in fits.items()}
     policies = sorted(set().union(*(set(t.index) for t in last.values())))
     for judge, table in last.items():
         lacking = sorted(set(policies) - set(table.index))
         if lacking:
-            raise ValueError(f"judge {judge}: no score for policies {lacking} at its last checkpoint")
+            raise DataError(f"judge {judge}: no score for policies {lacking} at its last checkpoint")
     out = pd.DataFrame(index=pd.Index(policies, name="policy"))
     for col in ("score", "ci_low", "ci_high"):
         out[col] = np.mean([last[j].loc[policies, col].to_numpy() for j in sorted(last)], axis=0)
@@ -399,7 +400,7 @@ def fit_interval(fits: dict[str, pd.DataFrame] | pd.DataFrame) -> tuple[str, flo
         level = float(fit["ci_level"].iloc[0]) if "ci_level" in fit.columns and len(fit) else 0.95
         found.add((interval, level))
     if len(found) > 1:
-        raise ValueError(f"fit tables disagree on their score interval: {sorted(found)}")
+        raise DataError(f"fit tables disagree on their score interval: {sorted(found)}")
     return found.pop() if found else ("binomial", 0.95)
 
 
@@ -434,13 +435,13 @@ def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcomes
     outcomes = [outcomes] if isinstance(outcomes, str) else list(outcomes)
     bad = [o for o in outcomes if o not in ("success", "failure", "any")]
     if bad or not outcomes:
-        raise ValueError(f"case-study outcomes must be success, failure or any, got {outcomes!r}")
+        raise ConfigError(f"case-study outcomes must be success, failure or any, got {outcomes!r}")
     episodes = sim_episodes.assign(episode_id=sim_episodes["episode_id"].astype(str)).set_index("episode_id")
     ok = episodes["success"].astype(bool)
     v = verdicts.assign(episode_a=verdicts["episode_a"].astype(str), episode_b=verdicts["episode_b"].astype(str))
     unknown = sorted((set(v["episode_a"]) | set(v["episode_b"])) - set(ok.index))
     if unknown:
-        raise ValueError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
+        raise DataError(f"verdicts name episodes with no sim rollout: {unknown[:5]}")
     sa, sb = ok.loc[v["episode_a"]].to_numpy(), ok.loc[v["episode_b"]].to_numpy()
     counts = {}
     for outcome in outcomes:
@@ -453,7 +454,7 @@ def pick_case_study(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, outcomes
         if int(rank) < len(candidates):
             break
     else:
-        raise ValueError(f"no case study at rank {rank}: candidate pairs with the same outcome per outcome tried: {counts}")
+        raise DataError(f"no case study at rank {rank}: candidate pairs with the same outcome per outcome tried: {counts}")
     row = candidates.iloc[int(rank)]
     preferred, other = (row.episode_a, row.episode_b) if str(row.verdict).upper() == "A" else (row.episode_b, row.episode_a)
     return {

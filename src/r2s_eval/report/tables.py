@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.report.summaries import fit_interval, last_checkpoint, success_gaps
 
 _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
@@ -174,7 +175,7 @@ def realsim_table(validations: Mapping[str, dict], audits: Mapping[str, dict] | 
     (validate's ``interval``; older JSON without it: binomial).
     """
     if metrics_at not in ("average", "last"):
-        raise ValueError(f"metrics_at must be 'average' or 'last', got {metrics_at!r}")
+        raise ConfigError(f"metrics_at must be 'average' or 'last', got {metrics_at!r}")
     audits = audits or {}
     values = {}
     for judge in sorted(validations):

@@ -10,6 +10,8 @@ from pathlib import Path
 import av
 import numpy as np
 
+from r2s_eval.errors import DataError
+
 
 class VideoWriter:
     """Encodes RGB uint8 frames (all HxWx3, even sizes) as they come, into a temporary sibling
@@ -50,7 +52,7 @@ class VideoWriter:
     def close(self) -> None:
         if self._stream is None:
             self.abort()
-            raise ValueError(f"no frames to write to {self.path}")
+            raise DataError(f"no frames to write to {self.path}")
         try:
             for packet in self._stream.encode():
                 self._container.mux(packet)
@@ -71,7 +73,7 @@ class VideoWriter:
 def write_video(path: str | Path, frames: Sequence[np.ndarray], fps: int, preset: str = "ultrafast") -> None:
     """Encode RGB uint8 frames (all HxWx3, even sizes) to `path` atomically."""
     if not len(frames):
-        raise ValueError(f"no frames to write to {path}")
+        raise DataError(f"no frames to write to {path}")
     writer = VideoWriter(path, fps, preset)
     try:
         for image in frames:

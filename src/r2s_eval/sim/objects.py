@@ -49,6 +49,8 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from r2s_eval.errors import ConfigError
+
 if TYPE_CHECKING:
     from r2s_eval.sim.meshes import MeshShape
 
@@ -156,7 +158,7 @@ def placement_quat(placement: str, yaw_rad: float, kind: str = "", dims: dict | 
         pitch = np.pi / 2 - taper_rad(kind, dims or {})
         base = np.array([np.cos(pitch / 2), 0.0, np.sin(pitch / 2), 0.0])
     else:
-        raise ValueError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
+        raise ConfigError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
     return _quat_mul(yaw_quat(yaw_rad), base)
 
 
@@ -173,7 +175,7 @@ def placement_origin_m(kind: str, dims: dict, placement: str, x_m: float, y_m: f
         xy = np.array([x_m, y_m]) - axis * np.cos(lean) * dims["height_m"] / 2
         # The bottom disc's lowest point touches the support.
         return np.array([xy[0], xy[1], support_z_m + dims.get("base_radius_m", dims["radius_m"]) * np.cos(lean)])
-    raise ValueError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
+    raise ConfigError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
 
 
 def planar_pose(kind: str, dims: dict, placement: str, pos_world_m, quat_wxyz) -> tuple[float, float, float]:

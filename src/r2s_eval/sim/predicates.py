@@ -58,6 +58,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import height_m
 
 # Defaults of the predicates' parameters (the bundled tasks' thresholds).
@@ -157,7 +158,7 @@ def _footprint(scene: Scene, name: str) -> tuple[np.ndarray, list[np.ndarray]]:
         axes = [R[:2, 0] / np.linalg.norm(R[:2, 0]), R[:2, 1] / np.linalg.norm(R[:2, 1])]
         signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], float)
         return s["pos_world_m"][:2] + (signs * _half_extent(scene, name)) @ np.array(axes), axes
-    raise ValueError(f"apart: no footprint for a {kind} ({name}); blocks, boxes and meshes have one")
+    raise ConfigError(f"apart: no footprint for a {kind} ({name}); blocks, boxes and meshes have one")
 
 
 def _half_extent(scene: Scene, name: str) -> np.ndarray:
@@ -228,7 +229,7 @@ def on_table(scene: Scene, object: str, face: str = "bottom", tolerance_m: float
         lowest = _block_corners_world(scene, object)[0][:, 2].min()
         return bool(abs(lowest - table) < tolerance_m
                     and abs(centre_m(scene, object)[2] - table - size / 2) < tolerance_m)
-    raise ValueError(f"on_table: face {face!r} is not defined for a {kind} ({object}); bottom, top, or any for a block")
+    raise ConfigError(f"on_table: face {face!r} is not defined for a {kind} ({object}); bottom, top, or any for a block")
 
 
 def on_top_of(scene: Scene, object: str, support: str, tolerance_m: float = RESTING_TOLERANCE_M,
@@ -243,7 +244,7 @@ def on_top_of(scene: Scene, object: str, support: str, tolerance_m: float = REST
     if kind == "mesh":  # on the top of its bounding box
         p, within = _in_bounds(scene, scene.object_state(object)["pos_world_m"], support, inset_m)
         return bool(within and abs(p[2] - scene.object_dims(support)["height_m"]) < tolerance_m)
-    raise ValueError(f"on_top_of: a {kind} ({support}) has no top face defined; plates, blocks and meshes have")
+    raise ConfigError(f"on_top_of: a {kind} ({support}) has no top face defined; plates, blocks and meshes have")
 
 
 def inside(scene: Scene, object: str, container: str) -> bool:
@@ -257,12 +258,12 @@ def inside(scene: Scene, object: str, container: str) -> bool:
     if kind == "mesh":  # a concave scan (a bowl): the centre within its bounding box
         p, within = _in_bounds(scene, centre_m(scene, object), container)
         return bool(within and 0 < p[2] < scene.object_dims(container)["height_m"])
-    raise ValueError(f"inside: a {kind} ({container}) is not a container; cups, boxes and meshes are")
+    raise ConfigError(f"inside: a {kind} ({container}) is not a container; cups, boxes and meshes are")
 
 
 def covered_by(scene: Scene, object: str, cover: str, margin_m: float = COVER_MARGIN_M) -> bool:
     if scene.object_kind(cover) != "cup":
-        raise ValueError(f"covered_by: a {scene.object_kind(cover)} ({cover}) cannot cover; a cup can")
+        raise ConfigError(f"covered_by: a {scene.object_kind(cover)} ({cover}) cannot cover; a cup can")
     g = _in_cup(scene, object, cover)
     return bool(g["offset_m"] < g["inner_r"] - scene.object_dims(object)["radius_m"] + margin_m)
 
@@ -287,7 +288,7 @@ def over(scene: Scene, object: str, target: str, tolerance_m: float = RESTING_TO
     if kind == "mesh":  # above its bottom, within its footprint (over a bowl's opening, or its top)
         p, within = _in_bounds(scene, centre_m(scene, object), target)
         return bool(within and p[2] > 0)
-    raise ValueError(f"over: 'over a {kind}' ({target}) is not defined; plates, cups, boxes, blocks, meshes, "
+    raise ConfigError(f"over: 'over a {kind}' ({target}) is not defined; plates, cups, boxes, blocks, meshes, "
                      f"and a cup over a ball")
 
 

@@ -13,6 +13,8 @@ import numpy as np
 import pandas as pd
 from statsmodels.stats.inter_rater import fleiss_kappa
 
+from r2s_eval.errors import DataError
+
 # Outcome categories of a pair of rollouts (sim outcomes), the strata of the human agreement.
 SUCCESS_SUCCESS, FAILURE_FAILURE, MIXED = "success-success", "failure-failure", "success-failure"
 OUTCOME_CATEGORIES: tuple[str, ...] = (SUCCESS_SUCCESS, FAILURE_FAILURE, MIXED)
@@ -32,7 +34,7 @@ def vote_table(pairs, letters) -> pd.DataFrame:
     frame = pd.DataFrame({"pair": list(pairs), "letter": [str(x).strip().upper() for x in letters]})
     bad = sorted(set(frame["letter"]) - {"A", "B"})
     if bad:
-        raise ValueError(f"votes must be A or B, got {bad[:5]}")
+        raise DataError(f"votes must be A or B, got {bad[:5]}")
     counts = frame.groupby(["pair", "letter"], sort=False).size().unstack(fill_value=0)
     counts = counts.reindex(columns=["A", "B"], fill_value=0)
     return counts.reindex(pd.unique(frame["pair"])).astype(int)

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import StatsError
 from r2s_eval.stats.bradley_terry import bt_confidence_intervals, bt_scores, fit_bradley_terry
 from r2s_eval.stats.units import comparison_units, tagged_seed, unit_bootstrap_bradley_terry
 
@@ -26,7 +27,7 @@ SHARE_KEY = 0x73686172  # spawn-key tag of the share bootstrap ("shar")
 SHUFFLE_KEY = 0x73687566  # spawn-key tag of the label permutations ("shuf")
 
 
-def unit_share(hits, units: Sequence, *, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+def unit_share(hits, units: Sequence, *, n_boot: int, level: float, seed=0) -> dict:
     """Share of ``hits`` (booleans, one per verdict) with its unit-bootstrap percentile interval.
 
     ``units``: one hashable label per verdict (e.g. ``(task, init_id)``). Returns ``share``,
@@ -35,7 +36,7 @@ def unit_share(hits, units: Sequence, *, n_boot: int = 1000, level: float = 0.95
     """
     hit = np.asarray(hits, dtype=bool)
     if hit.ndim != 1 or len(units) != hit.size:
-        raise ValueError("hits and units must be 1-D of equal length")
+        raise StatsError("hits and units must be 1-D of equal length")
     out = {"share": None, "ci_low": None, "ci_high": None, "n_pairs": int(hit.size), "n_units": 0,
            "ci_level": float(level), "interval": "unit bootstrap over (task, init)"}
     if hit.size == 0:
@@ -75,7 +76,7 @@ def _fit_with_ci(i, j, i_won, task, init, P, n_boot, level, seed) -> tuple[np.nd
 
 
 def shuffled_label_control(policy_i, policy_j, i_won, task, init, *, policies: Sequence[str],
-                           n_permutations: int = 20, n_boot: int = 1000, level: float = 0.95, seed=0) -> dict:
+                           n_permutations: int, n_boot: int, level: float, seed=0) -> dict:
     """The BT fit with unit-bootstrap CIs on the real labels and on ``n_permutations`` label
     permutations (all comparisons given: the last checkpoint).
 

@@ -35,7 +35,7 @@ from r2s_eval.stats._pairs import (
     transitive_closure,
 )
 
-from r2s_eval.errors import StatsError
+from r2s_eval.errors import ConfigError, StatsError
 
 MM_MAX_ITER = 1000
 MM_TOL = 1e-8  # max abs change of the normalised strengths between MM iterations
@@ -79,24 +79,24 @@ class DisconnectedComparisonsError(StatsError):
 def _as_wins(wins, *, integer: bool = False) -> np.ndarray:
     arr = np.asarray(wins, dtype=np.float64)
     if arr.ndim < 2 or arr.shape[-1] != arr.shape[-2]:
-        raise ValueError(f"wins must have shape (..., P, P), got {arr.shape}")
+        raise StatsError(f"wins must have shape (..., P, P), got {arr.shape}")
     if arr.shape[-1] == 0:
-        raise ValueError("wins has no policies")
+        raise StatsError("wins has no policies")
     if not np.all(np.isfinite(arr)):
-        raise ValueError("wins contains NaN or infinite counts")
+        raise StatsError("wins contains NaN or infinite counts")
     if np.any(arr < 0):
-        raise ValueError("wins contains negative counts")
+        raise StatsError("wins contains negative counts")
     diag = np.diagonal(arr, axis1=-2, axis2=-1)
     if np.any(diag != 0):
-        raise ValueError("wins has a non-zero diagonal: a policy cannot be compared with itself")
+        raise StatsError("wins has a non-zero diagonal: a policy cannot be compared with itself")
     if integer and np.any(arr != np.round(arr)):
-        raise ValueError("bootstrap resampling needs integer win counts")
+        raise StatsError("bootstrap resampling needs integer win counts")
     return arr
 
 
 def _check_names(names: Sequence[str] | None, n_policies: int) -> None:
     if names is not None and len(names) != n_policies:
-        raise ValueError(f"names has {len(names)} entries for {n_policies} policies")
+        raise StatsError(f"names has {len(names)} entries for {n_policies} policies")
 
 
 def comparison_groups(wins) -> list[list[int]]:
@@ -224,7 +224,7 @@ def _run_units(task, n_units: int, P: int, n_threads: int | None) -> int:
     if n_threads is None:
         n_threads = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     if int(n_threads) != n_threads or n_threads < 1:
-        raise ValueError(f"n_threads must be a positive integer or None, got {n_threads!r}")
+        raise ConfigError(f"n_threads must be a positive integer or None, got {n_threads!r}")
     n_threads = min(int(n_threads), n_units)
     if n_threads <= 1:
         work = _newton.Workspace(P)
@@ -270,7 +270,7 @@ def fit_bradley_terry(wins, *, names: Sequence[str] | None = None) -> np.ndarray
     """
     arr = _as_wins(wins)
     if arr.ndim != 2:
-        raise ValueError(
+        raise StatsError(
             f"fit_bradley_terry takes one (P, P) matrix, got shape {arr.shape}; "
             "use fit_bradley_terry_batch for a stack"
         )
@@ -321,7 +321,7 @@ def fit_bradley_terry_batch(
     if init is not None:
         start = np.broadcast_to(np.asarray(init, dtype=np.float64), batch_shape + (P,))
         if np.any(~np.isfinite(start)) or np.any(start < 0):
-            raise ValueError("init must hold finite, non-negative strengths")
+            raise StatsError("init must hold finite, non-negative strengths")
         theta0 = np.log(np.maximum(start.reshape(-1, P).T, 1e-300))
     w_ij, w_ji = to_pairs(flat)
     B = w_ij.shape[1]
@@ -344,7 +344,7 @@ def fit_bradley_terry_batch(
 
 def _check_n_boot(n_boot) -> int:
     if isinstance(n_boot, bool) or int(n_boot) != n_boot or n_boot < 1:
-        raise ValueError(f"n_boot must be a positive integer, got {n_boot!r}")
+        raise ConfigError(f"n_boot must be a positive integer, got {n_boot!r}")
     return int(n_boot)
 
 
@@ -378,7 +378,7 @@ def _matrix_seeds(seed, n_matrices: int) -> list:
     ]
 
 
-def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
+def bootstrap_wins(wins, n_boot: int, seed=0) -> np.ndarray:
     """The resampled win matrices behind :func:`bootstrap_bradley_terry`: ``(..., n_boot, P, P)``.
 
     For each unordered pair with ``n_ij > 0``, ``wins[i, j]* ~ Binomial(n_ij,
@@ -398,7 +398,7 @@ def bootstrap_wins(wins, n_boot: int = 1000, seed=0) -> np.ndarray:
 
 def bootstrap_bradley_terry(
     wins,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
     names: Sequence[str] | None = None,
@@ -462,7 +462,7 @@ def bt_scores(strengths) -> np.ndarray:
     return 100.0 * np.asarray(strengths, dtype=np.float64)
 
 
-def bt_confidence_intervals(boot_strengths, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+def bt_confidence_intervals(boot_strengths, level: float) -> tuple[np.ndarray, np.ndarray]:
     """Percentile bootstrap intervals of the score ``s = 100 b``.
 
     ``boot_strengths`` has shape ``(..., n_boot, P)`` (replicates on the second to
@@ -470,7 +470,7 @@ def bt_confidence_intervals(boot_strengths, level: float = 0.95) -> tuple[np.nda
     and ``(1 + level) / 2`` quantiles (linear interpolation).
     """
     if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1, got {level}")
+        raise ConfigError(f"level must lie strictly between 0 and 1, got {level}")
     boot = np.asarray(boot_strengths, dtype=np.float64)
     if boot.ndim < 2:
         raise ValueError(f"boot_strengths must have shape (..., n_boot, P), got {boot.shape}")
@@ -479,7 +479,7 @@ def bt_confidence_intervals(boot_strengths, level: float = 0.95) -> tuple[np.nda
     return lower, upper
 
 
-def bt_ci_width(boot_strengths, level: float = 0.95):
+def bt_ci_width(boot_strengths, level: float):
     """Mean over policies of the percentile-interval width of ``s`` (score points).
 
     A float for ``(n_boot, P)`` input, an array ``(...)`` for ``(..., n_boot, P)``.

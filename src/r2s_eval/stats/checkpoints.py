@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import ConfigError, StatsError
 from r2s_eval.stats.bradley_terry import (
     bootstrap_bradley_terry,
     bt_confidence_intervals,
@@ -36,16 +37,16 @@ COUPLED = {"unit": True, "binomial": False}
 
 def check_interval(interval: str) -> str:
     if interval not in INTERVALS:
-        raise ValueError(f"interval must be one of {list(INTERVALS)}, got {interval!r}")
+        raise ConfigError(f"interval must be one of {list(INTERVALS)}, got {interval!r}")
     return interval
 
 
-def percentile_interval(values, level: float = 0.95, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
+def percentile_interval(values, level: float, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles along ``axis``, ignoring NaN
     replicates (a metric undefined on a replicate, e.g. a constant ranking); NaN where
     every replicate is NaN."""
     if not 0.0 < level < 1.0:
-        raise ValueError(f"level must lie strictly between 0 and 1, got {level}")
+        raise ConfigError(f"level must lie strictly between 0 and 1, got {level}")
     tail = 50.0 * (1.0 - level)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices
@@ -63,7 +64,7 @@ def metric_replicates(boot_scores, reference) -> dict[str, np.ndarray]:
     return {name: fn(boot_scores, reference) for name, fn in RANKING_METRICS.items()}
 
 
-def metric_intervals(boot_scores, reference, level: float = 0.95) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def metric_intervals(boot_scores, reference, level: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Percentile intervals of the ranking metrics from :func:`metric_replicates`:
     ``{metric: (lower, upper)}``, each ``(...)``."""
     return {name: percentile_interval(v, level) for name, v in metric_replicates(boot_scores, reference).items()}
@@ -171,10 +172,10 @@ def metric_ci_tables(boot_scores, ref, reference_boot, level, labels, coupled) -
 def checkpoint_metrics(
     wins,
     reference,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
-    level: float = 0.95,
+    level: float,
     names: Sequence[str] | None = None,
     checkpoints: Sequence | None = None,
     n_threads: int | None = 1,
@@ -206,18 +207,18 @@ def checkpoint_metrics(
         raise ValueError(f"wins must have shape (C, P, P) or (P, P), got {arr.shape}")
     interval = check_interval(interval or ("unit" if units is not None else "binomial"))
     if interval == "unit" and units is None:
-        raise ValueError("the unit bootstrap needs ComparisonUnits (which comparisons share a rollout pair)")
+        raise ConfigError("the unit bootstrap needs ComparisonUnits (which comparisons share a rollout pair)")
     C, P = arr.shape[0], arr.shape[-1]
     ref = np.asarray(reference, dtype=np.float64)
     if ref.shape != (P,):
-        raise ValueError(f"reference must have one value per policy ({P}), got shape {ref.shape}")
+        raise StatsError(f"reference must have one value per policy ({P}), got shape {ref.shape}")
     if reference_boot is not None:
         reference_boot = np.asarray(reference_boot, dtype=np.float64)
         if reference_boot.shape != (n_boot, P):
-            raise ValueError(f"reference_boot must have shape ({n_boot}, {P}), got {reference_boot.shape}")
+            raise StatsError(f"reference_boot must have shape ({n_boot}, {P}), got {reference_boot.shape}")
     names = [f"policy_{i}" for i in range(P)] if names is None else [str(n) for n in names]
     if len(names) != P:
-        raise ValueError(f"names has {len(names)} entries for {P} policies")
+        raise StatsError(f"names has {len(names)} entries for {P} policies")
     if checkpoints is None:
         labels = np.asarray(units.checkpoints) if units is not None else np.arange(C)
     else:

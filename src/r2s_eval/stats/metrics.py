@@ -13,6 +13,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
+from r2s_eval.errors import DataError, StatsError
+
 
 def _paired(scores, reference) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(scores, dtype=np.float64)
@@ -20,11 +22,11 @@ def _paired(scores, reference) -> tuple[np.ndarray, np.ndarray]:
     if x.ndim != 1 or y.ndim != 1:
         raise ValueError(f"scores and reference must be 1-D, got shapes {x.shape} and {y.shape}")
     if x.shape != y.shape:
-        raise ValueError(f"scores has {x.size} policies but reference has {y.size}")
+        raise StatsError(f"scores has {x.size} policies but reference has {y.size}")
     if x.size < 2:
-        raise ValueError("a ranking metric needs at least 2 policies")
+        raise StatsError("a ranking metric needs at least 2 policies")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise ValueError("scores and reference must be finite")
+        raise StatsError("scores and reference must be finite")
     return x, y
 
 
@@ -75,7 +77,7 @@ def ci_aware_rank(lower, upper) -> np.ndarray:
     if lo.ndim != 1 or lo.shape != hi.shape:
         raise ValueError(f"lower and upper must be 1-D of equal length, got {lo.shape} and {hi.shape}")
     if np.any(lo > hi):
-        raise ValueError(f"lower bound above upper bound for policies {np.flatnonzero(lo > hi).tolist()}")
+        raise StatsError(f"lower bound above upper bound for policies {np.flatnonzero(lo > hi).tolist()}")
     return 1 + (lo[None, :] > hi[:, None]).sum(axis=1)
 
 
@@ -88,7 +90,7 @@ def _letters(values: Iterable, what: str) -> np.ndarray:
     arr = np.array([str(v).strip().upper() for v in values], dtype=object)
     bad = [v for v, a in zip(values, arr) if a not in _LETTERS] if arr.size else []
     if bad:
-        raise ValueError(f"{what} must be 'A' or 'B', got {bad[:5]!r}" + (" ..." if len(bad) > 5 else ""))
+        raise DataError(f"{what} must be 'A' or 'B', got {bad[:5]!r}" + (" ..." if len(bad) > 5 else ""))
     return arr.astype(str)
 
 
@@ -119,7 +121,7 @@ def human_agreement_rate(judge_choices: Mapping, annotator_choices: Mapping) -> 
     votes = majority_vote(annotator_choices)
     missing = [pair for pair in votes if pair not in judge_choices]
     if missing:
-        raise ValueError(f"no judge choice for annotated pairs {missing[:5]!r}" + (" ..." if len(missing) > 5 else ""))
+        raise DataError(f"no judge choice for annotated pairs {missing[:5]!r}" + (" ..." if len(missing) > 5 else ""))
     decided = [pair for pair, vote in votes.items() if vote is not None]
     if not decided:
         return float("nan")
@@ -138,9 +140,9 @@ def order_swap_consistency(original: Sequence, swapped: Sequence) -> float:
     a = _letters(original, "original answers")
     b = _letters(swapped, "swapped answers")
     if a.size != b.size:
-        raise ValueError(f"original has {a.size} answers but swapped has {b.size}")
+        raise DataError(f"original has {a.size} answers but swapped has {b.size}")
     if a.size == 0:
-        raise ValueError("no answers to compare")
+        raise StatsError("no answers to compare")
     return float((a != b).mean())
 
 
@@ -165,7 +167,7 @@ def position_bias(letters: Sequence, same_outcome_mask=None) -> PositionBias:
     """
     arr = _letters(letters, "answers")
     if arr.size == 0:
-        raise ValueError("no answers")
+        raise StatsError("no answers")
     is_a = arr == "A"
     if same_outcome_mask is None:
         return PositionBias(float(is_a.mean()), float("nan"), int(arr.size), 0)
@@ -184,12 +186,12 @@ def _paired_batch(scores, reference) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(scores, dtype=np.float64)
     y = np.asarray(reference, dtype=np.float64)
     if x.ndim < 1 or y.ndim < 1 or x.shape[-1] != y.shape[-1]:
-        raise ValueError(f"scores and reference need the same number of policies, got shapes {x.shape} and {y.shape}")
+        raise StatsError(f"scores and reference need the same number of policies, got shapes {x.shape} and {y.shape}")
     if x.shape[-1] < 2:
-        raise ValueError("a ranking metric needs at least 2 policies")
+        raise StatsError("a ranking metric needs at least 2 policies")
     x, y = np.broadcast_arrays(x, y)
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise ValueError("scores and reference must be finite")
+        raise StatsError("scores and reference must be finite")
     return x, y
 
 

@@ -24,7 +24,7 @@ from r2s_eval.stats.units import tagged_seed
 GAP_KEY = 0x67617073  # spawn-key tag of the gap bootstrap's stream ("gaps")
 
 
-def wilson_interval(successes: int, trials: int, level: float = 0.95) -> tuple[float, float] | None:
+def wilson_interval(successes: int, trials: int, level: float) -> tuple[float, float] | None:
     """Wilson score interval of ``successes / trials``; None without trials."""
     if trials <= 0:
         return None
@@ -33,7 +33,7 @@ def wilson_interval(successes: int, trials: int, level: float = 0.95) -> tuple[f
 
 
 def newcombe_difference(successes_a: int, trials_a: int, successes_b: int, trials_b: int,
-                        level: float = 0.95) -> tuple[float, float] | None:
+                        level: float) -> tuple[float, float] | None:
     """Newcombe's hybrid score interval of ``a - b`` (two independent rates); None where a side
     has no trials."""
     if trials_a <= 0 or trials_b <= 0:
@@ -49,7 +49,7 @@ def success_counts(episodes: pd.DataFrame) -> pd.DataFrame:
             .groupby(["policy", "task"], as_index=False)["success"].agg(successes="sum", trials="size"))
 
 
-def success_gap_cells(reference: pd.DataFrame, sim_episodes: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
+def success_gap_cells(reference: pd.DataFrame, sim_episodes: pd.DataFrame, level: float) -> pd.DataFrame:
     """One row per (policy, task) that both sides have: real and sim successes and trials, the
     rates with Wilson intervals, and ``gap = sim - real`` with Newcombe's interval (fractions).
 
@@ -61,7 +61,7 @@ def success_gap_cells(reference: pd.DataFrame, sim_episodes: pd.DataFrame, level
     return count_gap_cells(reference, success_counts(sim_episodes), level)
 
 
-def count_gap_cells(real: pd.DataFrame, sim: pd.DataFrame, level: float = 0.95) -> pd.DataFrame:
+def count_gap_cells(real: pd.DataFrame, sim: pd.DataFrame, level: float) -> pd.DataFrame:
     """`success_gap_cells` of two success tables (policy, task, trials, successes): ``real`` is
     subtracted from ``sim`` (whichever worlds they come from)."""
     for name, table in (("reference success table", real), ("success table", sim)):
@@ -86,7 +86,7 @@ def count_gap_cells(real: pd.DataFrame, sim: pd.DataFrame, level: float = 0.95) 
     return pd.DataFrame(rows)
 
 
-def gap_summary(cells: pd.DataFrame, level: float = 0.95, n_boot: int = 1000, seed=0) -> dict:
+def gap_summary(cells: pd.DataFrame, level: float, n_boot: int, seed=0) -> dict:
     """Mean absolute, mean signed and largest absolute gap over the cells, in percentage
     points, with percentile intervals from the parametric bootstrap (module docstring), and
     what they rest on (cells, trials per side)."""

@@ -24,14 +24,14 @@ def _counts(successes, trials) -> tuple[np.ndarray, np.ndarray]:
     s = np.asarray(successes, dtype=np.float64)
     n = np.asarray(trials, dtype=np.float64)
     if s.ndim != 2 or s.shape != n.shape:
-        raise ValueError(f"successes and trials must both be (policies, tasks), got {s.shape} and {n.shape}")
+        raise DataError(f"successes and trials must both be (policies, tasks), got {s.shape} and {n.shape}")
     if not (np.all(np.isfinite(s)) and np.all(np.isfinite(n))) or np.any(n < 0) or np.any(s < 0) or np.any(s > n):
-        raise ValueError("need 0 <= successes <= trials, all finite")
+        raise DataError("need 0 <= successes <= trials, all finite")
     if np.any(n != np.round(n)) or np.any(s != np.round(s)):
-        raise ValueError("successes and trials must be whole numbers")
+        raise DataError("successes and trials must be whole numbers")
     empty = np.flatnonzero((n > 0).sum(axis=1) == 0)
     if empty.size:
-        raise ValueError(f"policies {empty.tolist()} have no trials on any task")
+        raise DataError(f"policies {empty.tolist()} have no trials on any task")
     return s, n
 
 
@@ -46,7 +46,7 @@ def task_mean_success(successes, trials) -> np.ndarray:
     return np.nanmean(rates, axis=1)
 
 
-def bootstrap_task_mean_success(successes, trials, n_boot: int = 1000, seed=0) -> np.ndarray:
+def bootstrap_task_mean_success(successes, trials, n_boot: int, seed=0) -> np.ndarray:
     """Bootstrap replicates of :func:`task_mean_success`: ``(n_boot, P)``.
 
     Trials are resampled within each task and policy (binomially, see the module

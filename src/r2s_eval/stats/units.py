@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from r2s_eval.errors import ConfigError, StatsError
 from r2s_eval.stats import _newton
 from r2s_eval.stats._pairs import from_pairs, pair_index
 from r2s_eval.stats.bradley_terry import (
@@ -144,9 +145,9 @@ def comparison_units(
         raise ValueError("policy_i, policy_j, i_won and unit must be 1-D of equal length")
     P = int(n_policies)
     if N and (min(i.min(), j.min()) < 0 or max(i.max(), j.max()) >= P):
-        raise ValueError(f"policy indices must lie in 0..{P - 1}")
+        raise StatsError(f"policy indices must lie in 0..{P - 1}")
     if np.any(i == j):
-        raise ValueError("a comparison needs two different policies")
+        raise StatsError("a comparison needs two different policies")
     a, b = np.minimum(i, j), np.maximum(i, j)
     a_won = np.where(i < j, won, ~won)
     pair = a * (2 * P - a - 1) // 2 + (b - a - 1)  # row of (a, b) in np.triu_indices(P, 1)
@@ -162,7 +163,7 @@ def comparison_units(
     else:
         ck = np.asarray([int(c) for c in checkpoints], dtype=np.int64)
         if ck.ndim != 1 or ck.size == 0 or np.any(ck <= 0):
-            raise ValueError(f"checkpoints must be positive comparison counts, got {list(checkpoints)}")
+            raise ConfigError(f"checkpoints must be positive comparison counts, got {list(checkpoints)}")
 
     strata = np.zeros(N, dtype=np.int64) if stratum is None else pd.factorize(pd.Series(list(stratum)))[0]
     if len(strata) != N:
@@ -231,7 +232,7 @@ def _draw_block(units: ComparisonUnits, rows: int, seq: np.random.SeedSequence) 
     return out_ij, out_ji
 
 
-def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int = 1000, seed=0) -> np.ndarray:
+def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int, seed=0) -> np.ndarray:
     """The resampled win matrices behind :func:`unit_bootstrap_bradley_terry`: ``(C, n_boot, P, P)``."""
     n_boot = _check_n_boot(n_boot)
     P, C = units.n_policies, len(units.checkpoints)
@@ -246,7 +247,7 @@ def unit_bootstrap_wins(units: ComparisonUnits, n_boot: int = 1000, seed=0) -> n
 
 def unit_bootstrap_bradley_terry(
     units: ComparisonUnits,
-    n_boot: int = 1000,
+    n_boot: int,
     seed=0,
     *,
     names: Sequence[str] | None = None,

@@ -40,7 +40,7 @@ def _ci_name(column: str) -> str:
 
 
 def validate(fit: pd.DataFrame, reference: pd.DataFrame, replicates: pd.DataFrame | None = None, *,
-             level: float = 0.95, n_boot: int = 1000, seed: int = 0) -> dict:
+             level: float, n_boot: int, seed: int) -> dict:
     """Per checkpoint: Spearman, Pearson, MMRV against the reference and the mean score-interval
     width of each bootstrap; with the fit's ``replicates``, percentile intervals of the three
     metrics. The reference's own interval uses as many replicates as the fit (``n_boot``

@@ -17,6 +17,8 @@ from __future__ import annotations
 import os
 import sys
 
+from r2s_eval.errors import ConfigError
+
 CPU_NUMERICS_ENV = {
     "ATEN_CPU_CAPABILITY": "avx2",  # ATen's vectorised kernels
     "ONEDNN_MAX_CPU_ISA": "AVX2",  # oneDNN convolutions / matmuls
@@ -64,7 +66,7 @@ def limit_threads(threads: int | None = None) -> int:
     count changes numbers, the stage sets it itself (train: its job's threads, rollout: one)."""
     n = int(threads) if threads is not None else job_threads()
     if n < 1:
-        raise ValueError(f"threads must be >= 1, got {n}")
+        raise ConfigError(f"threads must be >= 1, got {n}")
     for key in THREAD_ENV:
         # LP_NUM_THREADS=0 makes llvmpipe rasterise in the rendering thread itself: no extra thread.
         if not (key == "LP_NUM_THREADS" and os.environ.get(key) == "0"):

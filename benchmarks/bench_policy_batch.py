@@ -20,7 +20,8 @@ import numpy as np
 import torch
 
 from r2s_eval.policies import LeRobotPolicy
-from r2s_eval.policies.config import candidate_config, make_lerobot_config
+from r2s_eval.config import candidate_config
+from r2s_eval.policies.trained_config import make_lerobot_config
 from r2s_eval.utils.numerics import deterministic_torch
 
 CAMERA = "observation.images.head_left"

@@ -51,10 +51,11 @@ import numpy as np
 import pandas as pd
 import torch
 
-from r2s_eval.config import compose_config
+from r2s_eval.config import candidate_config, compose_config
 from r2s_eval.horizon import Horizon
-from r2s_eval.policies import RecedingHorizon, lerobot_policy
-from r2s_eval.policies.config import candidate_config, make_lerobot_config
+from r2s_eval.policies import RecedingHorizon
+from r2s_eval.policies.trained_config import make_lerobot_config
+from r2s_eval.policies.types import act as act_type
 from r2s_eval.policies.interface import ActionMap
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.rollout import run_episode, sample_inits, write_video
@@ -105,12 +106,12 @@ def save_random_act(folder: Path, cameras: list[str], image_hw: tuple[int, int])
 @contextlib.contextmanager
 def per_camera_backbone():
     """ACT's model call as the one-at-a-time loop made it: its ResNet once per camera."""
-    one_pass = lerobot_policy._one_backbone_pass
-    lerobot_policy._one_backbone_pass = lambda model, images: contextlib.nullcontext()
+    one_pass = act_type.one_backbone_pass
+    act_type.one_backbone_pass = lambda model, images: contextlib.nullcontext()
     try:
         yield
     finally:
-        lerobot_policy._one_backbone_pass = one_pass
+        act_type.one_backbone_pass = one_pass
 
 
 def one_at_a_time(out: Path, trained: Path, inits, cfg: dict, as_it_was: bool = True) -> None:

@@ -10,6 +10,7 @@ command-line override that set it.
 
 from __future__ import annotations
 
+import copy
 import json
 import re
 from collections.abc import Sequence
@@ -118,3 +119,32 @@ def select(cfg: dict[str, Any], *paths: str) -> dict[str, Any]:
 
 def to_json(value: Any) -> str:
     return json.dumps(sort_keys(value), sort_keys=True, separators=(",", ":"))
+
+
+# The candidate line-ups and their budgets live in the Hydra config (conf/policies/*.yaml,
+# scaled by conf/experiment/*.yaml): one source of truth for the pipeline, tests and benchmarks.
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+
+
+def candidate_configs(experiment: str = "demo") -> dict[str, dict]:
+    """The validated config of every candidate policy of `experiment`."""
+    from r2s_eval.policies.trained_config import validate_policy_cfg
+    from r2s_eval.policy_sources import is_external, validate_source_cfg
+
+    policies = compose_config(CONF_DIR, experiment)["policies"]
+    return {
+        name: validate_source_cfg(dict(cfg, name=name)) if is_external(cfg) else validate_policy_cfg(dict(cfg, name=name))
+        for name, cfg in policies.items()
+    }
+
+
+def candidate_config(name: str, experiment: str = "demo", **changes: Any) -> dict:
+    """The config of candidate `name` under `experiment`, with optional top-level changes."""
+    from r2s_eval.policies.trained_config import validate_policy_cfg
+
+    candidates = candidate_configs(experiment)
+    if name not in candidates:
+        raise ConfigError(f"unknown candidate policy {name!r} of experiment {experiment!r}; known: {sorted(candidates)}")
+    cfg = copy.deepcopy(candidates[name])
+    cfg.update(copy.deepcopy(changes))
+    return validate_policy_cfg(cfg)

@@ -20,6 +20,10 @@ class ConfigError(R2SError, ValueError):
     """A configuration value that is missing, unknown or out of range."""
 
 
+class PolicyConfigError(ConfigError):
+    """A candidate policy's config (trained here, a checkpoint or a server) that cannot be used."""
+
+
 class DataError(R2SError, ValueError):
     """A dataset, index or artefact on disk that breaks its contract."""
 

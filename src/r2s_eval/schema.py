@@ -10,7 +10,7 @@ The schema states structure, types and ranges, never values: a field without a d
 set by the group's YAML file (which owns its default); a field declared ``optional(...)`` may be
 left out, and the code that reads it owns its default (named in the field's note). Open-ended
 name -> settings maps are checked by their owners' validators: candidate policies by
-``r2s_eval.policies.config.validate_policy_cfg`` / ``r2s_eval.policies.sources.validate_source_cfg``,
+``r2s_eval.policies.trained_config.validate_policy_cfg`` / ``r2s_eval.policy_sources.validate_source_cfg``,
 judges by constructing them with ``r2s_eval.judge.make_judge`` (which contacts no server), the
 scripted operator's and the twin's settings against their dataclasses (``OperatorConfig``,
 ``TwinMagnitudes``).
@@ -134,8 +134,8 @@ def _twin_magnitudes() -> type:
 
 
 def _check_policy(name: str, entry: dict) -> dict:
-    from r2s_eval.policies.config import validate_policy_cfg
-    from r2s_eval.policies.sources import is_external, validate_source_cfg
+    from r2s_eval.policies.trained_config import validate_policy_cfg
+    from r2s_eval.policy_sources import is_external, validate_source_cfg
 
     if is_external(entry):
         return validate_source_cfg(entry, name)
@@ -143,7 +143,7 @@ def _check_policy(name: str, entry: dict) -> dict:
 
 
 def _policy_schema(entry: dict) -> type | None:
-    from r2s_eval.policies.config import SUPPORTED_TYPES
+    from r2s_eval.policies.types import SUPPORTED_TYPES
 
     kind = entry.get("type")
     return {"checkpoint": CheckpointPolicy, "server": ServerPolicy}.get(kind) or (
@@ -496,9 +496,9 @@ class Libero:
 
 
 # Candidate policies: the types of an entry's keys (their defaults are the owners':
-# r2s_eval.policies.config.TOP_LEVEL_DEFAULTS / VLA_DEFAULTS and r2s_eval.policies.sources).
-_POLICY_DEFAULTS = "r2s_eval.policies.config.TOP_LEVEL_DEFAULTS"
-_SOURCE_DEFAULTS = "r2s_eval.policies.sources"
+# r2s_eval.policies.types (TOP_LEVEL_DEFAULTS, and each type's own) and r2s_eval.policy_sources).
+_POLICY_DEFAULTS = "r2s_eval.policies.types.TOP_LEVEL_DEFAULTS"
+_SOURCE_DEFAULTS = "r2s_eval.policy_sources"
 Beta = Annotated[float, Range(0, 1, open_max=True)]
 
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 
 from r2s_eval.artifacts import record_mtimes, restore_mtimes
-from r2s_eval.config import compose_config, select, to_json
+from r2s_eval.config import candidate_config, candidate_configs, compose_config, select, to_json
+from r2s_eval.errors import ConfigError
 from r2s_eval.utils.io import atomic_dir, atomic_path, read_json, write_json
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -63,3 +64,15 @@ def test_mtimes_round_trip(tmp_path):
         os.utime(path, ns=(1, 1))
     assert restore_mtimes(tmp_path, recorded) == 3
     assert record_mtimes(tmp_path, [folder]) == recorded
+
+
+def test_candidates_take_their_types_defaults_and_name_unknown_ones():
+    # conf/policies writes only what differs from a type's defaults; validation fills in the rest.
+    demo = candidate_configs("demo")
+    assert {cfg["chunk_size"] for cfg in demo.values()} == {25}
+    assert candidate_config("act", "demo", batch_size=8)["batch_size"] == 8
+    paper = candidate_configs("paper")
+    assert {cfg["scheduler"] for cfg in paper.values()} == {"cosine"}
+    with pytest.raises(ConfigError, match="unknown candidate policy 'nope'"):
+        candidate_config("nope", "demo")
+

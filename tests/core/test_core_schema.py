@@ -226,8 +226,8 @@ def test_policy_schemas_type_every_key_their_owners_accept():
     # The schema types the keys; their owners hold the defaults: the two must list the same keys.
     import dataclasses
 
-    from r2s_eval.policies import sources
-    from r2s_eval.policies.config import TOP_LEVEL_DEFAULTS
+    from r2s_eval import policy_sources as sources
+    from r2s_eval.policies.types import TOP_LEVEL_DEFAULTS
     from r2s_eval.schema import CheckpointPolicy, ServerPolicy, TrainedPolicy
 
     def names(cls):

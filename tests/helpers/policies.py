@@ -73,7 +73,8 @@ def save_random_policy(folder: Path, cameras: list[str], image_hw: tuple[int, in
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
     from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep
 
-    from r2s_eval.policies.config import candidate_config, make_lerobot_config, validate_policy_cfg
+    from r2s_eval.config import candidate_config
+    from r2s_eval.policies.trained_config import make_lerobot_config, validate_policy_cfg
 
     keys = [f"observation.images.{c}" for c in cameras]
     if kind == "act":

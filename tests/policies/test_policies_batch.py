@@ -98,7 +98,7 @@ def test_act_batched_calls_give_lerobots_own_chunks_from_one_backbone_pass(tmp_p
 
     lerobots = load_lerobot_policy(folder)  # the model as lerobot built it
     with torch.no_grad():
-        batch = lerobots._preprocess(observations)
+        batch = lerobots.preprocess(observations)
         expected = lerobots.postprocessor(lerobots.policy.predict_action_chunk(batch)).numpy()
     assert not np.array_equal(chunks, expected)  # other kernels ran ...
     np.testing.assert_allclose(chunks, expected, rtol=1e-4, atol=1e-5)  # ... to the same actions

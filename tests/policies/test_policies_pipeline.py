@@ -13,13 +13,12 @@ from r2s_eval.policies import (
     DatasetContractError,
     PolicyConfigError,
     PolicyError,
-    candidate_config,
-    candidate_configs,
     load_policy,
     make_lerobot_config,
     train_policy,
     validate_policy_cfg,
 )
+from r2s_eval.config import candidate_config, candidate_configs
 from r2s_eval.errors import DataError
 from r2s_eval.utils.io import file_sha256
 
@@ -232,6 +231,6 @@ def test_policies_episodes_fraction_trains_on_a_subset(dataset_root, tmp_path):
     summary = train_policy(dataset_root, REPO_ID, _tiny("act", episodes_fraction=0.34), tmp_path / "act", seed=0)
     assert summary["num_episodes"] == 2 and summary["num_frames"] == 40
     with pytest.raises(PolicyConfigError, match="episodes_fraction"):
-        from r2s_eval.policies.config import validate_policy_cfg
+        from r2s_eval.policies.trained_config import validate_policy_cfg
 
         validate_policy_cfg(_tiny("act", episodes_fraction=0.0))

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from r2s_eval.policies.config import PolicyConfigError
-from r2s_eval.policies.sources import for_arm, open_policy, result_identity, validate_source_cfg
+from r2s_eval.errors import PolicyConfigError
+from r2s_eval.policy_sources import for_arm, open_policy, result_identity, validate_source_cfg
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 DROID_CAMERAS = {"observation/exterior_image_1_left": {"camera": "front"},

@@ -10,9 +10,9 @@ import pytest
 
 from r2s_eval.horizon import Horizon
 from r2s_eval.policies import ActionMap, PolicyError, PolicySpec, RecedingHorizon
-from r2s_eval.policies.config import PolicyConfigError
+from r2s_eval.errors import PolicyConfigError
 from r2s_eval.policies.interface import ChunkPolicy
-from r2s_eval.policies.sources import (
+from r2s_eval.policy_sources import (
     check_checkpoint,
     check_server,
     checkpoint_hash,

@@ -31,7 +31,8 @@ def helpers():
 @pytest.fixture(scope="session")
 def act_checkpoint(tmp_path_factory) -> Path:
     """A 3-step ACT checkpoint on a 2-episode synthetic dataset (a few seconds)."""
-    from r2s_eval.policies import candidate_config, train_policy
+    from r2s_eval.config import candidate_config
+    from r2s_eval.policies import train_policy
 
     base = tmp_path_factory.mktemp("serving")
     root = build_dataset(base / "data", REPO_ID, n_episodes=2, n_steps=20,

@@ -9,7 +9,7 @@ from pathlib import Path
 _ROOT_HANDLERS = list(logging.getLogger().handlers)
 from r2s_eval.config import compose_config, missing_inputs, select, to_json
 from r2s_eval.errors import R2SError
-from r2s_eval.policies.sources import (
+from r2s_eval.policy_sources import (
     check_checkpoint,
     check_server,
     checkpoint_hash,

@@ -30,7 +30,7 @@ from r2s_eval.horizon import Horizon
 from r2s_eval.libero import ACTION_DIM, CAMERAS, CONTROL_HZ, OFFICIAL_INIT_STATES, STATE_DIM, LiberoTask, selected_tasks
 from r2s_eval.libero.environment import LIBERO_SIDE_SCRIPT, requirements_hash
 from r2s_eval.policies.interface import IMAGE_PREFIX, ChunkPolicy, PolicyError, PolicySpec
-from r2s_eval.policies.sources import checkpoint_hash, is_external, open_policy
+from r2s_eval.policy_sources import checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import PlannedEpisode
 from r2s_eval.rollout.episode_store import EpisodeFolder, collect_episodes, episode_store
 from r2s_eval.rollout.loop import episode_id, video_frame_every

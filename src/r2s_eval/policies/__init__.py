@@ -6,10 +6,13 @@ Public API:
     load_lerobot_policy(checkpoint_dir, device="cpu") -> LeRobotPolicy (a ChunkPolicy)
     train_policy(dataset_root, repo_id, policy_cfg, out_dir, seed, device="cpu") -> summary dict
     load_policy(checkpoint_dir, horizon=Horizon(...), device="cpu", seed=0) -> RecedingHorizon
-    candidate_configs(experiment), candidate_config(name, experiment)   # read from conf/policies
+    validate_policy_cfg(cfg), make_lerobot_config(cfg)   # policy_type(name): r2s_eval.policies.types
+
+Candidate line-ups read from conf/: r2s_eval.config.candidate_configs / candidate_config. Where a
+candidate comes from (trained here, a checkpoint, a server): r2s_eval.policy_sources.
 
 Names are imported on first use: validating a config (the workflow does it at every start) needs
-`config` and `sources` only, not torch, lerobot and transformers.
+`trained_config` and `types` only, not torch, lerobot and transformers.
 """
 
 from __future__ import annotations
@@ -18,11 +21,11 @@ import importlib
 from typing import TYPE_CHECKING
 
 _WHERE = {
-    "PolicyConfigError": "config",
-    "candidate_config": "config",
-    "candidate_configs": "config",
-    "make_lerobot_config": "config",
-    "validate_policy_cfg": "config",
+    "PolicyConfigError": "trained_config",
+    "SUPPORTED_TYPES": "types",
+    "make_lerobot_config": "trained_config",
+    "policy_type": "types",
+    "validate_policy_cfg": "trained_config",
     "DatasetContractError": "data",
     "ActionMap": "interface",
     "ChunkPolicy": "interface",
@@ -52,13 +55,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:
-    from r2s_eval.policies.config import (
-        PolicyConfigError,
-        candidate_config,
-        candidate_configs,
-        make_lerobot_config,
-        validate_policy_cfg,
-    )
+    from r2s_eval.policies.trained_config import PolicyConfigError, make_lerobot_config, validate_policy_cfg
+    from r2s_eval.policies.types import SUPPORTED_TYPES, policy_type
     from r2s_eval.policies.data import DatasetContractError
     from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError, PolicySpec, RecedingHorizon
     from r2s_eval.policies.lerobot_policy import LeRobotPolicy, load_lerobot_policy

@@ -147,7 +147,7 @@ class _FrameCachedReader(DatasetReader):
             idx = np.abs(times[None, :] - wanted[:, None]).argmin(axis=1)
             err = np.abs(times[idx] - wanted)
             if (err > self._tolerance_s).any():
-                raise ValueError(
+                raise DataError(
                     f"camera {key!r} episode {ep_idx}: no video frame within {self._tolerance_s}s of "
                     f"t={wanted[err.argmax()]:.4f}s in {path}"
                 )
@@ -176,7 +176,7 @@ def _decode_all_frames(path: Path) -> tuple[np.ndarray, torch.Tensor]:
             times.append(float(frame.time))
             frames.append(frame.to_ndarray(format="rgb24"))
     if not frames:
-        raise ValueError(f"video {path} has no decodable frames")
+        raise DataError(f"video {path} has no decodable frames")
     stacked = torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
     return np.asarray(times, dtype=np.float64), stacked
 

@@ -1,6 +1,6 @@
 """Fine-tuning a pretrained VLA checkpoint: build for our robot, load what fits, average weights.
 
-The lerobot config comes from the checkpoint's config.json (see `config.py`); the policy is built
+The lerobot config comes from the checkpoint's config.json (see `r2s_eval.policies.types.pretrained`); the policy is built
 fresh for our features and the pretrained weights are loaded partially (`load_pretrained_partially`):
 same name and shape are copied, tensors whose size differs (state / action projections when the
 robot is wider than the checkpoint's padding) get the overlapping slice, the rest keep their fresh
@@ -17,8 +17,11 @@ from typing import Any
 
 import torch
 
-from r2s_eval.policies.config import pretrained_folder, resolve_tokenizer_path, tokenizer_hub_name
-from r2s_eval.policies.lerobot_policy import WEIGHTS_FILE, checkpoint_state_dict
+from r2s_eval.policies.checkpoints import WEIGHTS_FILE
+from r2s_eval.policies.lerobot_policy import checkpoint_state_dict
+from r2s_eval.policies.trained_config import resolve_tokenizer_path
+from r2s_eval.policies.types import policy_type
+from r2s_eval.policies.types.pretrained import pretrained_folder
 
 log = logging.getLogger(__name__)
 
@@ -29,20 +32,12 @@ def build_vla_policy_and_processors(cfg: dict, lr_cfg, meta, stats: dict | None 
     The model is built fresh for our features and the pretrained weights are copied in; the
     processors come from our dataset statistics and the local tokenizer folder.
     """
-    from lerobot.policies.factory import make_policy, make_pre_post_processors
+    from lerobot.policies.factory import make_pre_post_processors
 
     folder = pretrained_folder(cfg)
     tokenizer = resolve_tokenizer_path(cfg, lr_cfg)
     with _local_tokenizer(lr_cfg, tokenizer):
-        if lr_cfg.type == "smolvla":
-            # SmolVLA builds its VLM from the config and processor of `vlm_model_name`.
-            hub_name, lr_cfg.vlm_model_name = lr_cfg.vlm_model_name, str(tokenizer)
-            try:
-                policy = make_policy(lr_cfg, ds_meta=meta)
-            finally:
-                lr_cfg.vlm_model_name = hub_name  # the saved config names the hub id, like the base
-        else:
-            policy = make_policy(lr_cfg, ds_meta=meta)
+        policy = policy_type(lr_cfg.type).make_policy(lr_cfg, meta, tokenizer)
         preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=stats or meta.stats)
     report = load_pretrained_partially(policy, folder / WEIGHTS_FILE)
     report.update(pretrained_path=str(folder), tokenizer_path=str(tokenizer))
@@ -65,7 +60,7 @@ def _local_tokenizer(lr_cfg, folder: Path):
 
     def local_step(*args, tokenizer_name=None, **kwargs):
         step = TokenizerProcessorStep(*args, tokenizer_name=str(folder), **kwargs)
-        step.tokenizer_name = tokenizer_name or tokenizer_hub_name(lr_cfg)
+        step.tokenizer_name = tokenizer_name or policy_type(lr_cfg.type).tokenizer_hub_name(lr_cfg)
         return step
 
     module.TokenizerProcessorStep = local_step

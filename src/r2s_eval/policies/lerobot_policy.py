@@ -25,22 +25,16 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from r2s_eval.policies.checkpoints import RUNNER_CONFIG, WEIGHTS_FILE, checkpoint_hash, resolve_checkpoint
 from r2s_eval.policies.interface import STATE_KEY, TASK_KEY, ChunkPolicy, PolicyError, PolicySpec
+from r2s_eval.policies.types import loaded_type
 
-CHECKPOINT_SUBDIR = "pretrained_model"
-RUNNER_CONFIG = "runner_config.json"  # our settings next to lerobot's files (cameras used)
-WEIGHTS_FILE = "model.safetensors"
-# Flow-matching VLAs whose initial noise can be given per slot; X-VLA draws it from torch's global
-# RNG, so it is called one slot at a time with that RNG seeded from the slot's generator.
-_NOISE_ARG_TYPES = ("pi0", "pi05", "smolvla")
-_GLOBAL_RNG_TYPES = ("xvla",)
 
 
 class LeRobotPolicy(ChunkPolicy):
@@ -52,13 +46,13 @@ class LeRobotPolicy(ChunkPolicy):
         from lerobot.utils.constants import ACTION
 
         self.policy = policy.eval()
+        # What the model's type does differently (its noise, its speed-ups): r2s_eval.policies.types.
+        self.kind = loaded_type(policy.config.type)
         self.call_batch = None if call_batch is None else int(call_batch)
         if self.call_batch is not None and self.call_batch < 1:
             raise PolicyError(f"policy {name!r}: call_batch must be >= 1, got {call_batch}")
-        if self.call_batch is not None and policy.config.type == "act":
-            # Batch norms folded into the convolutions before them: one pass over the activations
-            # less per layer (ResNet18 at 32 px, 128 images on one CPU thread: 80 against 93 ms).
-            policy.model.backbone = _batch_norms_folded(policy.model.backbone)
+        if self.call_batch is not None:
+            self.kind.prepare_for_batches(policy)
         if self.call_batch is not None and torch.device(device).type == "cpu":
             # Channels-last weights: oneDNN's convolutions then take them as they are instead of
             # reordering every weight at every call (half the time of a batched ResNet18 call).
@@ -73,7 +67,7 @@ class LeRobotPolicy(ChunkPolicy):
         self.spec = PolicySpec(
             cameras=tuple(image_keys),
             action_dim=int(policy.config.output_features[ACTION].shape[0]),
-            max_chunk=self._model_chunk_len(),
+            max_chunk=self.kind.model_chunk_len(policy.config),
             uses_state=STATE_KEY in features,
             uses_task=self._uses_language(),
             state_dim=int(features[STATE_KEY].shape[0]) if STATE_KEY in features else None,
@@ -82,20 +76,12 @@ class LeRobotPolicy(ChunkPolicy):
         self._history: dict[int, deque] = {}
         self._generators: dict[int, torch.Generator] = {}
 
-    def _model_chunk_len(self) -> int:
-        cfg = self.policy.config
-        if self.policy_type == "diffusion":
-            return int(min(cfg.n_action_steps, cfg.horizon - cfg.n_obs_steps + 1))
-        return int(getattr(cfg, "chunk_size", None) or getattr(cfg, "n_action_steps", 1))
-
     def _uses_language(self) -> bool:
         # Policies whose preprocessor tokenises an instruction consume the task text.
         return any("token" in type(step).__name__.lower() for step in getattr(self.preprocessor, "steps", []))
 
     def metadata(self) -> dict:
         if "checkpoint" in self._identity:  # by content (once), so a moved folder is the same policy
-            from r2s_eval.policies.sources import checkpoint_hash
-
             self._identity["checkpoint_sha256"] = checkpoint_hash(self._identity.pop("checkpoint"))
         return {**super().metadata(), "policy_type": self.policy_type, **self._identity}
 
@@ -115,7 +101,11 @@ class LeRobotPolicy(ChunkPolicy):
     def observe(self, slot: int, obs: dict) -> None:
         if self.n_obs_steps > 1:  # Diffusion conditions on the last n_obs_steps observations
             history = self._history.setdefault(slot, deque(maxlen=self.n_obs_steps))
-            history.append(self._preprocess([self.select(obs)]))
+            history.append(self.preprocess([self.select(obs)]))
+
+    def history(self, slot: int) -> deque | None:
+        """The slot's last preprocessed observations (Diffusion's conditioning)."""
+        return self._history.get(slot)
 
     # -- inference -----------------------------------------------------------------------------
     def _to_batch(self, observations: Sequence[dict]) -> dict:
@@ -130,7 +120,7 @@ class LeRobotPolicy(ChunkPolicy):
             batch[TASK_KEY] = [o.get(TASK_KEY, "") for o in observations]
         return batch
 
-    def _preprocess(self, observations: Sequence[dict]) -> dict:
+    def preprocess(self, observations: Sequence[dict]) -> dict:
         return self.preprocessor(self._to_batch(observations))
 
     @torch.no_grad()
@@ -146,7 +136,7 @@ class LeRobotPolicy(ChunkPolicy):
             waiting = []
             for i in pending:
                 row = int(slots[i]) % self.call_batch
-                one_slot = self.policy_type in _GLOBAL_RNG_TYPES and rows  # the draw must be the slot's alone
+                one_slot = self.kind.one_slot_per_call and rows  # the draw must be the slot's alone
                 if row in rows or one_slot:
                     waiting.append(i)
                 else:
@@ -162,154 +152,23 @@ class LeRobotPolicy(ChunkPolicy):
             pending = waiting
         return np.stack(out)
 
-    def _generator(self, slot: int | None) -> torch.Generator:
+    def generator(self, slot: int | None) -> torch.Generator:
         if slot is None:  # a padding row: any fixed draw
             return torch.Generator(device="cpu").manual_seed(0)
         return self._generators.setdefault(slot, torch.Generator(device="cpu").manual_seed(0))
 
     def _call(self, slots: list[int | None], observations: list[dict]) -> np.ndarray:
         """One model call; row i belongs to `slots[i]`."""
-        if self.policy_type == "diffusion":
-            actions = self._diffusion_chunks(slots, observations)
-        elif self.policy_type in _NOISE_ARG_TYPES:
-            cfg = self.policy.config
-            noise = torch.stack([torch.randn((cfg.chunk_size, cfg.max_action_dim), generator=self._generator(s))
-                                 for s in slots])
-            actions = self.policy.predict_action_chunk(self._preprocess(observations), noise=noise.to(self.device))
-        elif self.policy_type in _GLOBAL_RNG_TYPES:
-            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self._generator(slots[0])))
-            devices = [self.device] if self.device.type == "cuda" else []
-            with torch.random.fork_rng(devices=devices):
-                torch.manual_seed(seed)
-                actions = self.policy.predict_action_chunk(self._preprocess(observations))
-        elif self.policy_type == "act":
-            batch = self._preprocess(observations)
-            with _one_backbone_pass(self.policy.model, [batch[k] for k in self.policy.config.image_features]):
-                actions = self.policy.predict_action_chunk(batch)
-        else:
-            actions = self.policy.predict_action_chunk(self._preprocess(observations))
+        actions = self.kind.predict(self, slots, observations)
         actions = self.postprocessor(actions)
         return actions.detach().cpu().numpy().astype(np.float32)
-
-    def _diffusion_chunks(self, slots: list[int | None], observations: list[dict]) -> torch.Tensor:
-        from lerobot.utils.constants import OBS_IMAGES, OBS_STATE
-
-        histories = {}
-        for i, (slot, obs) in enumerate(zip(slots, observations, strict=True)):
-            if slot is not None:
-                history = list(self._history.get(slot) or [self._preprocess([obs])])
-                while len(history) < self.n_obs_steps:  # first step: repeat it, as lerobot does
-                    history.insert(0, history[0])
-                histories[i] = history
-        pad = next(iter(histories.values()))  # padding rows repeat a real row's history
-        histories = [histories.get(i, pad) for i in range(len(slots))]
-        state = torch.cat([torch.stack([h[OBS_STATE] for h in hist], dim=1) for hist in histories])
-        images = torch.cat([
-            torch.stack([torch.stack([h[k] for k in self.spec.cameras], dim=-4) for h in hist], dim=1)
-            for hist in histories
-        ])
-        cfg = self.policy.config
-        generators = [self._generator(s) for s in slots]
-        noise = torch.cat([torch.randn((1, cfg.horizon, self.spec.action_dim), generator=g) for g in generators])
-        # lerobot's generate_actions, with the denoising steps' noise drawn per row from the
-        # row's own generator (DDPM draws fresh noise at every step).
-        model = self.policy.diffusion
-        global_cond = model._prepare_global_conditioning({OBS_STATE: state, OBS_IMAGES: images})
-        actions = model.conditional_sample(len(slots), global_cond=global_cond, generator=generators,
-                                           noise=noise.to(self.device))
-        start = self.n_obs_steps - 1
-        return actions[:, start : start + cfg.n_action_steps]
-
-
-@contextmanager
-def _one_backbone_pass(model, images: list[torch.Tensor]) -> Iterator[None]:
-    """Within it, ACT's per-camera backbone calls (one ResNet pass per camera, in
-    `image_features` order) return slices of one pass over every camera's images: a convolution
-    over cameras x rows images costs less per image than one per camera (ResNet18 at 32 px on one
-    CPU thread: 0.65 against 0.92 ms an image at 128 against 32 images). An image sits at the same
-    row of the pass whatever the other rows hold, so a slot's features still do not depend on them."""
-    if len(images) < 2:
-        yield
-        return
-    backbone = model.backbone
-    features = backbone(torch.cat(images))["feature_map"].split([len(i) for i in images])
-    pending = list(zip(images, features, strict=True))
-
-    def forward(image: torch.Tensor) -> dict:
-        source, feature = pending.pop(0)
-        if image is not source:  # lerobot changed how ACT walks its cameras
-            raise PolicyError("ACT called its backbone on other images than the cameras' in order")
-        return {"feature_map": feature}
-
-    backbone.forward = forward  # an instance attribute: nn.Module.__call__ looks it up first
-    try:
-        yield
-    finally:
-        del backbone.forward
-    if pending:
-        raise PolicyError(f"ACT used {len(images) - len(pending)} of its {len(images)} cameras' features")
-
-
-def _batch_norms_folded(backbone: torch.nn.Module) -> torch.nn.Module:
-    """A copy of a torchvision ResNet `backbone` with each frozen batch norm folded into the
-    convolution registered just before it (ResNet's conv1/bn1, conv2/bn2, downsample pairs),
-    or `backbone` itself when the copy does not compute what it does (another architecture)."""
-    import copy
-
-    from torch.nn.utils.fusion import fuse_conv_bn_weights
-    from torchvision.ops.misc import FrozenBatchNorm2d
-
-    folded = copy.deepcopy(backbone)
-    for module in folded.modules():
-        children = list(module.named_children())
-        for (_, conv), (norm_name, norm) in zip(children, children[1:]):
-            if not (isinstance(conv, torch.nn.Conv2d) and isinstance(norm, FrozenBatchNorm2d)
-                    and conv.bias is None and conv.out_channels == norm.weight.numel()):
-                continue
-            conv.weight, conv.bias = fuse_conv_bn_weights(conv.weight, None, norm.running_mean, norm.running_var,
-                                                          norm.eps, norm.weight, norm.bias)
-            setattr(module, norm_name, torch.nn.Identity())
-    device = next(backbone.parameters()).device
-    probe = torch.rand(2, 3, 64, 64, generator=torch.Generator().manual_seed(0)).to(device)
-    with torch.no_grad():
-        before, after = backbone(probe), folded(probe)
-    if before.keys() != after.keys() or not all(
-            torch.allclose(before[k], after[k], rtol=1e-4, atol=1e-4 * float(before[k].abs().max())) for k in before):
-        return backbone
-    return folded
-
-
-def resolve_checkpoint(checkpoint_dir: str | Path) -> Path:
-    """Accept either a training `out_dir` or its `pretrained_model/` folder."""
-    path = Path(checkpoint_dir)
-    if (path / CHECKPOINT_SUBDIR / "config.json").is_file():
-        path = path / CHECKPOINT_SUBDIR
-    if not (path / "config.json").is_file():
-        # Checked here: lerobot would treat a missing folder as a hub id and try to download it.
-        raise PolicyError(f"no LeRobot policy at {checkpoint_dir} (no config.json; expected a pretrained_model folder)")
-    return path
 
 
 def checkpoint_state_dict(policy, raw: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """`raw` (a model.safetensors) under the names `policy.state_dict()` uses, with the key fixes
     the family's own `from_pretrained` applies (openpi-era pi checkpoints, the vendored Florence-2
     layout of X-VLA, tied embeddings that safetensors stores once)."""
-    policy_type = policy.config.type
-    if policy_type in ("pi0", "pi05"):
-        fixed = policy._fix_pytorch_state_dict_keys(raw, policy.config)
-        return {k if k.startswith("model.") else f"model.{k}": v for k, v in fixed.items()}
-    if policy_type == "xvla":
-        from lerobot.policies.xvla import modeling_xvla
-
-        if modeling_xvla._is_vendored_florence_state_dict(raw):
-            raw = modeling_xvla._remap_vendored_florence_state_dict(raw)
-        raw = dict(raw)
-        shared, embed = "model.vlm.language_model.shared.weight", "model.vlm.language_model.encoder.embed_tokens.weight"
-        if shared in raw and embed not in raw:
-            raw[embed] = raw[shared]
-        elif embed in raw and shared not in raw:
-            raw[shared] = raw[embed]
-    return dict(raw)
+    return loaded_type(policy.config.type).checkpoint_state_dict(policy, raw)
 
 
 def weight_mismatches(policy, weights_file: str | Path, n_values: int = 16) -> list[str]:
@@ -376,10 +235,7 @@ def load_lerobot_policy(
         raise PolicyError(f"{ckpt}: the tokenizer folder {str(tokenizer)!r} it needs does not exist")
     cfg.device = device
     cfg.pretrained_path = ckpt
-    if cfg.type == "smolvla":
-        cfg.load_vlm_weights = False  # every weight is in the checkpoint
-        if tokenizer is not None:
-            cfg.vlm_model_name = str(tokenizer)  # the VLM is built from that folder's config
+    loaded_type(cfg.type).prepare_loaded_config(cfg, tokenizer)
     try:
         policy = get_policy_class(cfg.type).from_pretrained(ckpt, config=cfg)
     except Exception as exc:

@@ -4,7 +4,7 @@ Mirrors `lerobot_train.py` (make_policy from dataset metadata, make_pre_post_pro
 dataset stats, delta timestamps from the policy config, the policy's optimiser preset, gradient
 clipping, EpisodeAwareSampler where the policy asks for it) without accelerate, hub or env eval.
 
-The VLA types (pi0, pi05, smolvla, xvla) fine-tune a pretrained checkpoint (`finetune.py`), with
+The fine-tuned (VLA) types (`r2s_eval.policies.types`) fine-tune a pretrained checkpoint (`finetune.py`), with
 an optional cosine schedule and an EMA of the weights (the checkpoint then holds the EMA weights).
 """
 
@@ -21,16 +21,16 @@ from typing import Any
 
 import torch
 
-from r2s_eval.policies.config import (
-    VLA_TYPES,
+from r2s_eval.data import open_metadata
+from r2s_eval.policies.checkpoints import CHECKPOINT_SUBDIR, RUNNER_CONFIG
+from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
+from r2s_eval.policies.trained_config import (
     cosine_floor_lr,
     make_lerobot_config,
     resolve_tokenizer_path,
     validate_policy_cfg,
 )
-from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
-from r2s_eval.data import open_metadata
-from r2s_eval.policies.lerobot_policy import CHECKPOINT_SUBDIR, RUNNER_CONFIG
+from r2s_eval.policies.types import policy_type
 from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
 from r2s_eval.utils.io import atomic_dir, current_provenance
 from r2s_eval.utils.numerics import deterministic_torch
@@ -57,13 +57,9 @@ def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
         inputs[key] = PolicyFeature(type=FeatureType.VISUAL, shape=features[key].shape)
     lr_cfg.input_features = inputs
     lr_cfg.output_features = {ACTION: features[ACTION]}
-    if cfg["image_size"] is not None and cfg["type"] == "diffusion":
-        # Diffusion resizes inside its RGB encoder (handles the observation-history axis).
-        lr_cfg.resize_shape = tuple(cfg["image_size"])
-    if cfg["type"] in VLA_TYPES:
-        # The VLAs pad state and action to these widths: grow them when the robot is wider.
-        lr_cfg.max_state_dim = max(int(lr_cfg.max_state_dim), int(features[OBS_STATE].shape[0]))
-        lr_cfg.max_action_dim = max(int(lr_cfg.max_action_dim), int(features[ACTION].shape[0]))
+    kind = policy_type(cfg["type"])
+    kind.set_training_inputs(cfg, lr_cfg, features)
+    if kind.fine_tunes:
         resolve_tokenizer_path(cfg, lr_cfg)  # fail now, before the data is decoded
     return cfg, lr_cfg
 
@@ -76,17 +72,12 @@ def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", sta
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
     cfg, lr_cfg = policy_config(policy_cfg, meta, device)
-    if cfg["type"] in VLA_TYPES:
+    kind = policy_type(cfg["type"])
+    if kind.fine_tunes:
         return build_vla_policy_and_processors(cfg, lr_cfg, meta, stats)[:5]
     policy = make_policy(lr_cfg, ds_meta=meta)
     preprocessor, postprocessor = make_pre_post_processors(lr_cfg, dataset_stats=stats or meta.stats)
-    if cfg["image_size"] is not None and cfg["type"] == "act":
-        # ACT has no resize option: lerobot's registered resize step, before normalisation
-        # (it clamps to [0, 1]), so the saved pipeline reloads with stock lerobot.
-        from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep
-
-        at = next(i for i, s in enumerate(preprocessor.steps) if isinstance(s, NormalizerProcessorStep))
-        preprocessor.steps.insert(at, ImageCropResizeProcessorStep(resize_size=tuple(cfg["image_size"])))
+    kind.adapt_preprocessor(cfg, preprocessor)
     return cfg, lr_cfg, policy, preprocessor, postprocessor
 
 
@@ -191,7 +182,7 @@ def train_policy(
     # way), which would scale pixels by ~1000 before the CNN and amplify sensor noise; normalise
     # with statistics measured on the frames actually trained on.
     stats = {**meta.stats, **dataset.image_stats()}
-    vla = cfg["type"] in VLA_TYPES
+    vla = policy_type(cfg["type"]).fine_tunes
     if vla:
         stats = dataset.with_quantiles(stats)  # pi0.5 normalises with q01 / q99
     set_seed(seed)  # initial weights depend on the seed alone, not on what loading the data drew

@@ -24,7 +24,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from r2s_eval.horizon import Horizon
-from r2s_eval.policies.sources import action_map, checkpoint_hash, is_external, open_policy
+from r2s_eval.policy_sources import action_map, checkpoint_hash, is_external, open_policy
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
 from r2s_eval.rollout.inits import poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every

@@ -1,7 +1,7 @@
 """Where a candidate comes from: trained here, a checkpoint folder you have, or a policy server.
 
-Trained candidates (`type: act | diffusion | pi0 | ...`) are configured in `config.py`. The two
-kinds here need no training:
+Trained candidates (`type: act | diffusion | pi0 | ...`) are configured in
+`r2s_eval.policies.trained_config`. The two kinds here need no training:
 
     type: checkpoint        a local LeRobot `pretrained_model` folder
       path: ...             for both arms, or per arm under `arms: {real: {path}, sim: {path}}`
@@ -15,24 +15,31 @@ kinds here need no training:
                             the preset's): r2s_eval.serving.keymap. None: our own key names
 
 Both take `action_map` (robot index per policy action dimension; default: identity).
+
+This module sits above both `r2s_eval.policies` (the in-process models) and `r2s_eval.serving`
+(the client of a policy server): it picks between them, and neither imports it.
 """
 
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import os
 from collections.abc import Mapping
-from pathlib import Path
-from typing import Any
 
+from r2s_eval.errors import PolicyConfigError
+from r2s_eval.policies.checkpoints import checkpoint_hash, resolve_checkpoint
 from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
+from r2s_eval.serving.keymap import resolve_key_map
+
+__all__ = ["ARMS", "SOURCE_TYPES", "action_map", "check_checkpoint", "check_server", "checkpoint_hash", "for_arm",
+           "is_external", "open_policy", "result_identity", "validate_source_cfg"]
 
 SOURCE_TYPES = ("checkpoint", "server")
 ARMS = ("real", "sim")
 
 _COMMON = {"type": None, "name": None, "arms": {}, "action_map": None, "device": None}
+# Keys each source type allows, with their values when an entry leaves them out.
 _PER_TYPE = {
     "checkpoint": {"path": None},
     "server": {
@@ -52,8 +59,6 @@ def is_external(cfg: Mapping) -> bool:
 
 def validate_source_cfg(cfg: Mapping, name: str | None = None) -> dict:
     """Completed copy of a checkpoint/server entry; unknown keys are errors naming them."""
-    from r2s_eval.policies.config import PolicyConfigError
-
     who = f"policy {name or cfg.get('name') or '?'!r}"
     kind = cfg.get("type")
     if kind not in SOURCE_TYPES:
@@ -90,9 +95,6 @@ KEY_MAP_SPEC_FIELDS = ("cameras", "uses_state", "uses_task")  # a key map decide
 def _check_server_streams(cfg: Mapping, who: str) -> None:
     """A server entry's `spec`, `preset` and `keys` (for one arm): unknown spec fields, a key map
     that leaves a key unfilled, a spec field the key map decides."""
-    from r2s_eval.policies.config import PolicyConfigError
-    from r2s_eval.serving.keymap import resolve_key_map
-
     spec = cfg.get("spec")
     if spec is not None and not isinstance(spec, Mapping):
         raise PolicyConfigError(f"{who}: 'spec' must be a mapping of {list(SPEC_FIELDS)}, got {spec!r}")
@@ -126,46 +128,6 @@ def action_map(cfg: Mapping, robot_dim: int) -> ActionMap:
     return ActionMap(robot_dim, tuple(indices) if indices is not None else None)
 
 
-def checkpoint_hash(path: str | os.PathLike, memo_file: str | os.PathLike | None = None) -> str:
-    """SHA-256 over a checkpoint folder's file names and contents.
-
-    Hashing a multi-GB VLA checkpoint takes seconds, and the workflow asks on every plan, so
-    digests are remembered per file by (size, mtime_ns, inode) in `memo_file`.
-    """
-    root = Path(path)
-    if not root.exists():
-        raise PolicyError(f"checkpoint {root} does not exist")
-    files = sorted(p for p in root.rglob("*") if p.is_file()) if root.is_dir() else [root]
-    memo: dict[str, Any] = {}
-    if memo_file and Path(memo_file).is_file():
-        try:
-            memo = json.loads(Path(memo_file).read_text())
-        except (OSError, ValueError):
-            memo = {}
-    digest = hashlib.sha256()
-    changed = False
-    for f in files:
-        st = f.stat()
-        stamp = [st.st_size, st.st_mtime_ns, st.st_ino]
-        key = str(f.resolve())
-        entry = memo.get(key)
-        if not entry or entry["stamp"] != stamp:
-            h = hashlib.sha256()
-            with open(f, "rb") as fh:
-                for block in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(block)
-            entry = memo[key] = {"stamp": stamp, "sha256": h.hexdigest()}
-            changed = True
-        digest.update(f.relative_to(root).as_posix().encode() if root.is_dir() else b"")
-        digest.update(entry["sha256"].encode())
-    if memo_file and changed:
-        Path(memo_file).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(memo_file).with_suffix(".tmp")
-        tmp.write_text(json.dumps(memo))
-        tmp.replace(memo_file)
-    return digest.hexdigest()
-
-
 def _action_map_problem(indices, action_dim: int, robot_action_dim: int, what: str) -> str | None:
     if indices is None and action_dim != robot_action_dim:
         return (f"{what} returns {action_dim}-D actions, the robot takes {robot_action_dim}-D; set action_map "
@@ -192,8 +154,6 @@ def check_server(cfg: Mapping, name: str, robot_action_dim: int, cameras, state_
     """A server entry (one arm's) against the world, before any episode: what its key map or its
     spec reads (cameras, state width) and the actions its spec returns. What the server itself
     announces is checked when it is reached."""
-    from r2s_eval.serving.keymap import resolve_key_map
-
     who = f"policy {name!r}"
     spec = dict(cfg.get("spec") or {})
     key_map = resolve_key_map(cfg.get("preset"), cfg.get("keys"), who)
@@ -219,8 +179,6 @@ def check_checkpoint(cfg: Mapping, name: str, robot_action_dim: int, cameras=Non
 
     Runs when the workflow is planned, so a wrong folder fails before any rollout starts.
     """
-    from r2s_eval.policies.lerobot_policy import resolve_checkpoint
-
     try:
         folder = resolve_checkpoint(cfg["path"])
     except PolicyError as exc:

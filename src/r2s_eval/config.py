@@ -23,6 +23,7 @@ from omegaconf import OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from r2s_eval.errors import ConfigError
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem
 
 
@@ -123,7 +124,6 @@ def to_json(value: Any) -> str:
 
 # The candidate line-ups and their budgets live in the Hydra config (conf/policies/*.yaml,
 # scaled by conf/experiment/*.yaml): one source of truth for the pipeline, tests and benchmarks.
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 def candidate_configs(experiment: str = "demo") -> dict[str, dict]:

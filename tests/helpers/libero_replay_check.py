@@ -4,7 +4,7 @@ report LIBERO's own success check and the end-effector position at the last step
     <libero-env>/bin/python libero_replay_check.py EPISODE.json WORLD_SCRIPT
 
 It is a script, never imported: LIBERO's interpreter has neither r2s_eval nor this package, so the
-world script (r2s_eval/libero/world.py, which imports only the standard library, numpy, LIBERO
+world script (r2s_eval/libero/libero_side.py, which imports only the standard library, numpy, LIBERO
 and openpi-client) is loaded by path.
 """
 

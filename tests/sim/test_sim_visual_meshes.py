@@ -13,7 +13,8 @@ import pytest
 import trimesh
 
 from r2s_eval.sim import meshes
-from r2s_eval.sim.reading import REPO_ROOT, WorldError
+from r2s_eval.paths import REPO_ROOT
+from r2s_eval.sim.reading import WorldError
 from r2s_eval.sim.robot import load_robot, world_robot
 from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.sim.assembly import build_robot_model

@@ -18,7 +18,7 @@ from r2s_eval.policy_sources import (
     result_identity,
     validate_source_cfg,
 )
-from r2s_eval.judge.base import transport_keys
+from r2s_eval.judge.base import stage_defaults, transport_keys
 from r2s_eval.libero import ACTION_DIM as LIBERO_ACTION_DIM
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages._reads import declaration as stage_declaration
@@ -26,6 +26,11 @@ from r2s_eval.stages._reads import declaration as stage_declaration
 logging.getLogger().handlers[:] = _ROOT_HANDLERS
 
 CONF_DIR = Path(workflow.basedir) / "conf"
+
+
+def judge_option(judge, key):
+    """A judge's stage option (mode, concurrency, ...): its entry's, else conf/judge_options.yaml's."""
+    return CFG["judges"][judge].get(key, stage_defaults()[key])
 EXPERIMENT = config.get("experiment", "demo")
 _overrides = config.get("overrides", [])
 OVERRIDES = [_overrides] if isinstance(_overrides, str) else list(_overrides)

@@ -6,7 +6,7 @@ JUDGE_CACHE = "results/cache/judge"
 
 
 def judge_mode(wildcards):
-    return CFG["judges"][wildcards.judge].get("mode", "two_step")
+    return judge_option(wildcards.judge, "mode")
 
 
 def judge_answer_cfg(wildcards):
@@ -37,7 +37,7 @@ def judge_pair_inputs(wildcards):
 
 
 ADAPTIVE = CFG["compare"]["allocation"] == "adaptive"
-TWO_STEP_JUDGES = [j for j in JUDGES if CFG["judges"][j].get("mode", "two_step") == "two_step"]
+TWO_STEP_JUDGES = [j for j in JUDGES if judge_option(j, "mode") == "two_step"]
 ONE_STEP_JUDGES = [j for j in JUDGES if j not in TWO_STEP_JUDGES]
 
 if not ADAPTIVE:

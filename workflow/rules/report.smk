@@ -251,7 +251,7 @@ BROWSER_FIGURES = [
     *expand("reports/win_rate_matrix_{judge}.png", judge=JUDGES),
     *expand("reports/case_study_{judge}.png", judge=JUDGES),
 ]
-DESCRIBED_JUDGES = [j for j in JUDGES if CFG["judges"][j].get("mode", "two_step") == "two_step"]
+DESCRIBED_JUDGES = [j for j in JUDGES if judge_option(j, "mode") == "two_step"]
 
 
 rule results_browser:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from r2s_eval.errors import ConfigError, DataError
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.utils.io import config_hash
 
 CRITERIA: tuple[str, ...] = (
@@ -166,7 +167,7 @@ class InvalidAnswer(Exception):
 # fast, never how one is answered, so they stay out of the judge identity and its cache keys.
 STAGE_OPTIONS: tuple[str, ...] = ("mode", "concurrency", "swap_share", "reserve")
 # Their defaults live in conf/ only, beside the judge configs that may set them.
-STAGE_DEFAULTS_FILE = Path(__file__).resolve().parents[3] / "conf" / "judge_options.yaml"
+STAGE_DEFAULTS_FILE = CONF_DIR / "judge_options.yaml"
 
 
 @functools.cache

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from r2s_eval.errors import ConfigError
+from r2s_eval.paths import REPO_ROOT
 
 
 class WorldError(ConfigError):
@@ -55,7 +56,6 @@ def interval(value: Any, where: str) -> tuple[float, float]:
     return low, high
 
 
-REPO_ROOT = Path(__file__).resolve().parents[3]
 
 
 def package_dir(name: str, where: str) -> Path:

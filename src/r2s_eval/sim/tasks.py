@@ -62,12 +62,13 @@ from typing import Any
 import numpy as np
 import yaml
 
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval  # noqa: F401 (WorldError: re-exported)
 from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 
-WORLDS_DIR = Path(__file__).resolve().parents[3] / "conf" / "world"  # the `world` config group
+WORLDS_DIR = CONF_DIR / "world"  # the `world` config group
 BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
 # The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
 PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")

@@ -19,10 +19,10 @@ from pathlib import Path
 import yaml
 
 from r2s_eval.config import compose_config
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.stages import _cli
 from r2s_eval.world.preview import preview
 
-CONF_DIR = Path(__file__).resolve().parents[3] / "conf"
 
 
 def main(args: argparse.Namespace) -> None:

@@ -159,7 +159,7 @@ def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
 
 
 def format_report(report: Mapping) -> str:
-    """The report as text (the stage's log, the README's numbers)."""
+    """The report as text (the stage's log, the numbers in docs/suite.md)."""
     cross = report["cross"]
     lines = [f"{'task':16s} {'policy':12s} " + " ".join(f"{w:>16s}" for w in WORLD_LABELS)]
     for c in cross["cells"]:

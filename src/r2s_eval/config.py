@@ -112,7 +112,7 @@ def select(cfg: dict[str, Any], *paths: str) -> dict[str, Any]:
         node: Any = cfg
         for key in path.split("."):
             if not isinstance(node, dict) or key not in node:
-                raise KeyError(f"config has no field {path!r}")
+                raise ConfigError(f"config has no field {path!r}")
             node = node[key]
         out[path] = node
     return sort_keys(out)

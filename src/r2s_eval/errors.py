@@ -32,6 +32,16 @@ class PolicyLoadError(R2SError, RuntimeError):
     """A policy that cannot be loaded, reached, or mapped onto the robot."""
 
 
+class PolicyError(PolicyLoadError):
+    """A policy that cannot be loaded, reached, or mapped onto the robot, or that returns actions the
+    robot cannot take; the message names it.
+
+    `slot`: the episode slot it concerns, when it concerns one (a batched call names the episode).
+    """
+
+    slot: int | None = None
+
+
 class JudgeError(R2SError, RuntimeError):
     """A judge that cannot answer: its server failed past every retry, or its deadline passed."""
 

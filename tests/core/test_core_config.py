@@ -36,7 +36,7 @@ def test_overrides_and_slices():
     cfg = compose_config(CONF, "smoke", ["stats.n_boot=17"])
     assert select(cfg, "stats")["stats"]["n_boot"] == 17
     assert list(select(cfg, "stats", "seed")) == ["seed", "stats"]
-    with pytest.raises(KeyError, match="no field 'stats.nope'"):
+    with pytest.raises(ConfigError, match="no field 'stats.nope'"):
         select(cfg, "stats.nope")
     assert to_json({"b": 1, "a": {"d": 2, "c": 3}}) == '{"a":{"c":3,"d":2},"b":1}'
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from r2s_eval.compare import sample_pairs, wins_at_checkpoints
+from r2s_eval.errors import DataError
 from r2s_eval.judge import Description, KinematicJudge, RolloutInput, Verdict, describe_rollouts, judge_pairs
 from r2s_eval.judge.drivers import DESCRIPTION_COLUMNS
 
@@ -180,7 +181,7 @@ def test_judge_pairs_errors_name_the_pair(episodes, tmp_path):
     desc = describe_rollouts(df, root, CountingJudge(), tmp_path / "cache")
     pairs = sample_pairs(df, ["GoodPolicyAlpha", "BadPolicyBeta"], [2], seed=0)
     gone = pairs["episode_b"].iloc[1]
-    with pytest.raises(KeyError, match=rf"pair row 1 .*episode {gone} has no description"):
+    with pytest.raises(DataError, match=rf"pair row 1 .*episode {gone} has no description"):
         judge_pairs(pairs, desc[desc["episode_id"] != gone], CountingJudge(), tmp_path / "cache")
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from r2s_eval.errors import ConfigError
+from r2s_eval.errors import ConfigError, EstimationError
 
 
 def _load(label: str, path: str | Path, cls):
@@ -32,7 +32,7 @@ def _load(label: str, path: str | Path, cls):
     try:
         return cls.from_pretrained(path, local_files_only=True)
     except Exception as exc:
-        raise RuntimeError(
+        raise EstimationError(
             f"calib.segmenter.{label}: could not load {cls.__name__} from {path} "
             f"(a local checkpoint saved with save_pretrained; weights are never downloaded): {exc}"
         ) from exc

@@ -31,7 +31,7 @@ from typing import Any
 import pandas as pd
 
 from r2s_eval.compare.sequential import PairState, allocate, pair_alpha
-from r2s_eval.errors import ConfigError
+from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.base import Judge
 from r2s_eval.judge.cache import AnswerCache
 from r2s_eval.judge.drivers import _comparisons, _verdict_table, describe_rollouts
@@ -279,7 +279,7 @@ class _LazyDescriber:
         if needed:
             unknown = [e for e in needed if e not in self.episodes.index]
             if unknown:
-                raise KeyError(f"episodes {unknown[:5]} are not in the rollouts' episode table")
+                raise DataError(f"episodes {unknown[:5]} are not in the rollouts' episode table")
             part = describe_rollouts(self.episodes.loc[needed].reset_index(drop=True), self.episodes_dir, self.judge,
                                      self.cache_dir, workers=self.workers)
             self.parts.append(part)

@@ -109,7 +109,7 @@ def run_cached(jobs: dict[str, Job], cache: AnswerCache, stats: StageStats, work
         except R2SError as e:  # the judge could not answer (server, deadline, config): say where
             raise JudgeError(f"{stats.stage}: judge {stats.judge!r} failed on {label}: {e}") from e
         except Exception as e:  # a bug: labelled too, its traceback kept as the cause
-            raise RuntimeError(f"{stats.stage}: judge {stats.judge!r} failed on {label}: {e}") from e
+            raise JudgeError(f"{stats.stage}: judge {stats.judge!r} failed on {label}: {e}") from e
         answer = {**answer, "usage": usage.to_dict()}
         cache.put(key, answer, inputs)
         with lock:

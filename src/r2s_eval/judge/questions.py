@@ -81,7 +81,7 @@ def description_questions(descriptions_df: pd.DataFrame, judge: Judge, identity:
     def question(label: str, ea: str, eb: str):
         for e in (ea, eb):
             if e not in by_id:
-                raise KeyError(f"{label}: episode {e} has no description")
+                raise DataError(f"{label}: episode {e} has no description")
         da, db = by_id[ea], by_id[eb]
         if da["instruction"] != db["instruction"]:
             raise DataError(f"{label}: the two episodes have different instructions")
@@ -103,7 +103,7 @@ def video_questions(episodes_df: pd.DataFrame, episodes_dir: Path, judge: Judge,
         files, instructions = {}, set()
         for side, e in (("a", ea), ("b", eb)):
             if e not in by_id:
-                raise KeyError(f"{label}: episode {e} is not in the episode table")
+                raise DataError(f"{label}: episode {e} is not in the episode table")
             files[side] = episode_files(e, by_id[e], ("video",), episodes_dir, judge, hashes)["video"]
             instructions.add(str(by_id[e].instruction))
         if len(instructions) != 1:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from r2s_eval.errors import ConfigError
+from r2s_eval.errors import ConfigError, JudgeError
 from r2s_eval.judge.base import register_judge
 from r2s_eval.judge.clip_frames import Clip, pil_frames
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge
@@ -66,7 +66,7 @@ class TransformersJudge(VLMJudge):
             auto = getattr(transformers, fam["auto_class"])
             model = auto.from_pretrained(c["model"], dtype=dtype, **common, **extra)
         except (OSError, ValueError) as e:
-            raise RuntimeError(f"judge {self.name!r}: cannot load {c['family']} model from {c['model']}: {e}") from e
+            raise JudgeError(f"judge {self.name!r}: cannot load {c['family']} model from {c['model']}: {e}") from e
         self._model = model.to(c["device"]).eval()
 
     def _conversation(self, messages: list[dict[str, Any]]) -> list[dict[str, Any]]:

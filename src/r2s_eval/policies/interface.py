@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from r2s_eval.errors import PolicyLoadError
+from r2s_eval.errors import PolicyError
 from r2s_eval.horizon import Horizon
 
 STATE_KEY = "observation.state"
@@ -30,13 +30,6 @@ TASK_KEY = "task"
 IMAGE_PREFIX = "observation.images."
 
 
-class PolicyError(PolicyLoadError):
-    """A policy that cannot be loaded, reached, or mapped onto the robot; the message names it.
-
-    `slot`: the episode slot it concerns, when it concerns one (a batched call names the episode).
-    """
-
-    slot: int | None = None
 
 
 @dataclass(frozen=True)

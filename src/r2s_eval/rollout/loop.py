@@ -18,6 +18,7 @@ import pandas as pd
 
 from r2s_eval.sim import TabletopEnv
 from r2s_eval.sim.env import add_image_noise
+from r2s_eval.errors import ConfigError
 
 
 class Policy(Protocol):
@@ -144,7 +145,7 @@ def video_frame_every(video_fps: float, control_dt_s: float) -> int:
     control rate, so the video's clock is the simulation's."""
     ratio = 1.0 / (float(video_fps) * float(control_dt_s))
     if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9:
-        raise ValueError(f"video_fps {video_fps} must divide the control rate ({1 / control_dt_s:g} Hz)")
+        raise ConfigError(f"video_fps {video_fps} must divide the control rate ({1 / control_dt_s:g} Hz)")
     return int(round(ratio))
 
 

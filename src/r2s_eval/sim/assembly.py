@@ -347,9 +347,5 @@ def load_world(world: Mapping) -> tuple[Robot, dict]:
         if task.arm not in (*robot.arms, "nearest", "behind_axis"):
             raise fail(f"tasks.{key}.arm", f"must be an arm of the robot {list(robot.arms)}, nearest or behind_axis, "
                                            f"got {task.arm!r}")
-        try:
-            sample_initial_poses(task, np.random.default_rng(0))
-        except RuntimeError:
-            raise fail(f"tasks.{key}.start", f"leaves no room: no draw of 1000 keeps the objects' footprints "
-                                             f"{task.clearance_m:g} m apart (regions overlap too much)") from None
+        sample_initial_poses(task, np.random.default_rng(0))  # a start region that leaves no room raises
     return robot, tasks

@@ -42,6 +42,7 @@ from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.params import WorldParams  # noqa: E402
 from r2s_eval.sim.robot import Robot, bundled_robot  # noqa: E402
 from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
+from r2s_eval.errors import DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
@@ -172,7 +173,7 @@ class TabletopEnv:
             d.ctrl[self._grip_act[name]] = arm.gripper.ctrl_open
         missing = set(self.task.object_names) - set(object_poses)
         if missing:
-            raise KeyError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
+            raise DataError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
         for name in self.task.object_names:
             x_m, y_m, yaw_rad = object_poses[name]
             placement = self.task.placement(name)
@@ -208,7 +209,7 @@ class TabletopEnv:
     def apply_action(self, action: np.ndarray) -> None:
         action = np.asarray(action, dtype=float).reshape(self.action_dim)
         if not np.all(np.isfinite(action)):
-            raise ValueError("action contains non-finite values")
+            raise PolicyError(f"task {self.task.key}: the action contains non-finite values")
         d = self.data
         for name, (q, closing) in self.robot.to_model(action).items():
             ctrl_range = self.model.actuator_ctrlrange[self._arm_act[name]]

@@ -105,7 +105,7 @@ def footprint_radius_m(kind: str, dims: dict, placement: str = "upright") -> flo
         return float(np.hypot(dims["length_m"], dims["width_m"]) / 2)
     if kind == "mesh":
         return float(np.hypot(dims["half_x_m"], dims["half_y_m"]))
-    raise KeyError(f"unknown object kind {kind!r}")
+    raise ConfigError(f"unknown object kind {kind!r}")
 
 
 def height_m(kind: str, dims: dict) -> float:

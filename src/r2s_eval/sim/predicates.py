@@ -60,6 +60,7 @@ import numpy as np
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import height_m
+from r2s_eval.sim.reading import WorldError
 
 # Defaults of the predicates' parameters (the bundled tasks' thresholds).
 MAX_TILT_DEG = 15.0
@@ -90,11 +91,11 @@ class Scene(Protocol):
 Condition = Callable[[Scene], bool]
 
 
-class ConditionError(ValueError):
+class ConditionError(WorldError):
     """A condition entry that cannot be compiled: ``path`` is the part that is wrong."""
 
     def __init__(self, path: str, message: str):
-        super().__init__(f"{path}: {message}")
+        super().__init__(path, message)
         self.path, self.message = path, message
 
 

@@ -67,6 +67,7 @@ from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finit
 from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
+from r2s_eval.errors import ConfigError
 
 WORLDS_DIR = CONF_DIR / "world"  # the `world` config group
 BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
@@ -283,7 +284,7 @@ def get_task(key: str, world: Mapping | None = None) -> Task:
     try:
         return tasks[key]
     except KeyError:
-        raise KeyError(f"unknown task {key!r}; known: {sorted(tasks)}") from None
+        raise ConfigError(f"unknown task {key!r}; the world's tasks are {sorted(tasks)}") from None
 
 
 def sample_initial_poses(
@@ -321,4 +322,5 @@ def sample_initial_poses(
         )
         if ok:
             return poses
-    raise RuntimeError(f"could not sample collision-free poses for {task.key}")
+    raise fail(f"tasks.{task.key}.start", f"leaves no room: no draw of {max_tries} keeps the objects' footprints "
+                     f"{task.clearance_m:g} m apart (regions overlap too much)")

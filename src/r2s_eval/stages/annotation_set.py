@@ -13,7 +13,7 @@ import pandas as pd
 
 from r2s_eval.annotate import draw_annotation_set, write_annotation_set
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 
 READS = ("annotate", "seed")  # config paths the --cfg slice holds (see _reads.py)
 

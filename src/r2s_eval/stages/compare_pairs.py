@@ -10,7 +10,7 @@ from __future__ import annotations
 from r2s_eval.compare import checkpoint_sizes, sample_pairs
 from r2s_eval.compare.sequential import unit_order
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import write_parquet
 
 READS = ("compare", "seed")  # config paths the --cfg slice holds (see _reads.py)

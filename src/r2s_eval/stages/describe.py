@@ -9,7 +9,7 @@ from r2s_eval.judge import describe_rollouts, make_judge
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import world_tasks
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import write_parquet
 
 READS = ("world.objects", "world.tasks", "world.robot")  # config paths the --cfg slice holds (see _reads.py)

@@ -18,7 +18,7 @@ from r2s_eval.judge.adaptive import judge_adaptively
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import world_tasks
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import read_parquet_metadata, write_parquet
 from r2s_eval.compare import checkpoint_sizes
 

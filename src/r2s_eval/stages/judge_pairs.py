@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import judge_pairs, make_judge
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.errors import DataError
 

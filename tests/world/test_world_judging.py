@@ -5,7 +5,7 @@ from __future__ import annotations
 import pandas as pd
 
 from r2s_eval.sim.tasks import bundled_world, world_tasks
-from r2s_eval.utils.io import read_parquet_metadata
+from r2s_eval.utils.io import read_parquet_metadata as _read_metadata
 from r2s_eval.world.judging import gather_descriptions, world_judge, write_descriptions, write_verdicts
 
 
@@ -17,6 +17,11 @@ def test_world_judge_is_told_the_world_s_tasks_and_transport_keys_come_apart():
     again = world_judge({"backend": "video"}, {"concurrency": 1}, objects=world["objects"], tasks=world["tasks"],
                         robot=world["robot"])
     assert again.identity() == judge.identity()  # where and how fast it is asked changes no answer
+
+
+def read_parquet_metadata(path) -> dict:
+    """The metadata without the provenance (set by whichever stage ran before in this process)."""
+    return {k: v for k, v in _read_metadata(path).items() if k != "provenance"}
 
 
 def test_written_descriptions_gather_and_verdicts_leave_their_exclusions_out(tmp_path):

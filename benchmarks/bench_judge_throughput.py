@@ -25,7 +25,7 @@ from tests.helpers.chat_server import ChatServer  # noqa: E402
 from tests.helpers.videos import make_rollouts  # noqa: E402
 
 from r2s_eval.judge import describe_rollouts, make_judge  # noqa: E402
-from r2s_eval.stages._rollouts import load_episodes  # noqa: E402
+from r2s_eval.rollout.episode_store import load_episodes  # noqa: E402
 
 
 def run(episodes, url: str, workers: int, cache: Path) -> float:

@@ -66,3 +66,24 @@ def test_no_episodes_or_no_pass_is_refused():
         estimate_joint_offsets(robot, [], make_env, iterations=1)
     with pytest.raises(DataError, match="iterations"):
         estimate_joint_offsets(robot, [record(WorldParams(), 2)], make_env, iterations=0)
+
+
+def test_calibrate_joints_writes_the_fitted_params_or_the_nominal_ones(monkeypatch):
+    import dataclasses
+    from pathlib import Path
+
+    from r2s_eval.calib import joints
+    from r2s_eval.config import compose_config
+
+    world = compose_config(Path(__file__).resolve().parents[2] / "conf", "smoke")["world"]
+    nominal = joints.calibrate_joints("data", None, None, world, estimate=False, iterations=2)
+    assert nominal == {"params": dataclasses.asdict(WorldParams()), "joints": {"estimated": False}}
+
+    robot = make_env(TASK, WorldParams()).robot
+    truth = {arm: tuple(0.02 for _ in spec.joints) for arm, spec in robot.arms.items()}
+    monkeypatch.setattr(joints, "recorded_episodes", lambda dataset, index, estimates: [record(WorldParams(joint_offset_rad=truth), 0)])
+    fitted = joints.calibrate_joints("data", None, None, world, estimate=True, iterations=2)
+    report = fitted["joints"]
+    assert report["estimated"] and report["episodes"] == 1 and report["frames"] == 40 and len(report["pass_residual_rad"]) == 2
+    for arm, offsets in truth.items():
+        assert np.abs(np.subtract(fitted["params"]["joint_offset_rad"][arm], offsets)).max() < 2e-3

@@ -309,8 +309,8 @@ def _run_stage(root: Path, tmp_path: Path, *extra: str) -> subprocess.CompletedP
     world = bundled_world()
     cfg = {"world.cameras": CAMERAS, "world.robot": world["robot"], "world.rig": world["rig"], "calib.camera": "head_left",
            "instructions": {"cup_on_plate": "Pick the Cup and Place it on the Plate"},
-           "ingest": {"repo_id": "local/test", "min_length": 5, "max_length": 100, "drop_bad_episodes": False,
-                      "check_videos": True}}
+           "ingest.repo_id": "local/test", "ingest.min_length": 5, "ingest.max_length": 100,
+           "ingest.drop_bad_episodes": False, "ingest.check_videos": True}
     out = tmp_path / "out"
     return subprocess.run(
         [sys.executable, "-m", "r2s_eval.stages.ingest", "--cfg", json.dumps(cfg), "--dataset", str(root),

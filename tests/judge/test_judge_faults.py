@@ -23,7 +23,7 @@ from r2s_eval.errors import JudgeError
 from r2s_eval.judge import describe_rollouts, judge_pairs, make_judge
 from r2s_eval.judge.base import CRITERIA
 from r2s_eval.judge.openai_backend import OpenAIJudge
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 
 
 from tests.helpers.chat_server import MALFORMED, ChatServer, kill_when_hanging
@@ -239,7 +239,7 @@ def test_no_replacement_but_the_excluded_comparison_fails_naming_the_option(roll
 _DESCRIBE = """
 import sys
 from r2s_eval.judge import describe_rollouts, make_judge
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 cfg = {"backend": "openai", "base_url": sys.argv[1], "model": "test-vlm", "max_frames": 4, "concurrency": 3}
 describe_rollouts(load_episodes(sys.argv[3:]), ".", make_judge(cfg), sys.argv[2])
 """

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from r2s_eval.errors import DataError
-from r2s_eval.stages import descriptions as stage
+from r2s_eval.world.judging import gather_descriptions
 from r2s_eval.utils.io import read_parquet_metadata, write_parquet
 
 
@@ -39,9 +39,9 @@ def test_parts_are_gathered_in_order_and_their_costs_added(tmp_path):
 def test_parts_of_another_judge_or_described_twice_are_refused(tmp_path):
     a = _part(tmp_path / "a.parquet", "vlm", ["e1"], 1, 0, 1.0)
     with pytest.raises(DataError, match=r"b.parquet: described by judge 'other', the other parts by 'vlm'"):
-        stage.gather([a, _part(tmp_path / "b.parquet", "other", ["e2"], 1, 0, 1.0)])
+        gather_descriptions([a, _part(tmp_path / "b.parquet", "other", ["e2"], 1, 0, 1.0)])
     with pytest.raises(DataError, match=r"more than one part: \['e1'\]"):
-        stage.gather([a, _part(tmp_path / "c.parquet", "vlm", ["e1"], 1, 0, 1.0)])
+        gather_descriptions([a, _part(tmp_path / "c.parquet", "vlm", ["e1"], 1, 0, 1.0)])
     write_parquet(tmp_path / "d.parquet", pd.DataFrame({"episode_id": ["e9"]}), metadata={"stage": "fit"})
     with pytest.raises(DataError, match=r"d.parquet: not the output of the describe stage"):
-        stage.gather([a, str(tmp_path / "d.parquet")])
+        gather_descriptions([a, str(tmp_path / "d.parquet")])

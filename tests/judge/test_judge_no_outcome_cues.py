@@ -30,7 +30,7 @@ from r2s_eval.judge.clip_frames import VIDEO_PART_FPS, Clip
 from r2s_eval.judge.prompting import PROMPT_SETS, description_text
 from r2s_eval.judge.transformers_backend import TransformersJudge
 from r2s_eval.judge.vlm import COMMON_DEFAULTS, Reply, VLMJudge
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import file_sha256
 
 

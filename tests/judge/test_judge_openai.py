@@ -16,7 +16,7 @@ from r2s_eval.compare import wins_at_checkpoints
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import describe_rollouts, judge_pairs, make_judge
 from r2s_eval.sim.tasks import bundled_world
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stats import order_swap_consistency
 
 
@@ -192,8 +192,7 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
     dirs, episodes = rollouts
     monkeypatch.chdir(tmp_path)
     pairs = tmp_path / "pairs.parquet"
-    cfg_pairs = {"compare": {"checkpoints": {"start": 4, "stop": 8, "step": 4}, "allocation": "fixed", "alpha": 0.05,
-                             "budget": None}, "seed": 3}
+    cfg_pairs = {"compare.checkpoints": {"start": 4, "stop": 8, "step": 4}, "compare.allocation": "fixed", "seed": 3}
     _cli.run(cp_stage.main, _add(cp_stage, ["--rollouts", "--out"]),
              ["--cfg", json.dumps(cfg_pairs), "--rollouts", *dirs, "--out", str(pairs)])
     with ChatServer() as server:
@@ -234,15 +233,17 @@ def test_openai_adaptive_stage_describes_on_the_way_and_never_pays_twice(rollout
 
     dirs, episodes = rollouts
     monkeypatch.chdir(tmp_path)
-    compare = {"checkpoints": {"start": 4, "stop": 8, "step": 4}, "allocation": "adaptive", "alpha": 0.05, "budget": None}
+    checkpoints = {"start": 4, "stop": 8, "step": 4}
     pairs = tmp_path / "pairs.parquet"
     _cli.run(cp_stage.main, _add(cp_stage, ["--rollouts", "--out"]),
-             ["--cfg", json.dumps({"compare": compare, "seed": 3}), "--rollouts", *dirs, "--out", str(pairs)])
+             ["--cfg", json.dumps({"compare.checkpoints": checkpoints, "compare.allocation": "adaptive", "seed": 3}),
+              "--rollouts", *dirs, "--out", str(pairs)])
     world = bundled_world()
     verdicts, desc = tmp_path / "j" / "verdicts.parquet", tmp_path / "j" / "descriptions.parquet"
     with ChatServer() as server:
-        cfg = {"judge": judge_cfg(server.url, swap_share=0.5), "name": "vlm", "compare": compare,
-               "world.objects": world["objects"], "world.tasks": world["tasks"], "world.robot": world["robot"]}
+        cfg = {"judge": judge_cfg(server.url, swap_share=0.5), "name": "vlm", "compare.checkpoints": checkpoints,
+               "compare.budget": None, "compare.alpha": 0.05, "world.objects": world["objects"],
+               "world.tasks": world["tasks"], "world.robot": world["robot"]}
         command = [sys.executable, "-m", "r2s_eval.stages.judge_adaptive", "--cfg", json.dumps(cfg), "--pairs", str(pairs),
                    "--rollouts", *dirs, "--cache", "cache", "--out", str(verdicts), "--descriptions-out", str(desc)]
         first = subprocess.run(command, capture_output=True, text=True)

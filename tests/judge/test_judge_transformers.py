@@ -15,7 +15,7 @@ import pytest
 from r2s_eval.compare import wins_at_checkpoints
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import CRITERIA, Description, describe_rollouts, judge_pairs, make_judge
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 
 
 from tests.helpers.videos import make_rollouts

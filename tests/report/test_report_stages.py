@@ -160,7 +160,7 @@ def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypa
     write_parquet("success.parquet", pd.DataFrame({
         "policy": ["a", "a", "b", "b", "c", "c"], "task": ["cup_on_plate", "stack"] * 3,
         "trials": [8, 4, 6, 6, 6, 6], "successes": [8, 2, 3, 3, 0, 1]}))
-    run_stage("fit", cfg, ("stats", "compare", "seed"), "--verdicts", "verdicts.parquet", "--pairs", "pairs.parquet",
+    run_stage("fit", cfg, declaration("fit")["READS"], "--verdicts", "verdicts.parquet", "--pairs", "pairs.parquet",
               "--out", "fit.parquet", "--replicates", "replicates.parquet")
     fit = pd.read_parquet("fit.parquet")
     assert sorted(fit["checkpoint"].unique()) == [10, 20, 30] and (fit["interval"] == "unit").all()
@@ -179,7 +179,7 @@ def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypa
     lows = (100 * boot.pivot(index="replicate", columns="policy", values="strength")).quantile(0.025)
     np.testing.assert_allclose(last.set_index("policy")["ci_low"], lows.loc[["a", "b", "c"]], rtol=1e-9)
 
-    run_stage("validate", cfg, ("stats", "seed"), "--fit", "fit.parquet", "--replicates", "replicates.parquet",
+    run_stage("validate", cfg, declaration("validate")["READS"], "--fit", "fit.parquet", "--replicates", "replicates.parquet",
               "--reference", "success.parquet", "--out", "validate.json")
     result = read_json("validate.json")
     assert result["interval"] == "unit" and result["ci_level"] == 0.95
@@ -197,13 +197,13 @@ def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypa
 
     # Choosing the binomial interval: the same stored intervals, the other one shown.
     binomial_cfg = compose_config(CONF, experiment="smoke", overrides=["stats.interval=binomial"])
-    run_stage("fit", binomial_cfg, ("stats", "compare", "seed"), "--verdicts", "verdicts.parquet",
+    run_stage("fit", binomial_cfg, declaration("fit")["READS"], "--verdicts", "verdicts.parquet",
               "--pairs", "pairs.parquet", "--out", "fit_b.parquet", "--replicates", "replicates_b.parquet")
     fit_b = pd.read_parquet("fit_b.parquet")
     assert (fit_b["interval"] == "binomial").all()
     np.testing.assert_array_equal(fit_b["ci_low"], fit_b["ci_low_binomial"])
     np.testing.assert_array_equal(fit_b["ci_low_unit"], fit["ci_low_unit"])
-    run_stage("validate", binomial_cfg, ("stats", "seed"), "--fit", "fit_b.parquet", "--replicates",
+    run_stage("validate", binomial_cfg, declaration("validate")["READS"], "--fit", "fit_b.parquet", "--replicates",
               "replicates_b.parquet", "--reference", "success.parquet", "--out", "validate_b.json")
     result_b = read_json("validate_b.json")
     assert result_b["interval"] == "binomial" and result_b["average"]["spearman_ci_low"] is None

@@ -19,24 +19,25 @@ STAGES = sorted(p.stem for p in STAGES_DIR.glob("*.py") if not p.stem.startswith
 RULES = sorted((REPO / "workflow" / "rules").glob("*.smk"))
 
 
+def _is_cfg(node: ast.AST) -> bool:
+    """`args.cfg` or `cfg`, the stage's own name for its --cfg slice."""
+    return (isinstance(node, ast.Attribute) and node.attr == "cfg" and isinstance(node.value, ast.Name)
+            and node.value.id == "args") or (isinstance(node, ast.Name) and node.id == "cfg")
+
+
 def _config_keys_read(stage: str) -> set[str]:
     """Top-level keys the stage reads from its --cfg: `args.cfg[...]`, `cfg[...]`, `.get(...)` on
     either, where `cfg` is the stage's own name for it."""
     tree = ast.parse((STAGES_DIR / f"{stage}.py").read_text())
-
-    def is_cfg(node: ast.AST) -> bool:
-        return (isinstance(node, ast.Attribute) and node.attr == "cfg" and isinstance(node.value, ast.Name)
-                and node.value.id == "args") or (isinstance(node, ast.Name) and node.id == "cfg")
-
     keys = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Call):  # a callee reading the whole config would hide its reads
-            whole = [a for a in [*node.args, *(k.value for k in node.keywords)] if is_cfg(a)]
+            whole = [a for a in [*node.args, *(k.value for k in node.keywords)] if _is_cfg(a)]
             assert not whole, f"stage {stage} line {node.lineno} passes its whole --cfg to a call: pass the slices"
-        if isinstance(node, ast.Subscript) and is_cfg(node.value) and isinstance(node.slice, ast.Constant):
+        if isinstance(node, ast.Subscript) and _is_cfg(node.value) and isinstance(node.slice, ast.Constant):
             keys.add(node.slice.value)
         elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
-              and is_cfg(node.func.value) and node.args and isinstance(node.args[0], ast.Constant)):
+              and _is_cfg(node.func.value) and node.args and isinstance(node.args[0], ast.Constant)):
             keys.add(node.args[0].value)
     return keys
 
@@ -46,6 +47,17 @@ def test_each_stage_declares_exactly_what_it_reads(stage):
     decl = declaration(stage)
     declared = set(decl["READS"]) | set(decl["PROVIDED"])
     assert _config_keys_read(stage) == declared, f"stage {stage}: reads {_config_keys_read(stage)}, declares {declared}"
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_each_stage_reads_a_setting_by_its_declared_path(stage):
+    # `cfg["stats.n_boot"]`, never `cfg["stats"]["n_boot"]`: a stage declares the settings it
+    # uses, so a change elsewhere in their group never reruns it (a group is declared only where
+    # it is handed whole to a library call, or is the stage's own options, report.<name>).
+    tree = ast.parse((STAGES_DIR / f"{stage}.py").read_text())
+    nested = [node.lineno for node in ast.walk(tree)
+              if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Subscript) and _is_cfg(node.value.value)]
+    assert not nested, f"stages/{stage}.py lines {nested} index into a config group: declare the dotted path"
 
 
 def test_every_rule_builds_its_cfg_from_the_stage_declaration():
@@ -108,7 +120,7 @@ def test_stage_entry_points_stay_thin(stage):
     lines = len((STAGES_DIR / f"{stage}.py").read_text().splitlines())
     assert lines <= 80, f"stages/{stage}.py has {lines} lines; move its logic into the library"
     source = (STAGES_DIR / f"{stage}.py").read_text()
-    others = re.findall(r"from r2s_eval\.stages\.(?!_cli|_reads|_rollouts)(\w+) import", source)
+    others = re.findall(r"from r2s_eval\.stages\.(?!_cli|_reads)(\w+) import", source)
     assert not others, f"stages/{stage}.py imports other entry points {others}"
 
 

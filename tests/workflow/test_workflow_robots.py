@@ -19,7 +19,7 @@ import pytest
 
 from r2s_eval.data.dataset import open_metadata
 from r2s_eval.report.calibration_report import build_report, format_table
-from r2s_eval.stages.init_error import scored_errors
+from r2s_eval.calib.scoring import scored_errors
 from r2s_eval.utils.io import read_parquet_metadata
 
 from .conftest import clone_checkout, readme_command, run_as_written

@@ -208,7 +208,7 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
     # texts (instruction masked), the number and size of images, a video part's frames, rate and
     # duration. It is the same for every episode, so it cannot predict success beyond chance.
     from r2s_eval.judge import describe_rollouts, make_judge
-    from r2s_eval.stages._rollouts import load_episodes
+    from r2s_eval.rollout.episode_store import load_episodes
 
     from tests.helpers.chat_server import ChatServer
 

@@ -16,6 +16,7 @@ from r2s_eval.calib.estimate import (
     yaw_error_rad,
 )
 from r2s_eval.calib.offsets import calibration_subset, fit_offsets, median_error_mm, read_measured_poses
+from r2s_eval.calib.scoring import score_estimates, scored_errors
 from r2s_eval.calib.segment import HSVSegmenter, Segmenter, make_segmenter
 
 __all__ = [
@@ -30,6 +31,8 @@ __all__ = [
     "fit_offsets",
     "median_error_mm",
     "read_measured_poses",
+    "score_estimates",
+    "scored_errors",
     "make_segmenter",
     "yaw_error_rad",
 ]

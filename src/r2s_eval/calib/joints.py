@@ -20,6 +20,8 @@ robot's silhouette in the camera frames; it is not estimated here.
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
@@ -30,7 +32,10 @@ from tqdm import tqdm
 from r2s_eval.data import ACTION_KEY, STATE_KEY, episode_frames, open_metadata
 from r2s_eval.errors import DataError
 from r2s_eval.sim import TabletopEnv, WorldParams
-from r2s_eval.sim.robot import Robot
+from r2s_eval.sim.build import make_env as world_env
+from r2s_eval.sim.robot import Robot, world_robot
+
+log = logging.getLogger("r2s_eval.calib_joints")
 
 Poses = dict[str, tuple[float, float, float]]
 
@@ -130,3 +135,29 @@ def estimate_joint_offsets(robot: Robot, episodes: Sequence[RecordedEpisode],
 
 def _as_tuples(per_arm: dict[str, Iterable[float]]) -> dict[str, tuple[float, ...]]:
     return {arm: tuple(float(v) for v in values) for arm, values in per_arm.items()}
+
+
+def calibrate_joints(dataset: str, index: pd.DataFrame, estimates: pd.DataFrame, world: dict, *, estimate: bool,
+                     iterations: int) -> dict:
+    """The calibrated sim's world parameters and how they were found, as the ``calib_joints``
+    stage writes them: ``{"params": WorldParams as a dict, "joints": {"estimated": bool, ...}}``.
+
+    With ``estimate`` the joint offsets are fitted on every recorded episode of ``index`` (objects
+    at their ``estimates``) in the ``world`` config's simulation; without, the parameters are nominal.
+    """
+    robot = world_robot(world)
+    report: dict = {"estimated": bool(estimate)}
+    params = WorldParams()
+    if estimate:
+        fit = estimate_joint_offsets(robot, recorded_episodes(dataset, index, estimates),
+                                     lambda task, p: world_env(task, world, p, cameras=[]), int(iterations))
+        params = WorldParams(joint_offset_rad=fit.offsets_rad)
+        report.update(episodes=fit.episodes, frames=fit.frames, offsets_rad=fit.offsets_rad,
+                      pass_residual_rad=fit.pass_residual_rad)
+        for arm, offsets in fit.offsets_rad.items():
+            log.info("%s joint offsets (deg): %s; residual left (deg): %s", arm,
+                     np.round(np.rad2deg(offsets), 2).tolist(),
+                     np.round(np.rad2deg(fit.pass_residual_rad[-1][arm]), 3).tolist())
+    else:
+        log.info("calib.joints.estimate is false: the calibrated sim keeps the nominal joints")
+    return {"params": dataclasses.asdict(params), "joints": report}

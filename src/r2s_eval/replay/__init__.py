@@ -10,6 +10,8 @@ actions, become a simulated demonstration.
 The retries' offsets are a scrambled Sobol' design over every object's (x, y, yaw), seeded per
 episode: a handful of independent draws clumps and leaves parts of the window untried, while
 8 Sobol' points put one retry in each eighth of every axis.
+
+``r2s_eval.replay.dataset.replay_dataset`` replays a whole teleop dataset this way (the replay stage).
 """
 
 from __future__ import annotations

@@ -4,8 +4,9 @@
 policy sources, so it is imported from its module.
 """
 
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.rollout.inits import sample_inits
 from r2s_eval.rollout.loop import EpisodeResult, episode_id, run_episode, video_frame_every
 from r2s_eval.rollout.mp4 import read_video, write_video
 
-__all__ = ["EpisodeResult", "episode_id", "read_video", "run_episode", "sample_inits", "video_frame_every", "write_video"]
+__all__ = ["EpisodeResult", "episode_id", "load_episodes", "read_video", "run_episode", "sample_inits", "video_frame_every", "write_video"]

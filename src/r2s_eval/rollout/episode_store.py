@@ -3,6 +3,7 @@ of rollouts resumes with the episodes it had not finished, then gathered into th
 
 Both rollout paths write through it, the MuJoCo worlds' (``r2s_eval.rollout.candidate``) and
 LIBERO's (``r2s_eval.libero.rollout``): per episode a video, a trajectory and a row.
+``load_episodes`` reads finished rollout folders back as one table.
 """
 
 from __future__ import annotations
@@ -74,3 +75,15 @@ def collect_episodes(out: Path, store: Path, planned: list[PlannedEpisode]) -> p
         write_parquet(tmp / "episodes.parquet", episodes, metadata={"stage": "rollout", "policy_stats": totals})
     shutil.rmtree(store)
     return episodes
+
+
+def load_episodes(rollout_dirs: list[str]) -> pd.DataFrame:
+    """The rollout folders' ``episodes.parquet`` as one table; media paths become relative to the
+    working dir (each row's folder joined to its video and trajectory path)."""
+    frames = []
+    for folder in rollout_dirs:
+        table = pd.read_parquet(Path(folder) / "episodes.parquet")
+        for column in ("video_path", "trajectory_path"):
+            table[column] = [str(Path(folder) / p) for p in table[column]]
+        frames.append(table)
+    return pd.concat(frames, ignore_index=True)

@@ -6,6 +6,11 @@ such as ``"calib.camera"``) its ``--cfg`` slice holds, and, where the rule adds 
 ``--cfg`` from ``READS``, so a rule reruns when, and only when, something the stage reads
 changed; a test compares each declaration with the keys the stage's code reads.
 
+A stage reads each value by the path it declares, ``cfg["stats.n_boot"]``, never
+``cfg["stats"]["n_boot"]``: it declares the settings it uses, so a change elsewhere in their
+group never reruns it. A group is declared only where the stage hands it whole to a library call
+(``world``, ``rollout``, ``teleop``) or where it is the stage's own options (``report.<name>``).
+
 The declarations are read from the source (``ast``), not imported: planning a workflow must not
 import torch.
 """

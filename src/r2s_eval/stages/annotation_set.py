@@ -13,9 +13,9 @@ import pandas as pd
 
 from r2s_eval.annotate import draw_annotation_set, write_annotation_set
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 
-READS = ("annotate", "seed")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("annotate.n_pairs", "seed")  # config paths the --cfg slice holds (see _reads.py)
 
 log = logging.getLogger("r2s_eval.annotation_set")
 
@@ -23,7 +23,7 @@ log = logging.getLogger("r2s_eval.annotation_set")
 def main(args) -> None:
     episodes = load_episodes(args.rollouts)
     items, summary = draw_annotation_set(pd.read_parquet(args.pairs), episodes,
-                                         n_pairs=int(args.cfg["annotate"]["n_pairs"]), seed=int(args.cfg["seed"]))
+                                         n_pairs=int(args.cfg["annotate.n_pairs"]), seed=int(args.cfg["seed"]))
     write_annotation_set(items, summary, episodes, set_path=args.out, videos_dir=args.videos, summary_path=args.summary)
     for category, c in summary["categories"].items():
         level = logging.WARNING if c["shortfall"] else logging.INFO

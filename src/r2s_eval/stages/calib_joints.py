@@ -14,43 +14,20 @@ With ``calib.joints.estimate: false`` the parameters are nominal (the simulation
 
 from __future__ import annotations
 
-import dataclasses
-import logging
-
-import numpy as np
 import pandas as pd
 
-from r2s_eval.calib.joints import estimate_joint_offsets, recorded_episodes
-from r2s_eval.sim import WorldParams
-from r2s_eval.sim.build import make_env
-from r2s_eval.sim.robot import world_robot
+from r2s_eval.calib.joints import calibrate_joints
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_json
 
-READS = ("calib.joints", "world")  # config paths the --cfg slice holds (see _reads.py)
-
-log = logging.getLogger("r2s_eval.calib_joints")
+READS = ("calib.joints.estimate", "calib.joints.iterations", "world")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
-    joints, world = args.cfg["calib.joints"], args.cfg["world"]
-    robot = world_robot(world)
-    report: dict = {"estimated": bool(joints["estimate"])}
-    params = WorldParams()
-    if joints["estimate"]:
-        episodes = recorded_episodes(args.dataset, pd.read_parquet(args.index), pd.read_parquet(args.estimates))
-        fit = estimate_joint_offsets(robot, episodes, lambda task, p: make_env(task, world, p, cameras=[]),
-                                     int(joints["iterations"]))
-        params = WorldParams(joint_offset_rad=fit.offsets_rad)
-        report.update(episodes=fit.episodes, frames=fit.frames, offsets_rad=fit.offsets_rad,
-                      pass_residual_rad=fit.pass_residual_rad)
-        for arm, offsets in fit.offsets_rad.items():
-            log.info("%s joint offsets (deg): %s; residual left (deg): %s", arm,
-                     np.round(np.rad2deg(offsets), 2).tolist(),
-                     np.round(np.rad2deg(fit.pass_residual_rad[-1][arm]), 3).tolist())
-    else:
-        log.info("calib.joints.estimate is false: the calibrated sim keeps the nominal joints")
-    write_json(args.out, {"params": dataclasses.asdict(params), "joints": report}, provenance=True)
+    cfg = args.cfg
+    result = calibrate_joints(args.dataset, pd.read_parquet(args.index), pd.read_parquet(args.estimates), cfg["world"],
+                              estimate=cfg["calib.joints.estimate"], iterations=cfg["calib.joints.iterations"])
+    write_json(args.out, result, provenance=True)
 
 
 if __name__ == "__main__":

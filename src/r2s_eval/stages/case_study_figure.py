@@ -8,7 +8,7 @@ import pandas as pd
 
 from r2s_eval.report import case_study_figure, pick_case_study, sample_frames, save_figure
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 
 READS = ("report.case_study",)  # config paths the --cfg slice holds (see _reads.py)
 

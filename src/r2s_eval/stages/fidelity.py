@@ -15,7 +15,7 @@ from r2s_eval.report import save_figure
 from r2s_eval.report.fidelity_report import (ablation_figure, ablation_table, build_report, fidelity_table, format_report,
                                       sim_rates)
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import read_json, write_json, write_text
 
 READS = ("stats.n_boot", "stats.ci_level", "seed", "report.fidelity")  # config paths the --cfg slice holds

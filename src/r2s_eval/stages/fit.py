@@ -15,7 +15,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats import fit_checkpoints
 from r2s_eval.utils.io import read_parquet_metadata, write_parquet
 
-READS = ("stats", "compare", "seed")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("stats.n_boot", "stats.ci_level", "stats.interval", "compare.checkpoints", "seed")  # config paths the --cfg slice holds (see _reads.py)
 # The adaptive judging's account the fit passes on to the report (r2s_eval.judge.adaptive).
 ADAPTIVE_SUMMARY = ("alpha", "stop", "rounds", "items", "calls", "requests", "describe_calls", "describe_requests",
                     "undecided", "pairs")
@@ -23,16 +23,16 @@ ADAPTIVE_SUMMARY = ("alpha", "stop", "rounds", "items", "calls", "requests", "de
 
 def main(args) -> None:
     cfg = args.cfg
-    stats = cfg["stats"]
+    n_boot, ci_level = int(cfg["stats.n_boot"]), float(cfg["stats.ci_level"])
     verdicts = pd.read_parquet(args.verdicts)
     pairs = pd.read_parquet(args.pairs) if args.pairs else None
     table, replicates = fit_checkpoints(
-        verdicts, checkpoint_sizes(cfg["compare"]["checkpoints"]), int(stats["n_boot"]), float(stats["ci_level"]), int(cfg["seed"]),
-        interval=str(stats["interval"]), pairs=pairs,
+        verdicts, checkpoint_sizes(cfg["compare.checkpoints"]), n_boot, ci_level, int(cfg["seed"]),
+        interval=str(cfg["stats.interval"]), pairs=pairs,
     )
     a_share = float(np.mean(verdicts["verdict"] == "A"))
     meta = {"stage": "fit", "share_of_A_answers": a_share, "interval": str(table["interval"].iloc[0]),
-            "ci_level": float(stats["ci_level"]), "n_boot": int(stats["n_boot"])}
+            "ci_level": ci_level, "n_boot": n_boot}
     judged = read_parquet_metadata(args.verdicts).get("stats", {})
     if judged.get("allocation") == "adaptive":  # what the ranking rests on, for the report
         meta["adaptive"] = {k: judged.get(k) for k in ADAPTIVE_SUMMARY}

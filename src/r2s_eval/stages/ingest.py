@@ -8,13 +8,14 @@ from r2s_eval.sim.robot import world_robot
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import atomic_dir, write_json, write_parquet
 
-READS = ("world.cameras", "world.robot", "world.rig", "calib.camera", "ingest")  # config paths the --cfg slice holds (see _reads.py)
+# config paths the --cfg slice holds (see _reads.py)
+READS = ("world.cameras", "world.robot", "world.rig", "calib.camera", "ingest.repo_id", "ingest.min_length",
+         "ingest.max_length", "ingest.drop_bad_episodes", "ingest.check_videos")
 PROVIDED = ("instructions",)  # the rule adds {task: instruction} of the tasks evaluated
 
 
 def main(args) -> None:
     cfg = args.cfg
-    ingest = cfg["ingest"]
     robot = world_robot({"robot": cfg["world.robot"], "rig": cfg["world.rig"], "cameras": cfg["world.cameras"]})
     spec = IngestSpec(
         cameras=list(cfg["world.cameras"]),
@@ -22,14 +23,14 @@ def main(args) -> None:
         fps=round(robot.control_hz),
         tasks={instruction: key for key, instruction in cfg["instructions"].items()},
         first_frame_camera=cfg["calib.camera"],
-        min_length=ingest["min_length"],
-        max_length=ingest["max_length"],
-        drop_bad_episodes=ingest["drop_bad_episodes"],
-        check_videos=ingest["check_videos"],
+        min_length=cfg["ingest.min_length"],
+        max_length=cfg["ingest.max_length"],
+        drop_bad_episodes=cfg["ingest.drop_bad_episodes"],
+        check_videos=cfg["ingest.check_videos"],
         feature_ranges=feature_ranges(robot),
     )
     with atomic_dir(args.frames) as frames_dir:
-        index, report = ingest_dataset(args.dataset, ingest["repo_id"], spec, frames_dir)
+        index, report = ingest_dataset(args.dataset, cfg["ingest.repo_id"], spec, frames_dir)
     write_parquet(args.index, index, metadata={"stage": "ingest", "dataset": str(args.dataset)})
     write_json(args.report, report, provenance=True)
 

@@ -16,7 +16,7 @@ import pandas as pd
 
 from r2s_eval.report import judge_audit
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import write_json
 
 # The share intervals use the statistics' bootstrap settings and the run's seed.

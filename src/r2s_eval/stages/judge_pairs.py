@@ -11,45 +11,30 @@ import json
 from pathlib import Path
 
 import pandas as pd
-import pyarrow.parquet as pq
 
-from r2s_eval.compare.sampling import sample_pairs, sample_reserve
+from r2s_eval.compare.reserve import reserve_for
 from r2s_eval.judge import judge_pairs, make_judge
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
-from r2s_eval.utils.io import write_parquet
-from r2s_eval.errors import DataError
+from r2s_eval.world.judging import write_verdicts
 
 READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("judge", "name")  # keys the rule adds for this job
 
 
-def reserve_for(pairs: pd.DataFrame, pairs_path: str, episodes: pd.DataFrame, seed: int, n_reserve: int) -> pd.DataFrame:
-    """The pairs' seeded continuation; checks first that the pairs came from these rollouts and seed."""
-    meta = json.loads((pq.read_schema(pairs_path).metadata or {}).get(b"r2s_eval", b"{}"))
-    policies = meta.get("policies") or sorted(set(pairs["policy_i"]) | set(pairs["policy_j"]))
-    checkpoints = meta.get("checkpoints") or [int(pairs["pair_index"].max()) + 1]
-    again = sample_pairs(episodes, policies, checkpoints, seed)
-    cols = ["policy_i", "policy_j", "pair_index", "episode_a", "episode_b"]
-    if again[cols].astype(str).values.tolist() != pairs[cols].astype(str).values.tolist():
-        raise DataError(f"{pairs_path} was not sampled from these rollouts with seed {seed}; rerun compare_pairs")
-    return sample_reserve(episodes, policies, checkpoints, seed, n_reserve)
-
-
 def main(args) -> None:
+    cfg = args.cfg
     # Transport keys (server address, timeouts, concurrency) come apart: they never rerun judging.
-    judge = make_judge({**args.cfg["judge"], **json.loads(args.transport)})
+    judge = make_judge({**cfg["judge"], **json.loads(args.transport)})
     pairs = pd.read_parquet(args.pairs)
     episodes = load_episodes(args.rollouts)
-    descriptions = pd.read_parquet(args.descriptions) if args.descriptions else None
-    reserve = reserve_for(pairs, args.pairs, episodes, int(args.cfg["seed"]), int(judge.stage_cfg["reserve"]))
     out = Path(args.out)
     verdicts = judge_pairs(
-        pairs, descriptions, judge, args.cache, stats_path=out.with_name("compare_stats.json"),
-        reserve_df=reserve, episodes_df=episodes, episodes_dir=Path("."),
+        pairs, pd.read_parquet(args.descriptions) if args.descriptions else None, judge, args.cache,
+        stats_path=out.with_name("compare_stats.json"), episodes_df=episodes, episodes_dir=Path("."),
+        reserve_df=reserve_for(pairs, args.pairs, episodes, int(cfg["seed"]), int(judge.stage_cfg["reserve"])),
     )
-    stats = {k: v for k, v in verdicts.attrs["stats"].items() if k != "exclusions"}
-    write_parquet(out, verdicts, metadata={"stage": "judge_pairs", "judge": args.cfg["name"], "stats": stats})
+    write_verdicts(out, verdicts, cfg["name"])
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import pandas as pd
 
 from r2s_eval.report import realsim_success_table, success_by_task
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import write_text
 
 READS = ("report.realsim_success_table",)  # config paths the --cfg slice holds (see _reads.py)

@@ -13,7 +13,7 @@ import pandas as pd
 
 from r2s_eval.report.browser import browser_data, figure_links, page_link, write_results_browser
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import read_json
 
 READS = ("report.results_browser",)  # config paths the --cfg slice holds (see _reads.py)

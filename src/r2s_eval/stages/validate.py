@@ -13,14 +13,14 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats import validate
 from r2s_eval.utils.io import write_json
 
-READS = ("stats", "seed")  # config paths the --cfg slice holds (see _reads.py)
+READS = ("stats.ci_level", "stats.n_boot", "seed")  # config paths the --cfg slice holds (see _reads.py)
 
 
 def main(args) -> None:
-    stats = args.cfg["stats"]
+    cfg = args.cfg
     replicates = pd.read_parquet(args.replicates) if args.replicates else None
     result = validate(pd.read_parquet(args.fit), pd.read_parquet(args.reference), replicates,
-                      level=float(stats["ci_level"]), n_boot=int(stats["n_boot"]), seed=int(args.cfg["seed"]))
+                      level=float(cfg["stats.ci_level"]), n_boot=int(cfg["stats.n_boot"]), seed=int(cfg["seed"]))
     write_json(args.out, result, provenance=True)
 
 

@@ -24,7 +24,7 @@ import pandas as pd
 from r2s_eval.errors import DataError
 from r2s_eval.report.calibration_report import DEFAULT_REPORT, build_report, fidelity_summary, format_table, saved_table
 from r2s_eval.stages import _cli
-from r2s_eval.stages._rollouts import load_episodes
+from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import read_json, read_parquet_metadata, write_json
 
 READS = ("stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds (see _reads.py)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import qmc
 
+from r2s_eval.errors import ConfigError
 from r2s_eval.sim import TabletopEnv
 
 Poses = dict[str, tuple[float, float, float]]
@@ -88,7 +89,7 @@ def replay_episode(
     """Up to ``max_attempts`` attempts in all (the first from ``estimate`` itself). The retry
     window has no default: it is the config's (`conf/replay`), whose default is not the method's."""
     if max_attempts < 1:
-        raise ValueError(f"max_attempts must be >= 1, got {max_attempts}")
+        raise ConfigError(f"replay.max_attempts must be >= 1, got {max_attempts}")
     poses = dict(estimate)
     design = retry_design(max_attempts - 1, len(estimate), rng)
     for attempt in range(max_attempts):

@@ -42,6 +42,7 @@ import argparse
 import contextlib
 import json
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -51,10 +52,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from r2s_eval.config import candidate_config, compose_config
+from r2s_eval.config import compose_config
 from r2s_eval.horizon import Horizon
 from r2s_eval.policies import RecedingHorizon
-from r2s_eval.policies.trained_config import make_lerobot_config
 from r2s_eval.policies.types import act as act_type
 from r2s_eval.policies.interface import ActionMap
 from r2s_eval.policies.lerobot_policy import load_lerobot_policy
@@ -64,43 +64,15 @@ from r2s_eval.rollout.episode_store import collect_episodes
 from r2s_eval.sim import bundled_robot
 from r2s_eval.sim.build import configured_task, make_env
 from r2s_eval.utils.io import write_json, write_parquet
+from r2s_eval.paths import CONF_DIR, REPO_ROOT
 from r2s_eval.utils.numerics import deterministic_torch
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+sys.path.insert(0, str(REPO_ROOT))  # the tests' helper package: tests.helpers
+from tests.helpers.policies import save_random_policy  # noqa: E402
+
 
 ROBOT = bundled_robot()  # the bundled world's robot: its action layout, rig and control rate
 ACTION_DIM, CAMERA_NAMES = ROBOT.action_dim, ROBOT.camera_names
-
-
-def save_random_act(folder: Path, cameras: list[str], image_hw: tuple[int, int]) -> Path:
-    """The CPU line-up's ACT (conf/policies/cpu.yaml) reading `cameras`, randomly initialised,
-    saved as a training output folder."""
-    from lerobot.configs.types import FeatureType, PolicyFeature
-    from lerobot.policies.act.modeling_act import ACTPolicy
-    from lerobot.policies.factory import make_pre_post_processors
-    from lerobot.processor import ImageCropResizeProcessorStep, NormalizerProcessorStep
-
-    keys = [f"observation.images.{c}" for c in cameras]
-    cfg = candidate_config("act", "demo", image_keys=keys)
-    lr_cfg = make_lerobot_config(cfg)
-    lr_cfg.input_features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(ACTION_DIM,))}
-    lr_cfg.input_features.update({k: PolicyFeature(type=FeatureType.VISUAL, shape=(3, *image_hw)) for k in keys})
-    lr_cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
-    vector = {"mean": np.zeros(ACTION_DIM), "std": np.full(ACTION_DIM, 0.1),
-              "min": -np.ones(ACTION_DIM), "max": np.ones(ACTION_DIM)}
-    image = {k: np.full((3, 1, 1), v) for k, v in {"mean": 0.5, "std": 0.25, "min": 0.0, "max": 1.0}.items()}
-    stats = {"observation.state": vector, "action": vector, **{k: image for k in keys}}
-    torch.manual_seed(0)
-    policy = ACTPolicy(lr_cfg)
-    pre, post = make_pre_post_processors(lr_cfg, dataset_stats=stats)
-    at = next(i for i, s in enumerate(pre.steps) if isinstance(s, NormalizerProcessorStep))
-    pre.steps.insert(at, ImageCropResizeProcessorStep(resize_size=tuple(cfg["image_size"])))
-    ckpt = folder / "pretrained_model"
-    for part in (policy, pre, post):
-        part.save_pretrained(ckpt)
-    (ckpt / "runner_config.json").write_text(json.dumps({"chunk_size": cfg["chunk_size"], "image_keys": keys,
-                                                         "policy_type": "act"}))
-    return folder
 
 
 @contextlib.contextmanager
@@ -181,7 +153,7 @@ def main() -> None:
     args = parser.parse_args()
     deterministic_torch(1)  # as the rollout stage
 
-    cfg = compose_config(CONF, experiment="demo")
+    cfg = compose_config(CONF_DIR, experiment="demo")
     cfg["world"]["cameras"] = list(CAMERA_NAMES)
     if args.max_steps:
         cfg["rollout"]["max_steps"] = args.max_steps
@@ -192,7 +164,7 @@ def main() -> None:
     image_hw = (int(cfg["world"]["image_height"]), int(cfg["world"]["image_width"]))
     work = Path(tempfile.mkdtemp(prefix="bench_rollout_batch."))
     try:
-        trained = args.checkpoint or save_random_act(work / "act", list(CAMERA_NAMES[: args.cameras]), image_hw)
+        trained = args.checkpoint or save_random_policy(work / "act", list(CAMERA_NAMES[: args.cameras]), image_hw)
         inits = sample_inits([configured_task(args.task, cfg["world"], cfg["suite"])], args.episodes, cfg["seed"])
         inits_path = work / "inits.parquet"
         inits.to_parquet(inits_path)

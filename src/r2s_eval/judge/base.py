@@ -152,6 +152,17 @@ class Verdict:
         return cls(letter=str(d["letter"]), rationale=str(d.get("rationale") or ""))
 
 
+def tie_break(a: Description, b: Description, instruction: str) -> Verdict:
+    """The built-in judges' answer when their scores tie: the smaller description hash, and for
+    identical descriptions a letter from the hash's parity with the instruction (deterministic, and
+    not always A, so a tie carries no position bias)."""
+    ha, hb = a.sha256(), b.sha256()
+    if ha != hb:
+        return Verdict("A" if ha < hb else "B", "exact tie; broken by the smaller description hash")
+    parity = int(hashlib.sha256((ha + "\n" + instruction).encode()).hexdigest(), 16) % 2
+    return Verdict("A" if parity == 0 else "B", "identical descriptions; letter from a hash parity")
+
+
 class InvalidAnswer(Exception):
     """The judge did not answer with a valid letter, even when asked once more.
 

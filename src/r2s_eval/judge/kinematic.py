@@ -41,7 +41,7 @@ import numpy as np
 
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
-from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
+from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge, tie_break
 from r2s_eval.judge import trajectory as T
 
 DEFAULTS: dict[str, Any] = {
@@ -221,11 +221,7 @@ class KinematicJudge(Judge):
         if abs(sa - sb) > float(self.cfg["score_tie_eps"]):
             return Verdict("A" if sa > sb else "B", f"same outcome and progress; behaviour score A {sa:.3f} vs B {sb:.3f}")
 
-        ha, hb = a.sha256(), b.sha256()
-        if ha != hb:
-            return Verdict("A" if ha < hb else "B", "exact tie; broken by the smaller description hash")
-        parity = int(hashlib.sha256((ha + "\n" + instruction).encode()).hexdigest(), 16) % 2
-        return Verdict("A" if parity == 0 else "B", "identical descriptions; letter from a hash parity")
+        return tie_break(a, b, instruction)
 
     @staticmethod
     def _progress(d: Description, key: str) -> float | None:

@@ -44,7 +44,6 @@ A and B flips the letter) and identical descriptions get a letter from a hash pa
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 from collections.abc import Mapping
@@ -55,7 +54,7 @@ import numpy as np
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.cache import cache_key
 from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
-from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge
+from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge, tie_break
 
 DEFAULTS: dict[str, Any] = {
     "backend": "video",
@@ -462,8 +461,4 @@ class VideoJudge(Judge):
         if abs(ma - mb) > float(self.cfg["score_tie_eps"]):
             parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in both)
             return Verdict("A" if ma > mb else "B", f"equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
-        ha, hb = a.sha256(), b.sha256()
-        if ha != hb:
-            return Verdict("A" if ha < hb else "B", "exact tie; broken by the smaller description hash")
-        parity = int(hashlib.sha256((ha + "\n" + instruction).encode()).hexdigest(), 16) % 2
-        return Verdict("A" if parity == 0 else "B", "identical descriptions; letter from a hash parity")
+        return tie_break(a, b, instruction)

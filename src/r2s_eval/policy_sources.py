@@ -28,7 +28,7 @@ import os
 from collections.abc import Mapping
 
 from r2s_eval.errors import PolicyConfigError
-from r2s_eval.policies.checkpoints import checkpoint_hash, resolve_checkpoint
+from r2s_eval.policies.checkpoint_files import checkpoint_hash, resolve_checkpoint
 from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
 from r2s_eval.serving.keymap import resolve_key_map
 

@@ -15,7 +15,7 @@ from r2s_eval.config import compose_config  # noqa: E402
 from r2s_eval.data import ACTION_KEY, episode_frames, open_metadata  # noqa: E402
 from r2s_eval.errors import DataError  # noqa: E402
 from r2s_eval.replay import replay_episode  # noqa: E402
-from r2s_eval.replay.dataset import replay_dataset  # noqa: E402
+from r2s_eval.replay.dataset_replay import replay_dataset  # noqa: E402
 from r2s_eval.sim import WorldParams  # noqa: E402
 from r2s_eval.sim.build import make_env  # noqa: E402
 from r2s_eval.twin.record import record_teleop  # noqa: E402

@@ -17,7 +17,7 @@ from typing import Any
 
 import torch
 
-from r2s_eval.policies.checkpoints import WEIGHTS_FILE
+from r2s_eval.policies.checkpoint_files import WEIGHTS_FILE
 from r2s_eval.policies.lerobot_policy import checkpoint_state_dict
 from r2s_eval.policies.trained_config import resolve_tokenizer_path
 from r2s_eval.policies.types import policy_type

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from r2s_eval.policies.checkpoints import RUNNER_CONFIG, WEIGHTS_FILE, checkpoint_hash, resolve_checkpoint
+from r2s_eval.policies.checkpoint_files import RUNNER_CONFIG, WEIGHTS_FILE, checkpoint_hash, resolve_checkpoint
 from r2s_eval.policies.interface import STATE_KEY, TASK_KEY, ChunkPolicy, PolicyError, PolicySpec
 from r2s_eval.policies.types import loaded_type
 

@@ -22,7 +22,7 @@ from typing import Any
 import torch
 
 from r2s_eval.data import open_metadata
-from r2s_eval.policies.checkpoints import CHECKPOINT_SUBDIR, RUNNER_CONFIG
+from r2s_eval.policies.checkpoint_files import CHECKPOINT_SUBDIR, RUNNER_CONFIG
 from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
 from r2s_eval.policies.trained_config import (
     cosine_floor_lr,

@@ -11,7 +11,7 @@ The retries' offsets are a scrambled Sobol' design over every object's (x, y, ya
 episode: a handful of independent draws clumps and leaves parts of the window untried, while
 8 Sobol' points put one retry in each eighth of every axis.
 
-``r2s_eval.replay.dataset.replay_dataset`` replays a whole teleop dataset this way (the replay stage).
+``r2s_eval.replay.dataset_replay.replay_dataset`` replays a whole teleop dataset this way (the replay stage).
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """Thin command-line entry points, one per pipeline stage (`python -m r2s_eval.stages.<stage>`).
 
-Each parses its inputs, outputs and JSON config slice, then calls library code. The library
-never imports Snakemake; these modules are what the Snakemake rules run.
+Each parses its inputs, outputs and JSON config slice, makes one call into its package and
+writes what it returns. The library never imports Snakemake; these modules are what the Snakemake
+rules run. A stage module is named after its rule (``stages/replay.py`` runs the rule ``replay``
+and calls ``r2s_eval.replay``); every other module of the package has a name of its own.
 """
 
 import os

@@ -6,7 +6,7 @@ import logging
 
 import pandas as pd
 
-from r2s_eval.replay.dataset import replay_dataset
+from r2s_eval.replay.dataset_replay import replay_dataset
 from r2s_eval.sim import load_world_params
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_parquet

@@ -5,7 +5,7 @@ import below; nothing else in r2s-eval names a type.
 """
 
 from r2s_eval.policies.types import act, diffusion, pi0, pi05, smolvla, xvla  # noqa: F401 (each registers itself)
-from r2s_eval.policies.types.base import (
+from r2s_eval.policies.types.registry import (
     NOT_SUPPORTED_YET,
     TOP_LEVEL_DEFAULTS,
     PolicyType,

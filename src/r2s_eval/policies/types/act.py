@@ -6,8 +6,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from r2s_eval.policies.interface import PolicyError
-from r2s_eval.policies.types.base import register
-from r2s_eval.policies.types.scratch import ScratchType
+from r2s_eval.policies.types.registry import register
+from r2s_eval.policies.types.from_scratch import ScratchType
 
 
 @register

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from r2s_eval.policies.types.base import register
-from r2s_eval.policies.types.scratch import ScratchType
+from r2s_eval.policies.types.registry import register
+from r2s_eval.policies.types.from_scratch import ScratchType
 
 
 @register

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from r2s_eval.errors import PolicyConfigError
-from r2s_eval.policies.types.base import PolicyType
+from r2s_eval.policies.types.registry import PolicyType
 
 # The fine-tuning recipe (the method's tables for pi0 / pi0.5), the defaults of every fine-tuned
 # type: full fine-tuning, AdamW betas (0.9, 0.95), cosine 2.5e-5 -> 2.5e-6 after 2000 warm-up

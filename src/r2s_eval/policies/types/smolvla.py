@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from r2s_eval.policies.types.base import register
+from r2s_eval.policies.types.registry import register
 from r2s_eval.policies.types.pretrained import NoiseArgType
 
 

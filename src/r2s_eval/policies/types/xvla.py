@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from r2s_eval.policies.types.base import register
+from r2s_eval.policies.types.registry import register
 from r2s_eval.policies.types.pretrained import FineTunedType
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 from r2s_eval.errors import PolicyConfigError
-from r2s_eval.policies.types.base import PolicyType
+from r2s_eval.policies.types.registry import PolicyType
 
 # Settings that keep every candidate offline and CPU-sized, whatever the overrides say last.
 _ALWAYS = {"pretrained_backbone_weights": None, "push_to_hub": False}

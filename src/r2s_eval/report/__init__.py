@@ -38,6 +38,7 @@ from r2s_eval.report.tables import (
     realsim_success_table,
     realsim_table,
     tasks_table,
+    validation_report,
 )
 
 __all__ = [
@@ -67,6 +68,7 @@ __all__ = [
     "swap_consistency",
     "task_summary",
     "tasks_table",
+    "validation_report",
     "win_rate_figure",
     "win_rate_matrix",
 ]

@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.errors import ConfigError
-from r2s_eval.report.summaries import fit_interval, last_checkpoint, success_gaps
+from r2s_eval.report.summaries import fit_interval, last_checkpoint, reference_interval, success_gaps
+from r2s_eval.stats import reference_rates
 
 _LATEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
                   "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
@@ -373,3 +374,18 @@ def judge_card_table(audits: Mapping[str, dict], decimals: int = 1) -> str:
         r"Shuffled flat: share of label-permuted BT fits whose CIs all contain 100/$n$ (permutations).",
     ]
     return _tabular("l" + "c" * 5, header, body, notes=notes)
+
+
+def validation_report(validations: Mapping[str, dict], audits: Mapping[str, dict], fits: Mapping[str, pd.DataFrame],
+                      adaptive: Mapping[str, Mapping | None], reference: pd.DataFrame, *, decimals: int, metrics_at,
+                      planted_order: Sequence[str] | None, reference_name: str = "real success",
+                      suite_of=None) -> tuple[str, str]:
+    """The validation table (one row per judge; with ``suite_of``, LIBERO's own success per policy
+    and suite below it) and the printed ranking beside the reference's rates (``reference``: the
+    reference stage's table) with the interval validate computed for them."""
+    table = realsim_table(validations, audits, decimals=decimals, metrics_at=metrics_at)
+    if suite_of is not None:
+        table += "\n" + libero_success_table(reference, suite_of, decimals=1)
+    ranking = ranking_text(fits, reference_rates(reference).to_dict(), reference_interval(validations),
+                           planted_order=planted_order, reference_name=reference_name, adaptive=adaptive)
+    return table, ranking

@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from r2s_eval.report import ranking_text, realsim_table, reference_interval
+from r2s_eval.report import validation_report
 from r2s_eval.stages import _cli
-from r2s_eval.stats import reference_rates
 from r2s_eval.utils.io import read_json, read_parquet_metadata, write_text
 
 READS = ("report.realsim_table", "report.judge_audit.planted_order")  # config paths the --cfg slice holds (see _reads.py)
@@ -18,15 +17,13 @@ READS = ("report.realsim_table", "report.judge_audit.planted_order")  # config p
 
 def main(args) -> None:
     opts = args.cfg["report.realsim_table"]
-    validations = _cli.by_judge(args.validation, read_json)
-    audits = _cli.by_judge(args.audits, read_json)
-    fits = _cli.by_judge(args.fits, pd.read_parquet)
-    reference = reference_rates(pd.read_parquet(args.reference))
-    table = realsim_table(validations, audits, decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"])
+    table, text = validation_report(
+        _cli.by_judge(args.validation, read_json), _cli.by_judge(args.audits, read_json),
+        _cli.by_judge(args.fits, pd.read_parquet),
+        {judge: meta.get("adaptive") for judge, meta in _cli.by_judge(args.fits, read_parquet_metadata).items()},
+        pd.read_parquet(args.reference), decimals=int(opts["decimals"]), metrics_at=opts["metrics_at"],
+        planted_order=args.cfg["report.judge_audit.planted_order"])
     write_text(args.table, table, comment="%")
-    adaptive = {judge: meta.get("adaptive") for judge, meta in _cli.by_judge(args.fits, read_parquet_metadata).items()}
-    text = ranking_text(fits, reference.to_dict(), reference_interval(validations),
-                        planted_order=args.cfg["report.judge_audit.planted_order"], adaptive=adaptive)
     write_text(args.ranking, text)  # printed at the end of a run: kept free of metadata lines
     print(text)
 

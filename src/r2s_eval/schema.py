@@ -496,8 +496,8 @@ class Libero:
 
 
 # Candidate policies: the types of an entry's keys (their defaults are the owners':
-# r2s_eval.policies.types (TOP_LEVEL_DEFAULTS, and each type's own) and r2s_eval.policy_sources).
-_POLICY_DEFAULTS = "r2s_eval.policies.types.TOP_LEVEL_DEFAULTS"
+# conf/policy_defaults.yaml, read by r2s_eval.policies.types, and r2s_eval.policy_sources).
+_POLICY_DEFAULTS = "conf/policy_defaults.yaml"
 _SOURCE_DEFAULTS = "r2s_eval.policy_sources"
 Beta = Annotated[float, Range(0, 1, open_max=True)]
 

@@ -35,8 +35,8 @@ Training-loop keys (all types):
     betas             AdamW/Adam betas (None: the lerobot optimiser preset's)
     grad_clip_norm    None: the preset's value (the VLA default)
 
-Defaults: `TOP_LEVEL_DEFAULTS` for every type; the VLA types default to the fine-tuning recipe
-`FINE_TUNING_DEFAULTS` (full fine-tuning, AdamW betas (0.9, 0.95), cosine 2.5e-5 -> 2.5e-6 after
+Defaults: conf/policy_defaults.yaml, `every_type` for every type; the VLA types default to the
+fine-tuning recipe there, `fine_tuned` (full fine-tuning, AdamW betas (0.9, 0.95), cosine 2.5e-5 -> 2.5e-6 after
 2000 warm-up steps, EMA 0.9999, batch 32, chunks of 25, 224x224 images of the four cameras). Each
 type's particulars live in its module of `r2s_eval.policies.types`; a candidate in conf/policies/
 writes only what differs from these defaults.

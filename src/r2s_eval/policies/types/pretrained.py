@@ -9,30 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from r2s_eval.errors import PolicyConfigError
-from r2s_eval.policies.types.registry import PolicyType
+from r2s_eval.policies.types.registry import FINE_TUNING_DEFAULTS, PolicyType
 
-# The fine-tuning recipe (the method's tables for pi0 / pi0.5), the defaults of every fine-tuned
-# type: full fine-tuning, AdamW betas (0.9, 0.95), cosine 2.5e-5 -> 2.5e-6 after 2000 warm-up
-# steps, EMA 0.9999, batch 32, chunks of 25, 224x224 images of the four cameras.
-FINE_TUNING_DEFAULTS: dict[str, Any] = {
-    "steps": 30_000,
-    "batch_size": 32,
-    "lr": 2.5e-5,
-    "scheduler": "cosine",
-    "decay_lr": 2.5e-6,
-    "warmup_steps": 2000,
-    "betas": [0.9, 0.95],
-    "ema_decay": 0.9999,
-    "grad_clip_norm": None,  # the preset's: pi0 / pi05 1.0 (openpi), smolvla / xvla 10
-    "image_keys": [
-        "observation.images.head_left",
-        "observation.images.head_right",
-        "observation.images.wrist_left",
-        "observation.images.wrist_right",
-    ],
-    "image_size": [224, 224],
-    "chunk_size": 25,
-}
 
 
 def setting_name(cfg: dict, key: str) -> str:
@@ -60,7 +38,7 @@ def cosine_floor_lr(cfg: dict) -> float:
 
 class FineTunedType(PolicyType):
     fine_tunes = True
-    defaults = FINE_TUNING_DEFAULTS
+    defaults = FINE_TUNING_DEFAULTS  # conf/policy_defaults.yaml, fine_tuned
     full_finetuning: dict[str, Any] = {}  # the family's freezing switches, all off
     family_defaults: dict[str, Any] = {}  # under the overrides
     always: dict[str, Any] = {}  # over the overrides

@@ -7,7 +7,7 @@ registry (`policy_type(name)`) and never branches on the type string, as LeRobot
 folder per policy type with registered configs.
 
 Nothing here imports torch or lerobot: validating a config (every workflow start) needs only
-the defaults; the methods that build or call a model import what they need.
+the defaults (conf/policy_defaults.yaml); the methods that build or call a model import what they need.
 """
 
 from __future__ import annotations
@@ -15,37 +15,27 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from r2s_eval.errors import PolicyConfigError
+from omegaconf import OmegaConf
 
-# Our top-level keys and their defaults (None = required or derived), for every type; a type's
-# `defaults` replace some of them. A candidate in conf/policies/ writes only what differs.
-TOP_LEVEL_DEFAULTS: dict[str, Any] = {
-    "type": None,  # a registered policy type
-    "name": None,  # candidate name, informational
-    "steps": 300,  # optimiser updates
-    "episodes_fraction": 1.0,  # share of each task's demonstrations trained on (data-scale ablations)
-    "batch_size": 16,
-    "lr": 1e-4,
-    "weight_decay": None,  # None: the policy's optimiser preset
-    "grad_clip_norm": 10.0,  # lerobot's default
-    "warmup_steps": 0,  # linear LR warm-up, then constant (short runs: no cosine decay)
-    "threads": 1,  # torch.set_num_threads; training is budgeted per core
-    "device": "cpu",  # where training runs: "cpu", "cuda", "cuda:1" (the VLAs want a GPU)
-    "log_every": 10,  # steps between logged losses
-    "image_keys": ["observation.images.head_left"],
-    "image_size": None,  # [H, W]: resize cameras inside the preprocessor; None = native size
-    "chunk_size": 25,  # actions predicted per model call
-    "overrides": {},
-    "pretrained_path": None,  # fine-tuned types: local LeRobot checkpoint folder to fine-tune
-    "tokenizer_path": None,  # fine-tuned types: local tokenizer / processor folder (None: local HF cache)
-    "scheduler": "constant",  # "constant" | "cosine"
-    "decay_lr": None,  # cosine: final learning rate (None: lr / 10)
-    "ema_decay": None,  # None: no EMA; else the checkpoint holds the EMA weights
-    "betas": None,  # None: the optimiser preset's
-    # Trainings per arm with different seeds: the first is the candidate; the others measure the
-    # spread of real and sim success that training alone causes (results/fidelity/report.json).
-    "seeds": 1,
-}
+from r2s_eval.errors import ConfigError, PolicyConfigError
+from r2s_eval.paths import CONF_DIR
+
+POLICY_DEFAULTS_FILE = CONF_DIR / "policy_defaults.yaml"
+
+
+def _read_defaults() -> dict[str, dict[str, Any]]:
+    """Our top-level keys and their defaults (None = required or derived) for every type, and the
+    fine-tuned types' recipe over them: conf/policy_defaults.yaml, their one owner."""
+    values = OmegaConf.to_container(OmegaConf.load(POLICY_DEFAULTS_FILE))
+    if sorted(values) != ["every_type", "fine_tuned"] or not set(values["fine_tuned"]) <= set(values["every_type"]):
+        raise ConfigError(f"{POLICY_DEFAULTS_FILE}: must hold every_type and fine_tuned (a subset of its keys)")
+    return values
+
+
+_DEFAULTS = _read_defaults()
+# Every type's keys and defaults; a type's `defaults` replace some of them.
+TOP_LEVEL_DEFAULTS: dict[str, Any] = _DEFAULTS["every_type"]
+FINE_TUNING_DEFAULTS: dict[str, Any] = _DEFAULTS["fine_tuned"]
 
 # lerobot policy types that do not build offline (yet); named so the error says why.
 NOT_SUPPORTED_YET = {

@@ -30,6 +30,7 @@ from collections.abc import Mapping
 from r2s_eval.errors import PolicyConfigError
 from r2s_eval.policies.checkpoint_files import checkpoint_hash, resolve_checkpoint
 from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
+from r2s_eval.policies.types.registry import read_policy_defaults
 from r2s_eval.serving.keymap import resolve_key_map
 
 __all__ = ["ARMS", "SOURCE_TYPES", "action_map", "check_checkpoint", "check_server", "checkpoint_hash", "for_arm",
@@ -38,15 +39,10 @@ __all__ = ["ARMS", "SOURCE_TYPES", "action_map", "check_checkpoint", "check_serv
 SOURCE_TYPES = ("checkpoint", "server")
 ARMS = ("real", "sim")
 
-_COMMON = {"type": None, "name": None, "arms": {}, "action_map": None, "device": None}
 # Keys each source type allows, with their values when an entry leaves them out.
-_PER_TYPE = {
-    "checkpoint": {"path": None},
-    "server": {
-        "host": "127.0.0.1", "port": None, "api_key_env": None, "spec": None, "preset": None, "keys": None,
-        "connect_timeout_s": 10.0, "reply_timeout_s": 120.0, "connect_retries": 3,
-    },
-}
+_DEFAULTS = read_policy_defaults()
+_COMMON = _DEFAULTS["every_source"]
+_PER_TYPE = {kind: _DEFAULTS[kind] for kind in SOURCE_TYPES}
 # Where a server runs and how patiently we talk to it change no result: not part of what
 # makes a rollout rerun.
 # A checkpoint's content (hashed) decides its results, not the folder it lies in.

@@ -495,10 +495,9 @@ class Libero:
     video: LiberoVideo
 
 
-# Candidate policies: the types of an entry's keys (their defaults are the owners':
-# conf/policy_defaults.yaml, read by r2s_eval.policies.types, and r2s_eval.policy_sources).
-_POLICY_DEFAULTS = "conf/policy_defaults.yaml"
-_SOURCE_DEFAULTS = "r2s_eval.policy_sources"
+# Candidate policies: the types of an entry's keys (their defaults: conf/policy_defaults.yaml, read
+# by r2s_eval.policies.types and r2s_eval.policy_sources).
+_POLICY_DEFAULTS = _SOURCE_DEFAULTS = "conf/policy_defaults.yaml"
 Beta = Annotated[float, Range(0, 1, open_max=True)]
 
 

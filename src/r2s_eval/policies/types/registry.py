@@ -23,16 +23,18 @@ from r2s_eval.paths import CONF_DIR
 POLICY_DEFAULTS_FILE = CONF_DIR / "policy_defaults.yaml"
 
 
-def _read_defaults() -> dict[str, dict[str, Any]]:
-    """Our top-level keys and their defaults (None = required or derived) for every type, and the
-    fine-tuned types' recipe over them: conf/policy_defaults.yaml, their one owner."""
+def read_policy_defaults() -> dict[str, dict[str, Any]]:
+    """conf/policy_defaults.yaml, the one owner of every candidate key's default: our top-level keys
+    (None = required or derived) for every trained type, the fine-tuned types' recipe over them,
+    and the keys of the sources trained elsewhere (checkpoint, server)."""
     values = OmegaConf.to_container(OmegaConf.load(POLICY_DEFAULTS_FILE))
-    if sorted(values) != ["every_type", "fine_tuned"] or not set(values["fine_tuned"]) <= set(values["every_type"]):
-        raise ConfigError(f"{POLICY_DEFAULTS_FILE}: must hold every_type and fine_tuned (a subset of its keys)")
+    sections = ["checkpoint", "every_source", "every_type", "fine_tuned", "server"]
+    if sorted(values) != sections or not set(values["fine_tuned"]) <= set(values["every_type"]):
+        raise ConfigError(f"{POLICY_DEFAULTS_FILE}: must hold {sections}, fine_tuned a subset of every_type's keys")
     return values
 
 
-_DEFAULTS = _read_defaults()
+_DEFAULTS = read_policy_defaults()
 # Every type's keys and defaults; a type's `defaults` replace some of them.
 TOP_LEVEL_DEFAULTS: dict[str, Any] = _DEFAULTS["every_type"]
 FINE_TUNING_DEFAULTS: dict[str, Any] = _DEFAULTS["fine_tuned"]

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from r2s_eval.errors import DataError
-from r2s_eval.world.judging import gather_descriptions
+from r2s_eval.world_judging import gather_descriptions
 from r2s_eval.utils.io import read_parquet_metadata, write_parquet
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from r2s_eval.judge import describe_rollouts
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stages import _cli
-from r2s_eval.world.judging import world_judge, write_descriptions
+from r2s_eval.world_judging import world_judge, write_descriptions
 
 READS = ("world.objects", "world.tasks", "world.robot")  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("judge", "name")  # keys the rule adds for this job

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_json, write_parquet
-from r2s_eval.world.judging import gather_descriptions
+from r2s_eval.world_judging import gather_descriptions
 
 READS = ()  # config paths the --cfg slice holds (see _reads.py)
 

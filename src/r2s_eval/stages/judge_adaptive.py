@@ -18,7 +18,7 @@ from r2s_eval.judge.adaptive import judge_adaptively
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import read_parquet_metadata
-from r2s_eval.world.judging import world_judge, write_descriptions, write_verdicts
+from r2s_eval.world_judging import world_judge, write_descriptions, write_verdicts
 
 READS = ("compare.checkpoints", "compare.budget", "compare.alpha", "world.objects", "world.tasks",
          "world.robot")  # config paths the --cfg slice holds (see _reads.py)

@@ -16,7 +16,7 @@ from r2s_eval.compare.reserve import reserve_for
 from r2s_eval.judge import judge_pairs, make_judge
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stages import _cli
-from r2s_eval.world.judging import write_verdicts
+from r2s_eval.world_judging import write_verdicts
 
 READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("judge", "name")  # keys the rule adds for this job

@@ -6,7 +6,7 @@ import pandas as pd
 
 from r2s_eval.sim.tasks import bundled_world, world_tasks
 from r2s_eval.utils.io import read_parquet_metadata as _read_metadata
-from r2s_eval.world.judging import gather_descriptions, world_judge, write_descriptions, write_verdicts
+from r2s_eval.world_judging import gather_descriptions, world_judge, write_descriptions, write_verdicts
 
 
 def test_world_judge_is_told_the_world_s_tasks_and_transport_keys_come_apart():

@@ -42,7 +42,7 @@ from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.params import WorldParams  # noqa: E402
 from r2s_eval.sim.robot import Robot, bundled_robot  # noqa: E402
 from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
-from r2s_eval.errors import DataError, PolicyError  # noqa: E402
+from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
@@ -257,7 +257,7 @@ class TabletopEnv:
                 try:
                     self._renderers[size_hw] = mujoco.Renderer(self.model, height=size_hw[0], width=size_hw[1])
                 except Exception as err:  # GL backend is fixed when mujoco is first imported
-                    raise RuntimeError(
+                    raise ConfigError(
                         "could not create an offscreen GL context; set MUJOCO_GL=egl (or osmesa) before "
                         "mujoco is first imported, e.g. import r2s_eval.sim first"
                     ) from err

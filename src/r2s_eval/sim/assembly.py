@@ -19,9 +19,10 @@ import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.meshes import decimated_meshes
-from r2s_eval.sim.objects import ObjectSpec, add_object, yaw_quat
+from r2s_eval.sim.objects import ObjectSpec, add_object
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
+from r2s_eval.sim.rotations import euler_quat, matrix_from_quat, quat_from_matrix, quat_multiply, rotvec_quat, yaw_quat
 from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot, world_robot
 from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
 
@@ -31,18 +32,6 @@ EE_SITE_GROUP = 5  # a site group no renderer shows by default
 def ee_site(arm: str) -> str:
     """The site the world adds at an arm's grasp centre, axes (approach, jaw, third)."""
     return f"{arm}_ee"
-
-
-def _quat_of(R: np.ndarray) -> np.ndarray:
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.asarray(R, float).flatten())
-    return quat
-
-
-def _rot_of(quat) -> np.ndarray:
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, np.asarray(quat, float))
-    return R.reshape(3, 3)
 
 
 def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
@@ -85,8 +74,8 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
     site = spec.site(arm.named(arm.ee_site))
     if site is None:
         raise fail(f"{where}.ee.site", f"{arm.model.name} has no site {arm.ee_site!r}")
-    site.parent.add_site(name=ee_site(arm.name), pos=site.pos + _rot_of(site.quat) @ arm.ee_pos,
-                         quat=_quat_of(_rot_of(site.quat) @ arm.ee_rotation), group=EE_SITE_GROUP)
+    site.parent.add_site(name=ee_site(arm.name), pos=site.pos + matrix_from_quat(site.quat) @ arm.ee_pos,
+                         quat=quat_from_matrix(matrix_from_quat(site.quat) @ arm.ee_rotation), group=EE_SITE_GROUP)
     if arm.collision is not None:
         _swap_collision(spec, arm, arm.collision)
     if arm.gravity_compensation:  # every body of the arm's model (attached with its prefix)
@@ -202,8 +191,7 @@ def _swap_collision(spec: mujoco.MjSpec, arm: Arm, collision: Collision) -> None
     for geom in off:
         geom.contype = geom.conaffinity = 0
     for i, ((entry, body), (contype, conaffinity)) in enumerate(zip(added, bits)):
-        quat = np.zeros(4)
-        mujoco.mju_euler2Quat(quat, np.deg2rad(entry.euler_deg), "xyz")
+        quat = euler_quat(np.deg2rad(entry.euler_deg))
         kind = getattr(mujoco.mjtGeom, f"mjGEOM_{entry.type.upper()}")
         geom = body.add_geom(name=arm.named(f"collision_{i}"), type=kind,
                              size=[*entry.size, *[0.0] * (3 - len(entry.size))], pos=list(entry.pos), quat=quat,
@@ -216,7 +204,7 @@ def _rest_frame(body: mujoco.MjsBody) -> tuple[np.ndarray, np.ndarray]:
     """(rotation, position) of ``body`` in the world at the model's rest pose (no joints moved)."""
     R, p = np.eye(3), np.zeros(3)
     while body is not None and body.name != "world":
-        R_body = _rot_of(body.quat)
+        R_body = matrix_from_quat(body.quat)
         R, p = R_body @ R, np.asarray(body.pos, float) + R_body @ p
         body = body.parent
     return R, p
@@ -241,7 +229,7 @@ def _place_camera(spec: mujoco.MjSpec, robot: Robot, cam: RigCamera) -> None:
     if cam.look_at is not None:
         R_parent, p_parent = _rest_frame(mj_cam.parent)
         quat = cam_geom.look_at_quat_wxyz(p_parent + R_parent @ np.asarray(mj_cam.pos), np.asarray(cam.look_at))
-        mj_cam.quat = quat if np.array_equal(R_parent, np.eye(3)) else _quat_of(R_parent.T @ _rot_of(quat))
+        mj_cam.quat = quat if np.array_equal(R_parent, np.eye(3)) else quat_from_matrix(R_parent.T @ matrix_from_quat(quat))
     if cam.fovy_deg is not None:
         mj_cam.fovy = cam.fovy_deg
     if cam.intrinsics is not None:
@@ -291,10 +279,8 @@ def _apply_render_params(spec: mujoco.MjSpec, robot: Robot, params: WorldParams,
         dpos = np.asarray(params.camera_pos_offset_m.get(cam.name, (0.0, 0.0, 0.0)))
         drot = params.camera_rot_offset_rad.get(cam.name, (0.0, 0.0, 0.0))
         quat = np.asarray(cam.quat, float)
-        cam.pos = np.asarray(cam.pos) + _rot_of(quat) @ dpos
-        new_quat = np.zeros(4)
-        mujoco.mju_mulQuat(new_quat, quat, cam_geom.small_rotation_quat_wxyz(drot))
-        cam.quat = new_quat
+        cam.pos = np.asarray(cam.pos) + matrix_from_quat(quat) @ dpos
+        cam.quat = quat_multiply(quat, rotvec_quat(drot))
 
 
 def _apply_physics_params(model: mujoco.MjModel, robot: Robot, params: WorldParams, objects) -> None:

@@ -18,6 +18,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from r2s_eval.sim.rotations import quat_from_matrix
+
 # MuJoCo camera axes -> OpenCV camera axes (flip y and z).
 _R_MJCAM_FROM_CV = np.diag([1.0, -1.0, -1.0])
 
@@ -88,17 +90,6 @@ def look_at_quat_wxyz(pos_m: np.ndarray, target_m: np.ndarray, up=(0.0, 0.0, 1.0
     z_axis = -forward  # MuJoCo cameras look along -z
     y_axis = np.cross(z_axis, right)
     R = np.column_stack([right, y_axis, z_axis])
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, R.flatten())
-    return quat
+    return quat_from_matrix(R)
 
 
-def small_rotation_quat_wxyz(rpy_rad) -> np.ndarray:
-    """Quaternion for small roll/pitch/yaw angles (applied as an axis-angle vector)."""
-    rotvec = np.asarray(rpy_rad, dtype=float)
-    quat = np.zeros(4)
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    mujoco.mju_axisAngle2Quat(quat, rotvec / angle, angle)
-    return quat

@@ -50,6 +50,7 @@ import mujoco
 import numpy as np
 
 from r2s_eval.errors import ConfigError
+from r2s_eval.sim.rotations import matrix_from_quat, quat_multiply, yaw_quat
 
 if TYPE_CHECKING:
     from r2s_eval.sim.meshes import MeshShape
@@ -130,12 +131,6 @@ def support_top_m(kind: str, dims: dict) -> float:
     return height_m(kind, dims)
 
 
-def _quat_mul(a, b) -> np.ndarray:
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
-    return out
-
-
 def taper_rad(kind: str, dims: dict) -> float:
     """Lean of a tapered cup's wall from vertical (0 for everything else)."""
     if kind != "cup":
@@ -159,7 +154,7 @@ def placement_quat(placement: str, yaw_rad: float, kind: str = "", dims: dict | 
         base = np.array([np.cos(pitch / 2), 0.0, np.sin(pitch / 2), 0.0])
     else:
         raise ConfigError(f"unknown placement {placement!r} (known: {PLACEMENTS})")
-    return _quat_mul(yaw_quat(yaw_rad), base)
+    return quat_multiply(yaw_quat(yaw_rad), base)
 
 
 def placement_origin_m(kind: str, dims: dict, placement: str, x_m: float, y_m: float, yaw_rad: float,
@@ -180,9 +175,7 @@ def placement_origin_m(kind: str, dims: dict, placement: str, x_m: float, y_m: f
 
 def planar_pose(kind: str, dims: dict, placement: str, pos_world_m, quat_wxyz) -> tuple[float, float, float]:
     """Inverse of ``placement_origin_m``/``placement_quat``: body pose -> (x_m, y_m, yaw_rad)."""
-    R = np.zeros(9)
-    mujoco.mju_quat2Mat(R, np.asarray(quat_wxyz, float))
-    R = R.reshape(3, 3)
+    R = matrix_from_quat(quat_wxyz)
     pos = np.asarray(pos_world_m, float)
     if placement == "on_side":
         axis = R[:, 2]
@@ -208,11 +201,6 @@ def _add_geom(body, size, pos, rgba, mass_kg, friction, geom_type, quat=None, na
     return geom
 
 
-def yaw_quat(yaw_rad: float) -> np.ndarray:
-    """Rotation (wxyz) about world z by ``yaw_rad``."""
-    return np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
-
-
 def _ring_of_boxes(body, name, radius_m, n, half_radial_m, half_height_m, z_centre_m, rgba, mass_kg, friction,
                    lean_rad=0.0, max_radius_m=None):
     # Tangential half-length slightly above radius*tan(pi/n) so neighbours overlap (no gaps).
@@ -222,7 +210,7 @@ def _ring_of_boxes(body, name, radius_m, n, half_radial_m, half_height_m, z_cent
         angle = 2 * np.pi * i / n
         pos = [radius_m * np.cos(angle), radius_m * np.sin(angle), z_centre_m]
         _add_geom(body, [half_radial_m, half_tangential_m, half_height_m], pos, rgba,
-                  mass_kg / n, friction, mujoco.mjtGeom.mjGEOM_BOX, quat=_quat_mul(yaw_quat(angle), lean),
+                  mass_kg / n, friction, mujoco.mjtGeom.mjGEOM_BOX, quat=quat_multiply(yaw_quat(angle), lean),
                   name=f"{name}_wall{i}")
 
 

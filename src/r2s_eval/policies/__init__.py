@@ -4,7 +4,7 @@ Public API:
     ChunkPolicy, PolicySpec        one interface: a batch of observations in, action chunks out
     RecedingHorizon(policy, Horizon(chunk, execute)).act(obs) -> np.ndarray (14,)
     load_lerobot_policy(checkpoint_dir, device="cpu") -> LeRobotPolicy (a ChunkPolicy)
-    train_policy(dataset_root, repo_id, policy_cfg, out_dir, seed, device="cpu") -> summary dict
+    train_policy(dataset_root, repo_id, policy_cfg, out_dir, seed, episodes=None, replicate=0) -> summary dict
     load_policy(checkpoint_dir, horizon=Horizon(...), device="cpu", seed=0) -> RecedingHorizon
     validate_policy_cfg(cfg), make_lerobot_config(cfg)   # policy_type(name): r2s_eval.policies.types
 

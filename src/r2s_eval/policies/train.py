@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from r2s_eval.data import open_metadata
@@ -40,7 +41,7 @@ log = logging.getLogger(__name__)
 TRAIN_LOG = "train_log.json"
 
 
-def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
+def policy_config(policy_cfg: dict, meta):
     """Our validated config and the lerobot config, with the inputs restricted to the listed cameras."""
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.utils.feature_utils import dataset_to_policy_features
@@ -48,7 +49,7 @@ def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
 
     cfg = validate_policy_cfg(policy_cfg)
     check_features(meta, cfg["image_keys"])
-    lr_cfg = make_lerobot_config(cfg, device=device)
+    lr_cfg = make_lerobot_config(cfg)
 
     # Only the state and the listed cameras are policy inputs; make_policy keeps preset inputs.
     features = dataset_to_policy_features(meta.features)
@@ -64,14 +65,14 @@ def policy_config(policy_cfg: dict, meta, device: str = "cpu"):
     return cfg, lr_cfg
 
 
-def build_policy_and_processors(policy_cfg: dict, meta, device: str = "cpu", stats: dict | None = None):
+def build_policy_and_processors(policy_cfg: dict, meta, stats: dict | None = None):
     """lerobot config + policy + (pre, post) processors for `policy_cfg` on dataset `meta`.
 
     `stats` replaces the dataset's normalisation statistics (default: `meta.stats`).
     """
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-    cfg, lr_cfg = policy_config(policy_cfg, meta, device)
+    cfg, lr_cfg = policy_config(policy_cfg, meta)
     kind = policy_type(cfg["type"])
     if kind.fine_tunes:
         return build_vla_policy_and_processors(cfg, lr_cfg, meta, stats)[:5]
@@ -148,17 +149,25 @@ def _cycle(loader):
         yield from loader
 
 
+def training_seed(seed: int, replicate: int) -> int:
+    """The experiment's seed for the candidate itself (replicate 0); one drawn from both for
+    each further replicate."""
+    return seed if replicate == 0 else int(np.random.SeedSequence([seed, replicate]).generate_state(1)[0])
+
+
 def train_policy(
     dataset_root: str | Path,
     repo_id: str,
     policy_cfg: dict,
     out_dir: str | Path,
     seed: int,
-    device: str = "cpu",
     episodes: list[int] | None = None,
+    replicate: int = 0,
 ) -> dict[str, Any]:
     """Train one policy on one dataset; write `out_dir/pretrained_model/` and `out_dir/train_log.json`.
 
+    `seed` is the experiment's; replicate k > 0 (the policy's `seeds`) trains the candidate again
+    from a seed drawn from both (`training_seed`). Training runs on the policy's `device`.
     `episodes` restricts training to those episode indices (ingest's index: the episodes that
     passed its checks); None uses every episode of the dataset.
 
@@ -169,11 +178,12 @@ def train_policy(
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     cfg = validate_policy_cfg(policy_cfg)
+    seed, device = training_seed(seed, replicate), cfg["device"]
     deterministic_torch(int(cfg["threads"]))
     set_seed(seed)
 
     meta = open_metadata(dataset_root, repo_id)
-    _, lr_cfg = policy_config(cfg, meta, device)
+    _, lr_cfg = policy_config(cfg, meta)
     t_data = time.perf_counter()
     episodes = select_episodes(meta, float(cfg["episodes_fraction"]), episodes)
     dataset = make_training_dataset(dataset_root, repo_id, meta, lr_cfg, cfg["image_keys"], episodes)
@@ -192,7 +202,7 @@ def train_policy(
             cfg, lr_cfg, meta, stats
         )
     else:
-        cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, device, stats)
+        cfg, lr_cfg, policy, preprocessor, postprocessor = build_policy_and_processors(cfg, meta, stats)
     loader = _make_loader(dataset, lr_cfg, cfg["batch_size"], seed)
     optimizer, scheduler = _make_optimizer(cfg, lr_cfg, policy)
     clip = cfg["grad_clip_norm"]

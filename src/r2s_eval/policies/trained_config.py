@@ -141,10 +141,11 @@ def _fine_tuned_types() -> tuple[str, ...]:
     return tuple(name for name in SUPPORTED_TYPES if policy_type(name).fine_tunes)
 
 
-def make_lerobot_config(policy_cfg: dict, device: str = "cpu"):
-    """Build the lerobot config object (features are filled in later from the dataset)."""
+def make_lerobot_config(policy_cfg: dict):
+    """Build the lerobot config object on the policy's `device` (features are filled in later from
+    the dataset)."""
     cfg = validate_policy_cfg(policy_cfg)
-    return policy_type(cfg["type"]).lerobot_config(cfg, device)
+    return policy_type(cfg["type"]).lerobot_config(cfg)
 
 
 def resolve_tokenizer_path(cfg: dict, lerobot_cfg) -> Path:

@@ -5,7 +5,6 @@ own, to measure what training alone moves."""
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
 from r2s_eval.policies import train_policy
@@ -16,22 +15,15 @@ READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("policy", "name", "replicate")  # keys the rule adds for this job
 
 
-def training_seed(seed: int, replicate: int) -> int:
-    """The experiment's seed for the candidate itself (replicate 0); one drawn from both for
-    each further replicate."""
-    return seed if replicate == 0 else int(np.random.SeedSequence([seed, replicate]).generate_state(1)[0])
-
-
 def main(args) -> None:
     deterministic_torch(args.threads)
     policy_cfg = dict(args.cfg["policy"], name=args.cfg["name"], threads=args.threads)
-    device = policy_cfg.get("device", "cpu")
     # The real arm trains only on the episodes ingest kept; the replayed sim dataset holds only those.
     episodes = None
     if args.episodes_index:
         episodes = [int(e) for e in pd.read_parquet(args.episodes_index, columns=["episode_index"])["episode_index"]]
-    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=training_seed(int(args.cfg["seed"]), int(args.cfg.get("replicate", 0))), device=device,
-                 episodes=episodes)
+    train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), episodes=episodes,
+                 replicate=int(args.cfg.get("replicate", 0)))
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ class ScratchType(PolicyType):
         """Set the lerobot fields that make the model predict `cfg['chunk_size']` actions a call."""
         raise NotImplementedError
 
-    def lerobot_config(self, cfg: dict, device: str):
+    def lerobot_config(self, cfg: dict):
         cls = self.config_class()
         field_names = {f.name for f in dataclasses.fields(cls) if f.init}
         overrides = dict(cfg["overrides"])
@@ -39,13 +39,13 @@ class ScratchType(PolicyType):
             if key in overrides:
                 raise PolicyConfigError(
                     f"override {key!r} is set by the pipeline (top-level 'chunk_size', rollout.horizon, "
-                    f"the dataset features or the device argument); remove it"
+                    f"the dataset features or the policy's device); remove it"
                 )
         if overrides.get("pretrained_backbone_weights") is not None:
             raise PolicyConfigError(
                 "override 'pretrained_backbone_weights' must be None: candidates train from scratch, offline"
             )
-        kwargs = {"optimizer_lr": cfg["lr"], **overrides, **_ALWAYS, "device": device}
+        kwargs = {"optimizer_lr": cfg["lr"], **overrides, **_ALWAYS, "device": cfg["device"]}
         for key in _TUPLE_FIELDS:
             if key in kwargs and isinstance(kwargs[key], list):
                 kwargs[key] = tuple(kwargs[key])

@@ -61,7 +61,7 @@ class FineTunedType(PolicyType):
         lr_cfg.max_state_dim = max(int(lr_cfg.max_state_dim), int(features[OBS_STATE].shape[0]))
         lr_cfg.max_action_dim = max(int(lr_cfg.max_action_dim), int(features[ACTION].shape[0]))
 
-    def lerobot_config(self, cfg: dict, device: str):
+    def lerobot_config(self, cfg: dict):
         """The pretrained folder's lerobot config with our recipe, overrides and sizes applied.
 
         `pretrained_path` stays None on the lerobot config because our training loop loads the
@@ -107,7 +107,7 @@ class FineTunedType(PolicyType):
             optimizer_lr=cfg["lr"],
             chunk_size=cfg["chunk_size"],
             n_action_steps=cfg["chunk_size"],  # lerobot's own action queue; the evaluation's horizon is ours
-            device=device,
+            device=cfg["device"],
             pretrained_path=None,
             push_to_hub=False,
             use_peft=False,

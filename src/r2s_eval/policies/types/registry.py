@@ -61,7 +61,7 @@ class PolicyType:
         return {**TOP_LEVEL_DEFAULTS, **self.defaults}
 
     # -- the lerobot config ----------------------------------------------------------------------
-    def lerobot_config(self, cfg: dict, device: str):
+    def lerobot_config(self, cfg: dict):
         """The lerobot config object of the validated `cfg` (features are set from the dataset)."""
         raise PolicyConfigError(f"policy type {self.name!r} cannot be trained here")
 

@@ -12,6 +12,7 @@ the defaults (conf/policy_defaults.yaml); the methods that build or call a model
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -23,6 +24,7 @@ from r2s_eval.paths import CONF_DIR
 POLICY_DEFAULTS_FILE = CONF_DIR / "policy_defaults.yaml"
 
 
+@functools.cache  # the registry and the policy sources read it at import: parse the file once
 def read_policy_defaults() -> dict[str, dict[str, Any]]:
     """conf/policy_defaults.yaml, the one owner of every candidate key's default: our top-level keys
     (None = required or derived) for every trained type, the fine-tuned types' recipe over them,

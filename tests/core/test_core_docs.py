@@ -65,3 +65,10 @@ def test_the_docs_show_the_readmes_commands_and_picture_as_the_readme_does():
     assert fenced_block_after(install, "# Install") == fenced_block_after(README, "## Quick start")
     pipeline = (REPO / "docs" / "pipeline.md").read_text()
     assert fenced_block_after(pipeline, "# The pipeline") == fenced_block_after(README, "## The pipeline")
+
+
+def test_the_tests_page_names_every_benchmark():
+    # docs/tests.md is where a reader learns which benchmarks exist: a new script goes in its list.
+    page = (REPO / "docs" / "tests.md").read_text()
+    scripts = sorted(p.name for p in (REPO / "benchmarks").glob("*.py"))
+    assert scripts and [s for s in scripts if f"`python benchmarks/{s}" not in page] == []

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import re
 import subprocess
+from collections import Counter
 
 import pytest
 import yaml
@@ -13,6 +14,7 @@ import yaml
 from .conftest import REPO, SNAKEMAKE, planned_job_blocks, planned_jobs, shown_pages, snakemake
 
 DEFAULT = yaml.safe_load((REPO / "workflow" / "profiles" / "default" / "config.yaml").read_text())
+SLURM = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
 needs_plugin = pytest.mark.skipif(importlib.util.find_spec("snakemake_executor_plugin_slurm") is None,
                                   reason="snakemake-executor-plugin-slurm is not installed")
 
@@ -85,8 +87,50 @@ def test_slurm_profile_plans_the_paper_in_tens_of_jobs(tmp_path):
     assert f"fresh directory: total {len(jobs) + 1}, {len(jobs)} Slurm jobs" in readme
     policies = {wc["policy"] for rule, wc, _ in jobs if rule == "train"}
     assert len([1 for rule, _, _ in jobs if rule == "rollout"]) == 2 * len(policies) >= 8
+    # ... and the jobs that ask for a GPU, rule by rule.
+    on_gpu = Counter(rule for rule, _, requests in jobs if requests.get("gpu") == "1")
+    said = re.search(r"in `paper` (\d+) jobs do: (.*?) \(", " ".join(readme.split()))
+    assert said, "docs/cluster.md says how many of the paper's jobs ask for a GPU"
+    assert int(said.group(1)) == sum(on_gpu.values())
+    assert {rule: int(n) for n, rule in re.findall(r"(\d+) `(\w+)`", said.group(2))} == on_gpu
     for rule, _, requests in jobs:
         gpu_stage = rule in {"train", "rollout", "cross_rollout"}  # VLAs on cuda; the vLLM judges are a service
         assert requests.get("gpu", "0") == ("1" if gpu_stage else "0"), rule
         assert requests["slurm_partition"] == ("gpu" if gpu_stage else "cpu"), rule
         assert requests["slurm_account"] == "my_lab"
+
+
+SIZE = re.compile(r"(\d+) / ([\d.]+) GB / (\d+) (h|min)( × attempt)?")
+
+
+def _documented(size: str) -> tuple[int, float, int, bool]:
+    """(threads, GB, minutes, grows with the attempt) of a cell of docs/cluster.md's size table."""
+    threads, gb, runtime, unit, attempt = SIZE.match(size).groups()
+    return int(threads), float(gb), int(runtime) * (60 if unit == "h" else 1), attempt is not None
+
+
+def _profile_size(threads: int, resources: dict) -> tuple[int, float, int, bool]:
+    runtime = str(resources["runtime"])
+    base = re.fullmatch(r"(\d+)(?: \* attempt)?", runtime)
+    assert base, f"a run time the docs' table cannot show: {runtime!r}"
+    return threads, resources["mem_mb"] / 1000, int(base.group(1)), "attempt" in runtime
+
+
+def test_the_cluster_page_shows_what_each_stage_asks_for():
+    # docs/cluster.md's table, row by row, against the two profiles as the workflow merges them:
+    # the default profile under every run, the slurm profile's values over it rule by rule.
+    rows = re.findall(r"^\| (.+?) \| (.+?) \| (.+?) \|$", (REPO / "docs" / "cluster.md").read_text(), re.M)
+    shown = {}
+    for names, default, slurm in rows:
+        if SIZE.match(default) and SIZE.match(slurm):
+            for rule in re.findall(r"`(\w+)`", names) or [None]:  # None: "every other rule"
+                shown[rule] = (_documented(default), _documented(slurm))
+    sized = {*DEFAULT["set-threads"], *DEFAULT["set-resources"], *SLURM["set-threads"], *SLURM["set-resources"]}
+    assert sized <= set(shown), f"the table leaves out {sorted(sized - set(shown))}"
+    for rule, (default, slurm) in shown.items():
+        threads = DEFAULT["set-threads"].get(rule, 1)
+        resources = {**DEFAULT["default-resources"], **DEFAULT["set-resources"].get(rule, {})}
+        assert default == _profile_size(threads, resources), rule
+        resources = {**DEFAULT["default-resources"], **SLURM["default-resources"],
+                     **DEFAULT["set-resources"].get(rule, {}), **SLURM["set-resources"].get(rule, {})}
+        assert slurm == _profile_size(SLURM["set-threads"].get(rule, threads), resources), rule

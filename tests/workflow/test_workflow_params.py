@@ -7,13 +7,14 @@ from __future__ import annotations
 import ast
 import re
 import shlex
+import subprocess
 from pathlib import Path
 
 import pytest
 
 from r2s_eval.stages._reads import STAGES_DIR, declaration
 
-from .conftest import REPO, snakemake
+from .conftest import REPO, SNAKEMAKE, overrides_arg, planned_job_blocks, snakemake
 
 STAGES = sorted(p.stem for p in STAGES_DIR.glob("*.py") if not p.stem.startswith("_"))
 RULES = sorted((REPO / "workflow" / "rules").glob("*.smk"))
@@ -131,3 +132,48 @@ def test_the_joint_fit_s_settings_never_rerun_the_pose_estimate(tmp_path):
     assert a == b and "calib.joints" not in a and a["calib.camera"] == "head_left"
     c = _stage_cfg(tmp_path / "c", "init_estimate", target, ["calib.refine.max_iterations=4"])
     assert c != a
+
+
+def _demo(workdir: Path, *args: str, overrides: list[str] = ()) -> str:
+    cmd = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "-d", str(workdir), *args, "--config", "experiment=demo"]
+    proc = subprocess.run(cmd + ([overrides_arg(list(overrides))] if overrides else []), capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def _commands(out: str) -> dict[tuple, list[str]]:
+    """{(rule, wildcards): the shell lines that hand it its --cfg} of a dry run's jobs."""
+    return {(rule, tuple(sorted(wc.items()))): [line for line in block.splitlines() if "--cfg" in line]
+            for rule, wc, block in planned_job_blocks(out)}
+
+
+def _descendants(rulegraph: str, rules: set[str]) -> set[str]:
+    labels = dict(re.findall(r'(\d+)\[label = "(\w+)"', rulegraph))
+    children: dict[str, set[str]] = {}
+    for a, b in re.findall(r"(\d+) -> (\d+)", rulegraph):
+        children.setdefault(labels[a], set()).add(labels[b])
+    seen, todo = set(rules), list(rules)
+    while todo:
+        for child in children.get(todo.pop(), ()):
+            if child not in seen:
+                seen.add(child)
+                todo.append(child)
+    return seen - {"all"}
+
+
+def test_the_configuration_page_says_which_jobs_a_statistics_field_reruns(tmp_path):
+    # docs/configuration.md lists, per statistics field, the jobs whose --cfg changes (Snakemake's
+    # params trigger) and then the jobs downstream of them (their inputs get newer).
+    page = " ".join((REPO / "docs" / "configuration.md").read_text().split())
+    plain = _commands(_demo(tmp_path / "plain", "-n", "-p"))
+    graph = _demo(tmp_path / "graph", "--rulegraph")
+    for override, shown in [("stats.n_boot=500", "`stats.n_boot` or `stats.ci_level`:"),
+                            ("stats.ci_level=0.9", "`stats.n_boot` or `stats.ci_level`:"),
+                            ("stats.interval=binomial", "`stats.interval`:")]:
+        changed = _commands(_demo(tmp_path / override, "-n", "-p", overrides=[override]))
+        assert changed.keys() == plain.keys()
+        direct = {rule for (rule, wc), lines in changed.items() if lines != plain[rule, wc]}
+        said = page[page.index(f"- {shown}") + len(shown) + 2:].split(" - ")[0].split(".")[0]
+        first, then = said.split("; then ")
+        assert set(re.findall(r"`(\w+)`", first)) == direct, override
+        assert set(re.findall(r"`(\w+)`", then)) == _descendants(graph, direct) - direct, override

@@ -13,16 +13,17 @@ from __future__ import annotations
 import copy
 import json
 import re
+import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
 from omegaconf import OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
-from r2s_eval.errors import ConfigError
+from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem
 
@@ -94,6 +95,14 @@ def missing_inputs(cfg: dict[str, Any]) -> None:
              for key, (test, what) in wanted.items() if not test(Path(real[key]))]
     if lines:
         raise problems_error(lines)
+
+
+def stop_before_running(err: R2SError) -> NoReturn:
+    """A fault of the user's found before anything runs (a config problem, a missing input): its
+    message alone on stderr, one line per problem, no traceback, exit status 1. The workflow's
+    planning and the world check (``python -m r2s_eval.world``) both stop through here, so a
+    wrong entry reads the same in either."""
+    sys.exit(str(err).strip())
 
 
 def sort_keys(value: Any) -> Any:

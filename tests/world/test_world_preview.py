@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -33,6 +34,51 @@ def test_starts_show_every_task_from_every_camera(tmp_path):
     image = cv2.imread(str(tmp_path / "look" / "starts.png"))
     assert image.shape == (len(TASKS) * (LABEL_PX + 96 + 4), 2 * 96, 3)
     assert f"wrote {Path('look') / 'starts.png'}" in proc.stdout
+
+
+def test_only_what_this_call_wrote_is_named(tmp_path):
+    # An earlier call with --dataset left dataset.png (perhaps of another world) beside files
+    # that are not the tool's: a call without --dataset names starts.png alone as written, and
+    # removes the stale dataset.png rather than leave it beside this world's starts.
+    look = tmp_path / "look"
+    look.mkdir()
+    for name in ("dataset.png", "notes.png"):
+        cv2.imwrite(str(look / name), np.zeros((8, 8, 3), np.uint8))
+    proc = _run("--out", "look", "--size", "64", "64", "--cameras", "head_left", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == [f"wrote {Path('look') / 'starts.png'}",
+                                        f"removed {Path('look') / 'dataset.png'} (an earlier call's, with --dataset)"]
+    assert sorted(p.name for p in look.iterdir()) == ["notes.png", "starts.png"]
+
+
+def _checkout_copy(dest: Path) -> Path:
+    """The code, config and workflow of this checkout, copied to break (run with PYTHONPATH=src)."""
+    skip = shutil.ignore_patterns("__pycache__", "*.egg-info")
+    for part in ("src", "conf", "assets", "workflow"):
+        if (REPO / part).exists():
+            shutil.copytree(REPO / part, dest / part, ignore=skip)
+    shutil.copy2(REPO / "Snakefile", dest / "Snakefile")
+    return dest
+
+
+def test_a_wrong_predicate_reads_as_the_run_prints_it(tmp_path):
+    # The bundled world with a predicate that does not exist: the world check prints the one
+    # line a run's planning prints (the key, the file that set it, the reason), no traceback.
+    copy = _checkout_copy(tmp_path / "checkout")
+    world = copy / "conf" / "world" / "tabletop.yaml"
+    world.write_text(world.read_text().replace("- on_top_of: {object: cup, support: plate}",
+                                               "- on_top: {object: cup, support: plate}", 1))
+    env = dict(os.environ, PYTHONPATH=str(copy / "src"))
+    check = subprocess.run([sys.executable, "-m", "r2s_eval.world", "--out", "look"], cwd=copy, env=env,
+                           capture_output=True, text=True)
+    assert check.returncode == 1 and check.stdout == "" and not (copy / "look").exists()
+    lines = check.stderr.splitlines()
+    assert len(lines) == 1, check.stderr[-3000:]
+    assert lines[0].startswith("world.tasks.cup_on_plate.success.all[1] (set in conf/world/tabletop.yaml): "
+                               "unknown predicate 'on_top'")
+    run = subprocess.run([sys.executable, "-m", "snakemake", "-n", "-d", str(tmp_path / "run")], cwd=copy, env=env,
+                         capture_output=True, text=True)
+    assert run.returncode == 1 and run.stderr == check.stderr
 
 
 def test_a_wrong_world_stops_with_one_line_naming_the_key(tmp_path):

@@ -7,7 +7,7 @@ from pathlib import Path
 # lerobot logs while it is imported, which installs a root handler that would print each of
 # Snakemake's messages twice; the root keeps the handlers it had.
 _ROOT_HANDLERS = list(logging.getLogger().handlers)
-from r2s_eval.config import compose_config, missing_inputs, select, to_json
+from r2s_eval.config import compose_config, missing_inputs, select, stop_before_running, to_json
 from r2s_eval.errors import R2SError
 from r2s_eval.policy_sources import (
     check_checkpoint,
@@ -36,17 +36,13 @@ _overrides = config.get("overrides", [])
 OVERRIDES = [_overrides] if isinstance(_overrides, str) else list(_overrides)
 
 
-def stop_planning(err):
-    """A fault of the user's (a config problem, a missing input) ends the plan before any job,
-    printed as its message alone: one line per problem, no traceback."""
-    sys.exit(str(err).strip())
-
-
+# A fault of the user's (a config problem, a missing input) ends the plan before any job, printed
+# as its message alone: one line per problem, no traceback (as the world check prints it).
 try:
     CFG = compose_config(CONF_DIR, experiment=EXPERIMENT, overrides=OVERRIDES)
     missing_inputs(CFG)  # a lab's dataset or trials CSV that is not there
 except R2SError as err:
-    stop_planning(err)
+    stop_before_running(err)
 
 
 class _ResumingWorkflow(type(workflow)):
@@ -96,7 +92,7 @@ for _name, _source in EXTERNAL.items():
             elif _source["type"] == "server" and _WORLD:
                 check_server(_entry, _name, _WORLD[1], *_WORLD)
         except R2SError as err:
-            stop_planning(err)
+            stop_before_running(err)
 JUDGES = sorted(CFG["judges"])
 # What ingest matches a dataset's task strings against: the instructions of the tasks evaluated.
 INSTRUCTIONS = {key: CFG["world"]["tasks"][key]["instruction"] for key in CFG["tasks"]}

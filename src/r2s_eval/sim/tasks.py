@@ -274,8 +274,27 @@ def bundled_world() -> dict:
     return yaml.safe_load(BUNDLED_WORLD.read_text())
 
 
+class _BundledTasks(Mapping[str, Task]):
+    """The bundled world's tasks, compiled on first use rather than on import: a wrong entry in
+    its file is reported by the config check (one line naming the key and the file), not as a
+    traceback of whatever imported this module."""
+
+    @functools.cached_property
+    def _tasks(self) -> dict[str, Task]:
+        return world_tasks(bundled_world())
+
+    def __getitem__(self, key: str) -> Task:
+        return self._tasks[key]
+
+    def __iter__(self):
+        return iter(self._tasks)
+
+    def __len__(self) -> int:
+        return len(self._tasks)
+
+
 # The bundled world's tasks: what a caller without a world config (a test, a benchmark) gets.
-TASKS: dict[str, Task] = world_tasks(bundled_world())
+TASKS: Mapping[str, Task] = _BundledTasks()
 
 
 def get_task(key: str, world: Mapping | None = None) -> Task:

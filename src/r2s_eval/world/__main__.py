@@ -8,7 +8,9 @@ is composed with it and checked like any run: a wrong
 entry stops with one line naming the key and the file that set it. Writes ``starts.png`` (every
 camera at a sampled start of each task, the start poses drawn in) and, with ``--dataset`` (a
 LeRobotDataset v3), ``dataset.png``: per task, its first episode's first frame of each camera
-beside the simulation rendered at the poses the calibration estimates from it.
+beside the simulation rendered at the poses the calibration estimates from it. It names the files
+this call wrote, nothing else; without ``--dataset``, a ``dataset.png`` an earlier call left in the
+folder (perhaps of another world) is removed, and said so.
 """
 
 from __future__ import annotations
@@ -18,11 +20,11 @@ from pathlib import Path
 
 import yaml
 
-from r2s_eval.config import compose_config
+from r2s_eval.config import compose_config, stop_before_running
+from r2s_eval.errors import R2SError
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.stages import _cli
-from r2s_eval.world.preview import preview
-
+from r2s_eval.world.preview import DATASET_PNG, STARTS_PNG, preview
 
 
 def main(args: argparse.Namespace) -> None:
@@ -31,12 +33,20 @@ def main(args: argparse.Namespace) -> None:
         world_file = CONF_DIR / "world" / f"{args.world}.yaml"
         tasks = list((yaml.safe_load(world_file.read_text()) or {}).get("tasks") or {}) if world_file.is_file() else []
         overrides = [f"world={args.world}"] + (["suite=world", f"tasks=[{','.join(tasks)}]"] if tasks else [])
-    cfg = compose_config(CONF_DIR, args.experiment, overrides)
+    try:  # checked as a run checks it, and a wrong entry printed as a run prints it
+        cfg = compose_config(CONF_DIR, args.experiment, overrides)
+    except R2SError as err:
+        stop_before_running(err)
     world = cfg["world"]
     size = args.size or (int(world["image_height"]), int(world["image_width"]))
+    stale = Path(args.out) / DATASET_PNG
+    stale = stale if args.dataset is None and stale.is_file() else None
     out = preview(world, args.out, args.cameras or world["cameras"], tuple(size), args.seed, args.dataset, cfg["calib"])
-    for png in sorted(out.glob("*.png")):
-        print(f"wrote {png}")
+    print(f"wrote {out / STARTS_PNG}")
+    if args.dataset is not None:
+        print(f"wrote {out / DATASET_PNG}")
+    elif stale is not None:
+        print(f"removed {stale} (an earlier call's, with --dataset)")
 
 
 def parser() -> argparse.ArgumentParser:

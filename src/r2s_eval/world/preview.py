@@ -27,6 +27,7 @@ from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, world_tasks
 
 LABEL_PX = 18  # height of the text band above each image
+STARTS_PNG, DATASET_PNG = "starts.png", "dataset.png"  # what ``preview`` writes into its folder
 MIN_SHOWN_PX = 256  # smaller frames are shown enlarged, so that the labels and marks stay legible
 
 
@@ -156,13 +157,18 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
 
 def preview(world: dict, out: str | Path, cameras: Sequence[str], size_hw: tuple[int, int], seed: int = 0,
             dataset: str | Path | None = None, calib: dict | None = None) -> Path:
-    """Write the preview PNG(s) of ``world`` (a ``world`` config slice); returns the folder written."""
+    """Write the preview PNG(s) of ``world`` (a ``world`` config slice); returns the folder written.
+
+    Without ``dataset``, a ``dataset.png`` an earlier call left in ``out`` is removed: the folder
+    never shows a recording beside starts that are not its world's."""
     tasks = world_tasks(world)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     starts = render_starts(tasks, cameras, size_hw, seed, world_robot(world))
-    cv2.imwrite(str(out / "starts.png"), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(out / STARTS_PNG), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
     if dataset is not None:
         side = dataset_beside_sim(tasks, dataset, cameras, calib, world)
-        cv2.imwrite(str(out / "dataset.png"), cv2.cvtColor(side, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(out / DATASET_PNG), cv2.cvtColor(side, cv2.COLOR_RGB2BGR))
+    else:
+        (out / DATASET_PNG).unlink(missing_ok=True)
     return out

@@ -8,9 +8,10 @@ world needs; so it lives in a virtual environment of its own, beside ours:
 
 creates it (a minute or a few: the packages come from the package index, nothing is downloaded
 when LIBERO runs) unless it is already there and whole. The workflow does the same through its
-`libero_env` rule, so deleting the folder and rerunning recreates it. By default it lies in
-`$R2S_EVAL_CACHE` (else `$XDG_CACHE_HOME/r2s-eval`, else `~/.cache/r2s-eval`), under a name that
-holds the requirements' hash: changing a pin makes a new environment.
+`libero_env` rule, so deleting the folder and rerunning recreates it. By default it lies in the
+project's cache folder (`r2s_eval.paths.cache_dir`: `$R2S_EVAL_CACHE`, else
+`$XDG_CACHE_HOME/r2s_eval`, else `~/.cache/r2s_eval`), under a name that holds the requirements'
+hash: changing a pin makes a new environment.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import sys
 from pathlib import Path
 
 from r2s_eval.errors import ConfigError
+from r2s_eval.paths import cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -38,18 +40,11 @@ def requirements_hash() -> str:
     return hashlib.sha256(REQUIREMENTS.read_bytes()).hexdigest()[:12]
 
 
-def cache_root() -> Path:
-    if os.environ.get("R2S_EVAL_CACHE"):
-        return Path(os.environ["R2S_EVAL_CACHE"]).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base).expanduser() / "r2s-eval"
-
-
 def env_dir(configured: str | None = None) -> Path:
     """Where the environment lies: `configured` (the config's `libero.env_dir`), else the cache."""
     if configured:
         return Path(os.path.expandvars(configured)).expanduser().absolute()
-    return cache_root() / f"libero-{requirements_hash()}"
+    return cache_dir() / f"libero-{requirements_hash()}"
 
 
 def python_of(folder: Path) -> Path:

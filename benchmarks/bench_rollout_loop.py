@@ -67,7 +67,7 @@ def ours(env: TabletopEnv, poses, actions: np.ndarray) -> tuple[int, float, floa
 def bare(env: TabletopEnv, poses, actions: np.ndarray) -> tuple[int, float, float]:
     model, data = env.model, env.data
     env.reset(poses, seed=0)  # same start state; reset itself is not timed
-    renderer = env._renderer(env.image_size)
+    renderer = env.renderer(env.image_size)
     # The bundled robot's layout, written out: per arm six joint targets and a gripper command
     # (0 open .. 1 closed), the gripper servo's target 0.05 m at open.
     arms = [env._arm_act["left"], env._arm_act["right"]]

@@ -222,6 +222,14 @@ class DatasetVideo:
 
 
 @dataclass
+class BoardTake:
+    frames: Annotated[int, Range(min=2)]
+    image_size: Annotated[list[PositiveInt], NonEmpty()]
+    joint_spread_rad: NonNegative
+    video: DatasetVideo
+
+
+@dataclass
 class Teleop:
     episodes_per_task: PositiveInt
     max_steps: PositiveInt
@@ -229,6 +237,7 @@ class Teleop:
     max_attempts_factor: PositiveInt
     operator: Annotated[dict, FieldsOf(_operator_config)]
     video: DatasetVideo
+    board_take: BoardTake
 
 
 @dataclass
@@ -281,12 +290,67 @@ class Joints:
 
 
 @dataclass
+class BoardPose:
+    x_m: float
+    y_m: float
+    yaw_rad: float
+
+
+def _aruco_dictionaries() -> list[str]:
+    import cv2
+
+    return sorted(name for name in dir(cv2.aruco) if name.startswith("DICT_"))
+
+
+@dataclass
+class CalibBoard:
+    squares: Annotated[list[Annotated[int, Range(min=2)]], NonEmpty()]
+    square_m: Positive
+    marker_m: Positive
+    dictionary: Annotated[str, OneOf(_aruco_dictionaries)]
+    thickness_m: Positive
+    mount: str  # table, or an arm of the world's robot (checked with the world in _cross_problems)
+    pose: BoardPose
+    min_corners: Annotated[int, Range(min=4)]
+    min_frames: PositiveInt
+    max_reprojection_px: Positive
+
+
+@dataclass
+class CalibSilhouette:
+    fit: bool | Literal["auto"]
+    frames: PositiveInt
+    stride: PositiveInt
+    min_frames: PositiveInt
+    supersample: PositiveInt
+    blur_px: Annotated[list[Positive], NonEmpty()]
+    max_mismatch: Share
+
+
+@dataclass
+class CalibCameras:
+    use: Literal["auto", "board", "silhouette", "none"]
+    board_take: str | None
+    board: CalibBoard
+    silhouette: CalibSilhouette
+
+
+@dataclass
+class CalibAppearance:
+    fit: bool
+    frames_per_task: PositiveInt
+    prior: NonNegative
+
+
+@dataclass
 class Calib:
     camera: Camera
     segmenter: Annotated[dict, Tagged("type", {"hsv": HsvSegmenter, "grounded_sam": GroundedSamSegmenter})]
     refine: Refine
     calibration: Calibration
     joints: Joints
+    cameras: CalibCameras
+    appearance: CalibAppearance
 
 
 @dataclass
@@ -520,6 +584,7 @@ class TrainedPolicy:
     image_keys: Annotated[list[str], NonEmpty()] = optional(_POLICY_DEFAULTS)
     image_size: tuple[PositiveInt, PositiveInt] | None = optional(_POLICY_DEFAULTS)
     chunk_size: PositiveInt = optional(_POLICY_DEFAULTS)
+    std_floor: NonNegative = optional(_POLICY_DEFAULTS)
     overrides: dict = optional(_POLICY_DEFAULTS)
     pretrained_path: str | None = optional(_POLICY_DEFAULTS)
     tokenizer_path: str | None = optional(_POLICY_DEFAULTS)
@@ -790,6 +855,41 @@ def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[
 # ----------------------------------------------------------------------------- cross-group checks
 
 
+def _camera_calibration_problems(cfg: dict, robot) -> list[Problem]:
+    from r2s_eval.calib.camera_plan import silhouette_possible
+
+    cameras, twin = cfg["calib"]["cameras"], cfg["real"]["source"] == "twin"
+    problems = []
+    board = cameras["board"]
+    if board["mount"] != "table" and board["mount"] not in robot.arms:
+        problems.append(Problem("calib.cameras.board.mount", f"must be table or an arm of the robot "
+                                                             f"{list(robot.arms)}, got {board['mount']!r}"))
+    if len(board["squares"]) != 2:
+        problems.append(Problem("calib.cameras.board.squares", f"must be [columns, rows], got {board['squares']}"))
+    if board["marker_m"] >= board["square_m"]:
+        problems.append(Problem("calib.cameras.board.marker_m", f"must be smaller than square_m "
+                                                                f"({board['square_m']}), got {board['marker_m']}"))
+    if twin and cameras["board_take"] is not None:
+        problems.append(Problem("calib.cameras.board_take", "is for a lab's own take (real.source dataset): the "
+                                                            "twin records its own (teleop.board_take)"))
+    if twin and board["mount"] != "table":
+        problems.append(Problem("calib.cameras.board.mount", "the twin's board take lies on the table "
+                                                             "(a carried board is for a lab's own take)"))
+    if cameras["use"] == "board" and not twin and cameras["board_take"] is None:
+        problems.append(Problem("calib.cameras.use", "is board, but calib.cameras.board_take names no take: record "
+                                                     "one, or use silhouette (the robot in your recordings) or none"))
+    if len(cfg["teleop"]["board_take"]["image_size"]) != 2:
+        problems.append(Problem("teleop.board_take.image_size", "must be [height, width]"))
+    if not silhouette_possible(robot, cfg["calib"]["segmenter"]["type"]):
+        if cameras["use"] == "silhouette":
+            problems.append(Problem("calib.cameras.use", "is silhouette, which needs world.robot.find.hue (how the "
+                                                         "robot looks) with the hsv segmenter"))
+        if cameras["silhouette"]["fit"] is True:
+            problems.append(Problem("calib.cameras.silhouette.fit", "is true, which needs world.robot.find.hue (how "
+                                                                    "the robot looks) with the hsv segmenter"))
+    return problems
+
+
 def _cross_problems(cfg: dict) -> list[Problem]:
     """Contradictions between groups (run once every group has passed its own schema)."""
     from r2s_eval.sim.reading import WorldError
@@ -832,6 +932,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     if cfg["calib"]["camera"] not in world["cameras"]:
         problems.append(Problem("calib.camera", f"must be one of the recorded world.cameras {world['cameras']}, "
                                                 f"got {cfg['calib']['camera']!r}"))
+    problems += _camera_calibration_problems(cfg, robot)
     calibration = cfg["calib"]["calibration"]["episodes_per_task"]
     if real["source"] == "twin" and calibration >= cfg["teleop"]["episodes_per_task"]:
         problems.append(Problem("calib.calibration.episodes_per_task",

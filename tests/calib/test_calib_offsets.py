@@ -73,7 +73,7 @@ def test_calibrate_offsets_fits_the_calibration_episodes_and_scores_before_and_a
                              "y_m": 0.0, "yaw_rad": 0.0})
     measured.to_parquet(tmp_path / "measured.parquet")
 
-    def estimate(subset, frames_dir, calib, world, offsets=None, desc="init"):
+    def estimate(subset, frames_dir, calib, world, offsets=None, desc="init", cameras=None):
         assert offsets is None and sorted(subset["episode_index"]) == [0, 1]  # the calibration episodes only
         return pd.DataFrame({"episode_index": [0, 1], "task": "t", "object": "cup", "x_m": [0.09, 0.19],
                              "y_m": 0.0, "yaw_rad": 0.0, "yaw_symmetry": 0})

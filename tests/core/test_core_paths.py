@@ -36,8 +36,11 @@ def test_libero_s_environment_lies_in_the_cache_folder(no_cache_vars, monkeypatc
 
 
 def test_the_mesh_shapes_share_the_cache_folder(no_cache_vars, monkeypatch):
+    import numpy as np
+
     from r2s_eval.sim import meshes
 
-    assert meshes.cache_dir() == cache_dir()
-    monkeypatch.setenv("R2S_EVAL_CACHE", str(no_cache_vars / "mine"))
-    assert meshes.cache_dir() == cache_dir() == Path(no_cache_vars / "mine")
+    for variable, value in (("XDG_CACHE_HOME", "xdg"), ("R2S_EVAL_CACHE", "mine")):
+        monkeypatch.setenv(variable, str(no_cache_vars / value))
+        meshes.cached_arrays("probe", variable.encode(), lambda: {"x": np.zeros(1)})
+        assert list((cache_dir() / "probe").glob("*.npz")), variable

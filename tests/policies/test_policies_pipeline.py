@@ -234,3 +234,29 @@ def test_policies_episodes_fraction_trains_on_a_subset(dataset_root, tmp_path):
         from r2s_eval.policies.trained_config import validate_policy_cfg
 
         validate_policy_cfg(_tiny("act", episodes_fraction=0.0))
+
+
+def test_policies_a_feature_that_barely_moves_is_normalised_with_the_floor():
+    from r2s_eval.policies.data import floor_spread
+
+    stats = {"observation.state": {"mean": np.array([0.5, 0.0], np.float32), "std": np.array([0.3, 2e-6], np.float32),
+                                   "min": np.array([0.0, -1e-5], np.float32), "max": np.array([1.0, 1e-5], np.float32),
+                                   "q01": np.array([0.01, 0.0], np.float32), "q99": np.array([0.99, 0.0], np.float32)},
+             "action": {"mean": np.zeros(2, np.float32), "std": np.full(2, 0.2, np.float32)},
+             "observation.images.head_left": {"std": np.zeros((3, 1, 1), np.float32)}}
+    features = {"observation.state": {"names": ["left_j1", "right_j1"]}, "action": {"names": ["a", "b"]}}
+    floored, which = floor_spread(stats, 0.05, features)
+    assert which == {"observation.state": ["right_j1"]}
+    state = floored["observation.state"]
+    assert state["std"].tolist() == pytest.approx([0.3, 0.05]) and state["std"].dtype == np.float32
+    assert state["min"][1] == pytest.approx(-0.05) and state["max"][1] == pytest.approx(0.05)
+    assert state["q01"][1] == pytest.approx(-0.05) and state["q99"][1] == pytest.approx(0.05)
+    assert state["min"][0] == 0.0 and state["max"][0] == 1.0  # a feature that moves keeps its statistics
+    assert floored["action"]["std"].tolist() == pytest.approx([0.2, 0.2])
+    assert floored["observation.images.head_left"] is stats["observation.images.head_left"]  # cameras untouched
+    assert floor_spread(stats, 0.0, features)[1] == {}
+
+
+def test_policies_the_training_log_names_the_floored_features(trained):
+    summary = json.loads((trained["act"] / "train_log.json").read_text())["summary"]
+    assert summary["std_floored"] == {} or set(summary["std_floored"]) <= {"observation.state", "action"}

@@ -113,7 +113,8 @@ def test_joint_offsets_hold_each_joint_off_its_command(twin_params):
     m, robot = TwinMagnitudes(), bundled_robot()
     offsets = {name: twin_params.joint_offsets(name, len(arm.joints)) for name, arm in robot.arms.items()}
     assert all(0 < np.abs(o).max() <= m.joint_offset_rad for o in offsets.values())
-    env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
+    exact = dataclasses.replace(twin_params, encoder_noise_rad=0.0, encoder_step_rad=0.0)  # the joints as they are
+    env = TabletopEnv("cup_on_plate", params=exact, cameras=())
     env.reset(POSES)
     command = robot.from_model(robot.home_targets())
     for _ in range(30):
@@ -157,3 +158,23 @@ def test_taking_a_family_away_gives_it_the_calibrated_sims_values():
     assert without_family(twin, sim, "all") == dataclasses.replace(sim, noise_seed=twin.noise_seed)
     with pytest.raises(ValueError, match="unknown perturbation family 'colour'"):
         without_family(twin, sim, "colour")
+
+
+def test_the_twins_encoders_read_the_joints_with_noise_and_in_steps():
+    step = 2 * np.pi / 4096
+    params = WorldParams(encoder_noise_rad=float(np.deg2rad(0.05)), encoder_step_rad=step, noise_seed=4)
+    env = TabletopEnv("cup_on_plate", params=params, cameras=())
+    nominal = TabletopEnv("cup_on_plate", cameras=())
+    for e in (env, nominal):
+        e.reset(POSES, seed=9, observe=False)
+    left, _ = env.robot.slices("left")
+    read, again = env.state(), env.state()
+    assert np.array_equal(read, again)  # one reading per step, however often it is asked for
+    assert np.allclose(np.round(read[left] / step) * step, read[left], atol=1e-6)  # whole encoder steps
+    error = read[left] - nominal.state()[left]
+    assert 0 < np.abs(error).max() < 6 * np.deg2rad(0.05) + step
+    env.step(env.state(), images=False)
+    assert not np.array_equal(env.state(), read)  # the next step reads afresh
+    assert TwinMagnitudes().encoder_step_rad == pytest.approx(step)
+    for e in (env, nominal):
+        e.close()

@@ -7,6 +7,7 @@ from pathlib import Path
 # lerobot logs while it is imported, which installs a root handler that would print each of
 # Snakemake's messages twice; the root keeps the handlers it had.
 _ROOT_HANDLERS = list(logging.getLogger().handlers)
+from r2s_eval.calib.camera_plan import camera_plan
 from r2s_eval.config import compose_config, missing_inputs, select, stop_before_running, to_json
 from r2s_eval.errors import R2SError
 from r2s_eval.policy_sources import (

@@ -25,3 +25,17 @@ if TWIN:
         shell:
             "{PY} -m r2s_eval.stages.teleop --cfg {params.cfg:q} --twin {input.twin}"
             " --dataset {output.dataset} --truth {output.truth} --log {log}"
+
+    # The twin's ChArUco board take, recorded as a lab records one (the camera calibration's input).
+    rule board_take:
+        input:
+            twin="results/real/twin_params.json",
+        output:
+            directory("results/real/board_take"),
+        params:
+            cfg=stage_params("board_take"),
+        log:
+            "logs/board_take.log",
+        shell:
+            "{PY} -m r2s_eval.stages.board_take --cfg {params.cfg:q} --twin {input.twin} --out {output} --log {log}"
+

@@ -35,6 +35,7 @@ if TWIN:
             reference="results/reference/success.parquet",
             rollouts=expand("results/rollout/sim/{policy}", policy=POLICIES),
             fidelity="results/fidelity/report.json",
+            calibration="results/calib/error.json",
         output:
             "results/world/report.json",
         params:
@@ -44,4 +45,5 @@ if TWIN:
         shell:
             "{PY} -m r2s_eval.stages.world_report --cfg {params.cfg:q} --truth {input.truth} --errors {input.errors}"
             " --replay {input.replay} --estimates {input.estimates} --reference {input.reference}"
-            " --rollouts {input.rollouts} --fidelity {input.fidelity} --out {output} --log {log}"
+            " --rollouts {input.rollouts} --fidelity {input.fidelity} --calibration {input.calibration}"
+            " --out {output} --log {log}"

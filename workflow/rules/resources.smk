@@ -65,7 +65,7 @@ def _gpu_jobs():
     jobs["judge_adaptive"] = jobs["judge_adaptive_described"] = jobs["judge_pairs"]
     segmenter = CFG["calib"]["segmenter"]
     on_gpu = segmenter.get("type") == "grounded_sam" and _on_gpu(segmenter.get("device"))
-    jobs["init_offsets"] = jobs["init_estimate"] = ((), [()] if on_gpu else [])
+    jobs["init_offsets"] = jobs["init_estimate"] = jobs["calib_silhouette"] = ((), [()] if on_gpu else [])
     return jobs
 
 

@@ -16,18 +16,22 @@ from r2s_eval.calib.offsets import calibration_subset, fit_offsets, median_error
 from r2s_eval.calib.scene import camera_model, image_renderer, mask_renderer, object_geometries
 from r2s_eval.calib.segment import finders, make_segmenter
 from r2s_eval.errors import DataError
+from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import make_env
 
 log = logging.getLogger("r2s_eval.init_offsets")
 
 
 def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, world: dict,
-                      offsets: dict | None = None, desc: str = "init") -> pd.DataFrame:
-    """One row per (episode, object): the planar pose estimate (offsets of its task added)."""
+                      offsets: dict | None = None, desc: str = "init", cameras: WorldParams | None = None
+                      ) -> pd.DataFrame:
+    """One row per (episode, object): the planar pose estimate (offsets of its task added), seen
+    through the calibrated cameras (``cameras``: world parameters holding their poses; None: the
+    model's)."""
     envs, rows = {}, []
     for ep in tqdm(index.itertuples(), total=len(index), desc=desc, mininterval=5):
         if ep.task not in envs:
-            env = make_env(ep.task, world, cameras=())
+            env = make_env(ep.task, world, cameras, cameras=())
             rgba = {o.name: o.rgba for o in env.task.objects}
             envs[ep.task] = (env, make_segmenter(calib["segmenter"], rgba, finders(env.task.objects)), camera_model(env, calib["camera"]))
         env, segmenter, camera = envs[ep.task]
@@ -76,7 +80,7 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
 
 
 def calibrate_offsets(index: pd.DataFrame, frames_dir: str | Path, calib: dict, world: dict,
-                      measured_path: str | None, per_task: int) -> dict:
+                      measured_path: str | None, per_task: int, cameras: WorldParams | None = None) -> dict:
     """The per-task offsets fitted once on the calibration episodes (``per_task`` of each task,
     `calibration_subset`): their poses estimated without offsets against ``measured_path`` (the
     measured poses, parquet or CSV), with the calibration error before and after the offsets.
@@ -91,7 +95,7 @@ def calibrate_offsets(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
     if not (measured_path and episodes):
         log.warning("no measured poses for the calibration episodes: offsets are zero")
         return result
-    raw = estimate_episodes(subset, frames_dir, calib, world, offsets=None, desc="init_offsets")
+    raw = estimate_episodes(subset, frames_dir, calib, world, offsets=None, desc="init_offsets", cameras=cameras)
     measured = read_measured_poses(measured_path, episodes)
     offsets = fit_offsets(raw, measured)
     before, after = median_error_mm(raw, measured, None), median_error_mm(raw, measured, offsets)

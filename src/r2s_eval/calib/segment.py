@@ -31,6 +31,8 @@ class HueRange:
     hue_hi: int
     sat_min: int = 90
     val_min: int = 40
+    sat_max: int = 255
+    val_max: int = 255
 
     @classmethod
     def around_rgb(cls, rgb: Sequence[float], hue_tol: int = 12, sat_min: int = 90, val_min: int = 40) -> HueRange:
@@ -43,7 +45,7 @@ class HueRange:
             in_hue = (h >= self.hue_lo) & (h <= self.hue_hi)
         else:
             in_hue = (h >= self.hue_lo) | (h <= self.hue_hi)
-        return in_hue & (s >= self.sat_min) & (v >= self.val_min)
+        return in_hue & (s >= self.sat_min) & (s <= self.sat_max) & (v >= self.val_min) & (v <= self.val_max)
 
 
 class HSVSegmenter:

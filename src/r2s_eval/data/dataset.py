@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import shutil
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -35,15 +35,16 @@ def lerobot_features(
     state_names: Sequence[str],
     action_names: Sequence[str],
     cameras: Sequence[str],
-    image_hw: tuple[int, int],
+    image_hw: tuple[int, int] | Mapping[str, tuple[int, int]],
 ) -> dict:
-    """Feature spec of our robot datasets: joint state, joint-target action, one video per camera."""
-    height, width = image_hw
+    """Feature spec of our robot datasets: joint state, joint-target action, one video per camera
+    (``image_hw``: every camera's (height, width), or each camera's own)."""
     features = {
         STATE_KEY: {"dtype": "float32", "shape": (len(state_names),), "names": list(state_names)},
         ACTION_KEY: {"dtype": "float32", "shape": (len(action_names),), "names": list(action_names)},
     }
     for cam in cameras:
+        height, width = image_hw[cam] if isinstance(image_hw, Mapping) else image_hw
         features[camera_key(cam)] = {
             "dtype": "video",
             "shape": (height, width, 3),

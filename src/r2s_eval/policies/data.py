@@ -84,6 +84,40 @@ class FrameCachedDataset(LeRobotDataset):
 
 # lerobot's quantile statistics (names as in its stats files).
 QUANTILES = {"q01": 0.01, "q10": 0.10, "q50": 0.50, "q90": 0.90, "q99": 0.99}
+# Each normaliser's spread: (low, high) statistics, widened together around their middle.
+_SPREADS = (("min", "max"), ("q01", "q99"), ("q10", "q90"))
+
+
+def floor_spread(stats: dict, floor: float, features: dict,
+                 keys: tuple[str, ...] = (OBS_STATE, ACTION)) -> tuple[dict, dict[str, list[str]]]:
+    """``stats`` with every spread of ``keys`` at least ``floor`` (dataset units): a standard
+    deviation below it becomes ``floor``; a (min, max), (q01, q99) or (q10, q90) pair narrower
+    than ``2 * floor`` is widened to it around its middle. Whichever normaliser a policy uses
+    (mean/std, min/max, quantiles), a near-constant feature then maps a change of ``floor`` to
+    about one unit, not thousands. Returns the new statistics and, per key, the names of the
+    features floored (``features``: the dataset's, as its metadata lists them)."""
+    out, floored = dict(stats), {}
+    for key in keys:
+        if key not in out or floor <= 0:
+            continue
+        have = {k: np.asarray(v, dtype=np.float64) for k, v in out[key].items()}
+        width = int(np.size(have.get("mean", have.get("std", have.get("min")))))
+        names = features.get(key, {}).get("names") or [f"{key}[{i}]" for i in range(width)]
+        narrow = np.zeros(width, dtype=bool)
+        if "std" in have:
+            narrow |= have["std"] < floor
+            have["std"] = np.maximum(have["std"], floor)
+        for low, high in _SPREADS:
+            if low in have and high in have:
+                middle, half = (have[low] + have[high]) / 2, (have[high] - have[low]) / 2
+                small = half < floor
+                narrow |= small
+                have[low] = np.where(small, middle - floor, have[low])
+                have[high] = np.where(small, middle + floor, have[high])
+        out[key] = {k: v.astype(np.asarray(out[key][k]).dtype) for k, v in have.items()}
+        if narrow.any():
+            floored[key] = [name for name, low in zip(names, narrow) if low]
+    return out, floored
 
 
 class _FrameCachedReader(DatasetReader):

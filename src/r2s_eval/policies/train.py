@@ -32,7 +32,7 @@ from r2s_eval.policies.trained_config import (
     validate_policy_cfg,
 )
 from r2s_eval.policies.types import policy_type
-from r2s_eval.policies.data import check_features, make_training_dataset, select_episodes
+from r2s_eval.policies.data import check_features, floor_spread, make_training_dataset, select_episodes
 from r2s_eval.utils.io import atomic_dir, current_provenance
 from r2s_eval.utils.numerics import deterministic_torch
 
@@ -195,6 +195,10 @@ def train_policy(
     vla = policy_type(cfg["type"]).fine_tunes
     if vla:
         stats = dataset.with_quantiles(stats)  # pi0.5 normalises with q01 / q99
+    stats, floored = floor_spread(stats, float(cfg["std_floor"]), meta.features)
+    for key, names in floored.items():
+        log.info("%s: %d feature(s) barely move in the training data; normalised with the spread floor %g: %s",
+                 key, len(names), cfg["std_floor"], names)
     set_seed(seed)  # initial weights depend on the seed alone, not on what loading the data drew
     load_report = None
     if vla:
@@ -272,6 +276,7 @@ def train_policy(
         "torch_version": torch.__version__,
         "python": platform.python_version(),
         "cpu_capability": torch.backends.cpu.get_cpu_capability(),  # kernels used (pinned on import)
+        "std_floored": floored,  # features normalised with the spread floor (std_floor), per key
     }
     if vla:
         summary["weights"] = "ema" if ema is not None else "last"

@@ -21,7 +21,9 @@ task (sim minus real, Newcombe's interval) and over the cells (``r2s_eval.stats.
                       "meets_targets": bool}},
      "realsim_gap": {"cells", "mean_abs_gap_pp", "mean_abs_gap_ci_pp", "mean_gap_pp",
                      "mean_gap_ci_pp", "max_abs_gap_pp", "real_trials_per_cell", ...} | null,
-     "init_s_per_episode": float | null}
+     "init_s_per_episode": float | null,
+     "calibration": {"cameras": {estimate: {camera: {"position_mm", "rotation_deg"}}}, "used",
+                     "appearance": {"fitted", "residual_before", "residual_after"}} (the calib_error stage's)}
 
 and :func:`format_table` lays it out as a text table.
 """
@@ -115,8 +117,9 @@ def gap_by_task(cells: pd.DataFrame) -> dict[str, list[dict]]:
 def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.DataFrame,
                  init_s_per_episode: float | None = None, reference: pd.DataFrame | None = None,
                  sim_episodes: pd.DataFrame | None = None, *, level: float, n_boot: int,
-                 seed: int) -> dict:
-    """The report above; the real-sim gap needs both ``reference`` and ``sim_episodes``."""
+                 seed: int, fidelity: dict | None = None, calibration: dict | None = None) -> dict:
+    """The report above; the real-sim gap needs both ``reference`` and ``sim_episodes``; given
+    the fidelity report and the calib_error stage's scores, their summaries too."""
     teleop, init = teleop_summary(attempts), init_error_summary(errors)
     replay = replay_summary(replay_log, level)
     cells = None
@@ -139,7 +142,12 @@ def build_report(attempts: list[dict], errors: pd.DataFrame, replay_log: pd.Data
         tasks[task] = {"teleop": t, "init_error": i, "replay": r, "realsim_gap": gaps.get(task, []),
                        "meets_targets": meets}
     summary = gap_summary(cells, level, n_boot, seed) if cells is not None else None
-    return {"targets": TARGETS, "tasks": tasks, "realsim_gap": summary, "init_s_per_episode": init_s_per_episode}
+    report = {"targets": TARGETS, "tasks": tasks, "realsim_gap": summary, "init_s_per_episode": init_s_per_episode}
+    if fidelity is not None:
+        report["fidelity"] = fidelity_summary(fidelity)
+    if calibration is not None:
+        report["calibration"] = calibration_summary(calibration)
+    return report
 
 
 def fidelity_summary(fidelity: dict) -> dict:
@@ -148,6 +156,37 @@ def fidelity_summary(fidelity: dict) -> dict:
     parts = {name: {k: v for k, v in part.items() if k != "cells_gap_pp"}
              for name, part in fidelity["cross"]["parts"].items()}
     return {"parts": parts, "agreement": fidelity["cross"]["agreement"], "joints": fidelity["joints"]}
+
+
+def calibration_summary(scores: dict) -> dict:
+    """What the world report shows of the calib_error stage's scores (its provenance aside)."""
+    return {k: scores[k] for k in ("cameras", "used", "appearance")}
+
+
+CAMERA_GOALS = {"board": (2.0, 0.2), "silhouette": (5.0, 0.5)}  # (mm, deg) against the twin's truth
+
+
+def camera_lines(calibration: dict) -> list[str]:
+    """The cameras' pose errors against the twin's truth, per estimate (the model's poses first),
+    and the appearance fit's colour error before and after."""
+    estimates = {m: calibration["cameras"][m] for m in sorted(calibration["cameras"], key=lambda m: m != "model")}
+    header = f"{'camera':14s} " + " ".join(f"{m:>22s}" for m in estimates)
+    lines = [f"camera pose error against the twin (model: the model file's poses); the calibrated sim uses: "
+             f"{calibration['used']}",
+             header, "-" * len(header)]
+    names = sorted({c for per in estimates.values() for c in per})
+    for cam in names:
+        cells = []
+        for per in estimates.values():
+            e = per.get(cam)
+            cells.append(f"{e['position_mm']:8.2f} mm {e['rotation_deg']:6.3f} deg" if e else "-")
+        lines.append(f"{cam:14s} " + " ".join(f"{c:>22s}" for c in cells))
+    lines.append("goals: " + ", ".join(f"{m} <= {mm:g} mm and <= {deg:g} deg" for m, (mm, deg) in CAMERA_GOALS.items()))
+    appearance = calibration.get("appearance") or {}
+    if appearance.get("fitted"):
+        lines.append(f"appearance: mean colour error of the first frames {appearance['residual_before']:.1f} -> "
+                     f"{appearance['residual_after']:.1f} (0-255) with the fitted light and colours")
+    return lines
 
 
 def _fmt(value, spec: str) -> str:
@@ -211,6 +250,9 @@ def format_table(report: dict) -> str:
             f"largest {summary['max_abs_gap_pp']:.1f} pp; trials per cell: real {summary['real_trials_per_cell']}, "
             f"sim {summary['sim_trials_per_cell']} ({100 * summary['ci_level']:g}% intervals: Wilson per rate, "
             f"Newcombe per gap, {summary['interval']})")
+    calibration = report.get("calibration")
+    if calibration:
+        lines += ["", *camera_lines(calibration)]
     fidelity = report.get("fidelity")
     if fidelity:
         lines += ["", "the gap split (same checkpoint in both worlds; reports/fidelity_table.tex):"]

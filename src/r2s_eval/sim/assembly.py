@@ -11,7 +11,7 @@ The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 from __future__ import annotations
 
 import functools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import mujoco
@@ -22,7 +22,8 @@ from r2s_eval.sim.meshes import decimated_meshes
 from r2s_eval.sim.objects import ObjectSpec, add_object
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
-from r2s_eval.sim.rotations import euler_quat, matrix_from_quat, quat_from_matrix, quat_multiply, rotvec_quat, yaw_quat
+from r2s_eval.sim.render_params import apply_render_params, render_base
+from r2s_eval.sim.rotations import euler_quat, matrix_from_quat, quat_from_matrix, yaw_quat
 from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot, world_robot
 from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
 
@@ -265,22 +266,9 @@ def substeps(robot: Robot, timestep_s: float) -> int:
     return int(round(n))
 
 
-def _apply_render_params(spec: mujoco.MjSpec, robot: Robot, params: WorldParams, max_size_hw) -> None:
+def _offscreen_size(spec: mujoco.MjSpec, max_size_hw) -> None:
     spec.visual.global_.offheight = max(spec.visual.global_.offheight, int(max_size_hw[0]))
     spec.visual.global_.offwidth = max(spec.visual.global_.offwidth, int(max_size_hw[1]))
-    for light in spec.lights:
-        light.diffuse = np.clip(np.asarray(light.diffuse) * params.light_intensity_scale, 0, 1)
-        direction = np.asarray(light.dir) + np.asarray(params.light_dir_offset)
-        light.dir = direction / np.linalg.norm(direction)
-    table = spec.geom(robot.table_geom)
-    table.rgba = np.clip(np.r_[np.asarray(table.rgba[:3]) + params.table_rgb_offset, 1.0], 0, 1)
-    for cam in spec.cameras:
-        # Offsets are expressed in the camera's own frame (mount error).
-        dpos = np.asarray(params.camera_pos_offset_m.get(cam.name, (0.0, 0.0, 0.0)))
-        drot = params.camera_rot_offset_rad.get(cam.name, (0.0, 0.0, 0.0))
-        quat = np.asarray(cam.quat, float)
-        cam.pos = np.asarray(cam.pos) + matrix_from_quat(quat) @ dpos
-        cam.quat = quat_multiply(quat, rotvec_quat(drot))
 
 
 def _apply_physics_params(model: mujoco.MjModel, robot: Robot, params: WorldParams, objects) -> None:
@@ -304,15 +292,21 @@ def _apply_physics_params(model: mujoco.MjModel, robot: Robot, params: WorldPara
 
 
 def build_model(
-    robot: Robot, objects: tuple[ObjectSpec, ...], params: WorldParams, max_size_hw=(480, 640)
+    robot: Robot, objects: tuple[ObjectSpec, ...], params: WorldParams, max_size_hw=(480, 640),
+    add_to_spec: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> mujoco.MjModel:
-    """Compile the full scene for ``objects`` under ``params``."""
+    """Compile the full scene for ``objects`` under ``params``; ``add_to_spec`` may add bodies
+    that are in no task (a calibration board) before it compiles."""
     spec = build_robot_spec(robot)
-    _apply_render_params(spec, robot, params, max_size_hw)
+    _offscreen_size(spec, max_size_hw)
     for obj in objects:
-        add_object(spec, obj, params.size_scale(obj.name), params.object_rgb_offset.get(obj.name, (0, 0, 0)))
+        add_object(spec, obj, params.size_scale(obj.name))
+    if add_to_spec is not None:
+        add_to_spec(spec)
     substeps(robot, spec.option.timestep)
     model = spec.compile()
+    # Compiled with the nominal look; the world's cameras, light and colours written over it.
+    apply_render_params(model, render_base(model, robot.table_geom, objects), params)
     _apply_physics_params(model, robot, params, objects)
     return model
 

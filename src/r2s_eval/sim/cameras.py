@@ -18,7 +18,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from r2s_eval.sim.rotations import quat_from_matrix
+from r2s_eval.sim.rotations import matrix_from_quat, quat_from_matrix, rotvec_from_matrix
 
 # MuJoCo camera axes -> OpenCV camera axes (flip y and z).
 _R_MJCAM_FROM_CV = np.diag([1.0, -1.0, -1.0])
@@ -56,6 +56,25 @@ def T_world_from_cam(model: mujoco.MjModel, data: mujoco.MjData, camera: str) ->
     T[:3, :3] = R_world_from_mjcam @ _R_MJCAM_FROM_CV
     T[:3, 3] = data.cam_xpos[cam_id]
     return T
+
+
+def T_parent_from_cam(pos_m, quat_wxyz) -> np.ndarray:
+    """4x4 pose of the OpenCV camera frame in the camera's parent body frame, from the MuJoCo
+    camera's ``pos``/``quat`` there."""
+    T = np.eye(4)
+    T[:3, :3] = matrix_from_quat(quat_wxyz) @ _R_MJCAM_FROM_CV
+    T[:3, 3] = pos_m
+    return T
+
+
+def mount_error(pos_m, quat_wxyz, T_parent_from_cam_cv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mount error (position and rotation vector, in the nominal MuJoCo camera's own frame:
+    ``WorldParams.camera_pos_offset_m`` / ``camera_rot_offset_rad``) that moves a camera at
+    ``pos_m``/``quat_wxyz`` (its parent's frame) to the pose ``T_parent_from_cam_cv``."""
+    R_nominal = matrix_from_quat(quat_wxyz)
+    R_found = np.asarray(T_parent_from_cam_cv)[:3, :3] @ _R_MJCAM_FROM_CV.T
+    dpos = R_nominal.T @ (np.asarray(T_parent_from_cam_cv)[:3, 3] - np.asarray(pos_m, float))
+    return dpos, rotvec_from_matrix(R_nominal.T @ R_found)
 
 
 def project_points(

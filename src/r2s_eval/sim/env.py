@@ -45,6 +45,7 @@ from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E40
 from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
+_ENCODER_STREAM = 2**31 - 1  # the encoders' noise stream; the cameras' are their rig indices
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
 
 
@@ -196,6 +197,15 @@ class TabletopEnv:
             return None
         return self.observation()
 
+    def pose_robot(self, state) -> None:
+        """Hold the robot still at a dataset-layout ``state`` (arm joints at its angles, fingers at
+        its closing): kinematics only, as a recorded frame shows the robot. Objects stay put."""
+        for name, (q, closing) in self.robot.to_model(state).items():
+            self.data.qpos[self._arm_qpos_adr[name]] = q
+            self.data.qpos[self._grip_qpos_adr[name]] = self.robot.arms[name].gripper.position(closing)
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
     def step(self, action: np.ndarray, images: bool = True) -> dict:
         """Hold ``action`` (14-D, see module table) for one control period; the observation
         after it, without the camera images when ``images`` is false (``images()`` renders them
@@ -222,11 +232,26 @@ class TabletopEnv:
 
     # ------------------------------------------------------------ observation
     def state(self) -> np.ndarray:
-        """Measured state, in the action's layout and units."""
+        """Measured state, in the action's layout and units: the arm joints as the world's encoders
+        read them (``WorldParams.encoder_noise_rad``, ``encoder_step_rad``; exact in a nominal world)."""
         d = self.data
+        joints = {name: d.qpos[self._arm_qpos_adr[name]] for name in self.robot.arms}
+        if self.params.encoder_noise_rad > 0 or self.params.encoder_step_rad > 0:
+            joints = self._encoder_readings(joints)
         return self.robot.from_model({
-            name: (d.qpos[self._arm_qpos_adr[name]], arm.gripper.closing(d.qpos[self._grip_qpos_adr[name][0]]))
+            name: (joints[name], arm.gripper.closing(d.qpos[self._grip_qpos_adr[name][0]]))
             for name, arm in self.robot.arms.items()}).astype(np.float32)
+
+    def _encoder_readings(self, joints: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        # Keyed like the image noise (world noise seed, episode seed, step): the same reading
+        # however often a step's state is asked for.
+        rng = np.random.default_rng([*self._noise_key, self.steps, _ENCODER_STREAM])
+        noise, step = float(self.params.encoder_noise_rad), float(self.params.encoder_step_rad)
+        readings = {}
+        for name, q in joints.items():
+            q = q + rng.normal(0.0, noise, q.shape) if noise > 0 else q.copy()
+            readings[name] = np.round(q / step) * step if step > 0 else q
+        return readings
 
     def joint_velocities(self) -> np.ndarray:
         """Velocities in the action's layout (per second; grippers: closing fraction/s, + = closing)."""
@@ -245,7 +270,8 @@ class TabletopEnv:
         """The cameras' images now, with the world's image noise."""
         return {f"observation.images.{cam}": self.render(cam, add_noise=True) for cam in self.cameras}
 
-    def _renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
+    def renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
+        """This environment's renderer of images of ``size_hw`` (H, W): made once, closed with it."""
         if size_hw not in self._renderers:
             # Each renderer's offscreen buffer is exactly its image size: software GL clears and
             # rasterises the whole buffer, and a 128 px image drawn in a 640x480 buffer costs
@@ -273,24 +299,36 @@ class TabletopEnv:
         Labels: 0 background, 1 table, one per arm (``robot_<arm>``), then the task objects in
         task order (see ``segmentation_names``).
         """
-        size_hw = tuple(int(s) for s in (size or self.image_size))
-        renderer = self._renderer(size_hw)
-        renderer.update_scene(self.data, camera=camera)
         if segmentation:
-            renderer.enable_segmentation_rendering()
-            try:
-                seg = renderer.render()
-            finally:
-                renderer.disable_segmentation_rendering()
-            geom_ids, obj_types = seg[..., 0], seg[..., 1]
-            is_geom = (obj_types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom_ids >= 0)
-            labels = np.where(is_geom, self._geom_label[np.clip(geom_ids, 0, None)], 0).astype(np.int32)
+            geom_ids = self.render_geoms(camera, size)
+            labels = np.where(geom_ids >= 0, self._geom_label[np.clip(geom_ids, 0, None)], 0).astype(np.int32)
             return labels, dict(enumerate(self.segmentation_names))
+        size_hw = tuple(int(s) for s in (size or self.image_size))
+        renderer = self.renderer(size_hw)
+        renderer.update_scene(self.data, camera=camera)
         rgb = renderer.render()
         if add_noise and self.params.image_noise_std > 0:
             rng = np.random.default_rng([*self._noise_key, self.steps, self.robot.camera_names.index(camera)])
             rgb = add_image_noise(rgb, rng, float(self.params.image_noise_std))
         return rgb
+
+    def render_geoms(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:
+        """The geom drawn at each pixel (int32[H, W] geom ids; -1 where no geom is)."""
+        size_hw = tuple(int(s) for s in (size or self.image_size))
+        renderer = self.renderer(size_hw)
+        renderer.update_scene(self.data, camera=camera)
+        renderer.enable_segmentation_rendering()
+        try:
+            seg = renderer.render()
+        finally:
+            renderer.disable_segmentation_rendering()
+        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        return np.where(is_geom & (seg[..., 0] >= 0), seg[..., 0], -1).astype(np.int32)
+
+    @property
+    def geom_is_robot(self) -> np.ndarray:
+        """Per geom, whether it belongs to one of the robot's arms."""
+        return self._geom_is_robot
 
     # ------------------------------------------------------------ cameras
     def camera_K(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:

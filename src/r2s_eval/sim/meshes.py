@@ -1,7 +1,7 @@
 """Scanned objects: a mesh file (OBJ, STL or PLY, what a 3D scan gives; read by trimesh) as a
 simulation object, with its texture, and convex collision parts so that a concave object (a bowl,
 a mug, a tray) can hold things: CoACD's approximate convex decomposition, computed once per mesh
-and settings and kept in a cache folder (``$R2S_EVAL_CACHE``, default ``~/.cache/r2s_eval``).
+and settings and kept in a cache folder (``r2s_eval.paths.cache_dir``).
 
 A world's object entry (``world.objects.<name>``)::
 
@@ -36,6 +36,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from r2s_eval import paths
 from r2s_eval.sim.reading import as_mapping, check_keys, fail, file_path, finite
 
 COLLISION_GROUP = 3  # collision parts are not drawn (renderers show groups 0-2)
@@ -60,14 +61,10 @@ class MeshShape:
                 "height_m": float(high[2] - low[2])}
 
 
-def cache_dir() -> Path:
-    return Path(os.environ.get("R2S_EVAL_CACHE") or Path.home() / ".cache" / "r2s_eval")
-
-
 def cached_arrays(kind: str, key: bytes, compute: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """The arrays ``compute`` gives, computed once per ``key`` and kept in the cache folder
     (``<cache>/<kind>/<hash of key>.npz``, written atomically)."""
-    path = cache_dir() / kind / f"{hashlib.sha256(key).hexdigest()[:24]}.npz"
+    path = paths.cache_dir() / kind / f"{hashlib.sha256(key).hexdigest()[:24]}.npz"
     if path.is_file():
         with np.load(path) as saved:
             return {name: saved[name] for name in saved.files}

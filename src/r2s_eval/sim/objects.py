@@ -277,13 +277,14 @@ BUILDERS = {"cup": add_cup, "plate": add_plate, "ball": add_ball, "block": add_b
 KINDS = (*BUILDERS, "mesh")  # a mesh is built from its file (r2s_eval.sim.meshes)
 
 
-def add_object(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, rgb_offset) -> None:
-    """Append ``obj`` as a free body named ``obj.name`` to the spec's worldbody."""
+def add_object(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float) -> None:
+    """Append ``obj`` as a free body named ``obj.name`` to the spec's worldbody, in its nominal
+    colour (a world's colour offsets are ``r2s_eval.sim.render_params``')."""
     body = spec.worldbody.add_body()
     body.name = obj.name
     body.pos = [0.0, 0.0, 1.0]  # placed properly at reset
     body.add_freejoint().name = f"{obj.name}_free"
-    rgba = np.clip(np.r_[np.asarray(obj.rgba[:3]) + np.asarray(rgb_offset), obj.rgba[3]], 0, 1)
+    rgba = np.clip(np.asarray(obj.rgba, float), 0, 1)
     if obj.kind == "mesh":
         from r2s_eval.sim.meshes import add_mesh_geoms
 

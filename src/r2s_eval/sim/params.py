@@ -32,7 +32,12 @@ class WorldParams:
     object_rgb_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     table_rgb_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     image_noise_std: float = 0.0  # in 0-255 intensity units
-    noise_seed: int = 0  # seeds the image-noise generator
+    noise_seed: int = 0  # seeds the image-noise and encoder-noise generators
+    # The joint encoders: each measured arm joint angle in observation.state carries Gaussian
+    # noise of this standard deviation (rad) and is rounded to whole steps of the encoder's
+    # resolution (rad; 0: not quantised), as a robot's encoders report it.
+    encoder_noise_rad: float = 0.0
+    encoder_step_rad: float = 0.0
 
     def mass_scale(self, obj: str) -> float:
         return float(self.object_mass_scale.get(obj, 1.0))

@@ -43,6 +43,10 @@ its grippers, the end-effector frames the scripted operator steers, and the cont
                euler_deg: [0, 0, 0], friction: [1.0, 0.005, 0.0001]}  # in the body's frame; euler_deg
                                       #   (x, y, z, intrinsic), friction (MuJoCo's default) optional
         visual: {max_faces: 20000}    # optional: draw the arm with at most this many mesh faces
+    find: {hue: {hue_lo: 0, hue_hi: 179, sat_max: 40}}  # optional: how the robot looks in a
+                                      #   frame, for the camera fit from its silhouette (an HSV
+                                      #   range as objects' find, or {prompt: ...} for the
+                                      #   open-vocabulary segmenter)
     features:                         # optional: the dataset's observation.state / action entries
       - {name: left_j1, arm: left, joint: j1, scale: 1.0, offset: 0.0}
       - {name: left_gripper, arm: left, gripper: true}
@@ -92,7 +96,7 @@ from typing import Any
 
 import numpy as np
 
-from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, file_path, finite
+from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, file_path, finite, read_find
 
 AXES = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
 
@@ -111,6 +115,10 @@ class Gripper:
     def ctrl(self, closing: float) -> float:
         """Actuator command for a closing fraction (0 open, 1 closed)."""
         return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+
+    def position(self, closing: float) -> float:
+        """The gripper joints' position at a closing fraction (the inverse of ``closing``)."""
+        return self.position_open + np.clip(closing, 0.0, 1.0) * (self.position_closed - self.position_open)
 
     def closing(self, position: float) -> float:
         """Closing fraction measured from the gripper joint's position."""
@@ -194,6 +202,8 @@ class Robot:
     arms: dict[str, Arm]
     features: tuple[Feature, ...]
     rig: dict[str, RigCamera]
+    find_hue: dict | None = None  # how the robot looks in a frame (its silhouette): an HSV range
+    find_prompt: str | None = None  # or the open-vocabulary segmenter's prompt
 
     @property
     def control_dt_s(self) -> float:
@@ -471,8 +481,9 @@ def load_robot(world: Mapping) -> Robot:
     ``WorldError`` naming its key. Names inside the model files are checked when it is compiled
     (``r2s_eval.sim.assembly.load_world``)."""
     entry = as_mapping(world.get("robot"), "robot")
-    check_keys(entry, {"type", "scene", "workspace", "control_hz", "timestep_s", "arms", "features"},
+    check_keys(entry, {"type", "scene", "workspace", "control_hz", "timestep_s", "arms", "features", "find"},
                {"scene", "workspace", "control_hz", "arms"}, "robot")
+    find_hue, find_prompt = read_find(entry.get("find"), "robot.find")
     workspace = as_mapping(entry["workspace"], "robot.workspace")
     check_keys(workspace, {"z_m", "geom"}, {"z_m", "geom"}, "robot.workspace")
     arms_entry = as_mapping(entry["arms"], "robot.arms")
@@ -489,7 +500,8 @@ def load_robot(world: Mapping) -> Robot:
         control_hz=float(finite(entry["control_hz"], "robot.control_hz", positive=True)),
         timestep_s=(float(finite(entry["timestep_s"], "robot.timestep_s", positive=True))
                     if entry.get("timestep_s") is not None else None),
-        arms=arms, features=_features(entry.get("features"), arms), rig=rig,
+        arms=arms, features=_features(entry.get("features"), arms), rig=rig, find_hue=find_hue,
+        find_prompt=find_prompt,
     )
 
 

@@ -50,3 +50,11 @@ def rotvec_quat(rotvec) -> np.ndarray:
     quat = np.zeros(4)
     mujoco.mju_axisAngle2Quat(quat, rotvec / angle, angle)
     return quat
+
+
+def rotvec_from_matrix(R) -> np.ndarray:
+    """Rotation vector (axis times angle, radians) of a rotation matrix; the inverse of
+    ``rotvec_quat`` followed by ``matrix_from_quat``."""
+    rotvec = np.zeros(3)
+    mujoco.mju_quat2Vel(rotvec, quat_from_matrix(R), 1.0)
+    return rotvec

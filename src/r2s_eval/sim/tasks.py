@@ -63,7 +63,7 @@ import numpy as np
 import yaml
 
 from r2s_eval.paths import CONF_DIR
-from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval  # noqa: F401 (WorldError: re-exported)
+from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval, read_find  # noqa: F401 (WorldError: re-exported)
 from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
@@ -142,19 +142,7 @@ def _object(name: str, entry: Any) -> ObjectSpec:
     dims = shape.dims() if shape is not None else as_mapping(entry["dims"], f"{where}.dims")
     for key, value in dims.items():
         finite(value, f"{where}.dims.{key}", positive=True)
-    find = as_mapping(entry.get("find") or {}, f"{where}.find")
-    check_keys(find, {"hue", "prompt"}, set(), f"{where}.find")
-    hue = None
-    if "hue" in find:
-        hue = as_mapping(find["hue"], f"{where}.find.hue")
-        check_keys(hue, {"hue_lo", "hue_hi", "sat_min", "val_min"}, {"hue_lo", "hue_hi"}, f"{where}.find.hue")
-        for key, value in hue.items():
-            top = 179 if key.startswith("hue") else 255  # OpenCV's 8-bit HSV
-            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
-                raise fail(f"{where}.find.hue.{key}", f"must be a whole number in [0, {top}], got {value!r}")
-    prompt = find.get("prompt")
-    if prompt is not None and (not isinstance(prompt, str) or not prompt.strip()):
-        raise fail(f"{where}.find.prompt", f"must be a non-empty text, got {prompt!r}")
+    hue, prompt = read_find(entry.get("find"), f"{where}.find")
     return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
                       mass_kg=finite(entry["mass_kg"], f"{where}.mass_kg", positive=True),
                       friction=finite(entry.get("friction", 1.0), f"{where}.friction", positive=True),

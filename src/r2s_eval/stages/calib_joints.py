@@ -1,9 +1,9 @@
-"""Stage: estimate the robot's joint offsets from its recordings; write the calibrated sim's world.
+"""Stage: estimate the robot's joint offsets from its recordings.
 
 Replays every ingested episode's recorded actions in the simulation (objects at their estimated
 initial poses) and fits, per joint, the offset that makes the simulated joints follow the
-recorded ones (``r2s_eval.calib.joints``). Writes the world parameters every calibrated-sim
-stage builds its simulation with (replay, sim rollouts)::
+recorded ones (``r2s_eval.calib.joints``). Writes world parameters holding them (calib_appearance
+adds the cameras and the appearance to them for the calibrated sim)::
 
     {"params": {...WorldParams: joint_offset_rad estimated, the rest nominal...},
      "joints": {"estimated": bool, "episodes": n, "frames": n, "offsets_rad": {arm: [...]},

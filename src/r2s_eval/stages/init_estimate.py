@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from r2s_eval.calib.cameras import calibrated_cameras
 from r2s_eval.calib.episodes import estimate_episodes
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_parquet
@@ -32,7 +33,7 @@ def main(args) -> None:
     index = pd.read_parquet(args.index)
     fitted = json.loads(Path(args.offsets).read_text())
     started = time.perf_counter()
-    table = estimate_episodes(index, args.frames, calib, world, fitted["offsets"])
+    table = estimate_episodes(index, args.frames, calib, world, fitted["offsets"], cameras=calibrated_cameras(args.cameras))
     s_per_episode = (time.perf_counter() - started) / max(len(index), 1)
     table["calibration"] = table["episode_index"].isin(fitted["calibration_episodes"])
     log.info("median reprojection error %.2f px over %d objects", table["reproj_error_px"].median(), len(table))
@@ -45,5 +46,7 @@ if __name__ == "__main__":
     p.add_argument("--index", required=True)
     p.add_argument("--frames", required=True)
     p.add_argument("--offsets", required=True, help="offsets.json written by init_offsets")
+    p.add_argument("--cameras", help="the calibrated cameras (calib_board's or calib_silhouette's record); "
+                                     "none: the model's")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

@@ -1,6 +1,6 @@
 """Stage: fit the per-task pose offsets on the held-out calibration episodes, once.
 
-Estimates the calibration episodes' poses without offsets, compares them with the measured
+Estimates the calibration episodes' poses without offsets (through the calibrated cameras), compares them with the measured
 poses of those episodes only (``--measured``: the reality twin's logged truth, or your CSV of
 hand-measured poses with columns episode_index, object, x_m, y_m, yaw_rad), and writes
 ``offsets.json``::
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from r2s_eval.calib.cameras import calibrated_cameras
 from r2s_eval.calib.episodes import calibrate_offsets
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import write_json
@@ -31,7 +32,8 @@ def main(args) -> None:
     cfg = args.cfg
     calib = {"camera": cfg["calib.camera"], "segmenter": cfg["calib.segmenter"], "refine": cfg["calib.refine"]}
     result = calibrate_offsets(pd.read_parquet(args.index), args.frames, calib, cfg["world"], args.measured,
-                               per_task=int(cfg["calib.calibration.episodes_per_task"]))
+                               per_task=int(cfg["calib.calibration.episodes_per_task"]),
+                               cameras=calibrated_cameras(args.cameras))
     write_json(args.out, result, provenance=True)
 
 
@@ -40,5 +42,7 @@ if __name__ == "__main__":
     p.add_argument("--index", required=True)
     p.add_argument("--frames", required=True)
     p.add_argument("--measured", help="measured poses of (at least) the calibration episodes: parquet or CSV")
+    p.add_argument("--cameras", help="the calibrated cameras (calib_board's or calib_silhouette's record); "
+                                     "none: the model's")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

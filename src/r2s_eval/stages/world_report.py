@@ -22,7 +22,7 @@ import json
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.calibration_report import DEFAULT_REPORT, build_report, fidelity_summary, format_table, saved_table
+from r2s_eval.report.calibration_report import DEFAULT_REPORT, build_report, format_table, saved_table
 from r2s_eval.stages import _cli
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.utils.io import read_json, read_parquet_metadata, write_json
@@ -52,9 +52,8 @@ def main(args: argparse.Namespace) -> None:
     sim_episodes = load_episodes(args.rollouts) if args.rollouts else None
     report = build_report(attempts, errors, replay_log, init_s, reference=reference, sim_episodes=sim_episodes,
                           level=float(args.cfg["stats.ci_level"]), n_boot=int(args.cfg["stats.n_boot"]),
-                          seed=int(args.cfg["seed"]))
-    if args.fidelity:
-        report["fidelity"] = fidelity_summary(read_json(args.fidelity))
+                          seed=int(args.cfg["seed"]), fidelity=read_json(args.fidelity) if args.fidelity else None,
+                          calibration=read_json(args.calibration) if args.calibration else None)
     print(format_table(report))
     if args.out:
         write_json(args.out, report, provenance=True)
@@ -71,6 +70,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", help="reference success table (the real side), for the real-sim gap")
     p.add_argument("--rollouts", nargs="*", default=[], help="sim rollout folders, one per policy, for the gap")
     p.add_argument("--fidelity", help="the fidelity report: the gap's calibration and training parts, joint offsets")
+    p.add_argument("--calibration", help="calib_error's scores: the cameras against the twin, the appearance fit")
     p.add_argument("--out", help="write the report as JSON here")
     return p
 

@@ -22,7 +22,14 @@ object_rgb_offset[obj]      added to object RGB          +-0.06
 table_rgb_offset            added to table RGB           +-0.05
 image_noise_std             additive Gaussian, 0-255     U(0, 3)
 joint_offset_rad[arm]       servo zero offset per joint  +-2 deg
+encoder_noise_rad           joint reading noise (std)    0.05 deg (fixed)
+encoder_step_rad            joint reading resolution     360/4096 deg (fixed)
 ==========================  ===========================  ==================
+
+The encoders are a property of the robot, not a draw: every twin reads its joints with the
+magnitudes' noise and resolution (a 12-bit encoder per turn, as on common hobby and research
+servos). ``conf/real/twin_lab.yaml`` is the ``lab`` preset: cameras placed from a drawing or
+a tape measure (centimetres, degrees) and another room's light and paint.
 """
 
 from __future__ import annotations
@@ -61,6 +68,9 @@ class TwinMagnitudes:
     # The arm's kinematic calibration error: each joint is held this far from its command, so
     # recorded joint targets replayed in the nominal sim put the gripper millimetres off.
     joint_offset_rad: float = float(np.deg2rad(2.0))
+    # The joint encoders (not drawn: every twin has them): reading noise and resolution.
+    encoder_noise_rad: float = float(np.deg2rad(0.05))
+    encoder_step_rad: float = float(2 * np.pi / 4096)
 
     def scaled(self, factor: float) -> "TwinMagnitudes":
         """All magnitudes multiplied by ``factor`` (0 gives the nominal world)."""
@@ -101,6 +111,8 @@ def sample_twin_params(
         # Drawn last, so the draws above are what they were before this parameter existed.
         joint_offset_rad={name: tuple(float(x) for x in u(m.joint_offset_rad, len(arm.joints)))
                           for name, arm in robot.arms.items()},
+        encoder_noise_rad=float(m.encoder_noise_rad),
+        encoder_step_rad=float(m.encoder_step_rad),
     )
 
 
@@ -125,6 +137,7 @@ PERTURBATION_FAMILIES = {
     "physics": ("friction_scale", "object_mass_scale", "actuator_kp_scale"),
     "joints": ("joint_offset_rad",),
     "noise": ("image_noise_std",),
+    "encoders": ("encoder_noise_rad", "encoder_step_rad"),
     "sizes": ("object_size_scale",),
 }
 ALL_FAMILIES = "all"  # every family at once: the twin becomes the calibrated sim

@@ -1,6 +1,6 @@
 """Check a world and look at it before a run.
 
-    python -m r2s_eval.world [NAME] [--dataset DIR] [--experiment demo] [--out reports/world_preview]
+    python -m r2s_eval.world [NAME] [--dataset DIR [--world-params FILE]] [--experiment demo] [--out reports/world_preview]
 
 NAME is a world of the ``world`` config group (``conf/world/<NAME>.yaml``; default: the
 experiment's, ``tabletop``), shown with all its tasks from their own start regions. The experiment
@@ -8,7 +8,9 @@ is composed with it and checked like any run: a wrong
 entry stops with one line naming the key and the file that set it. Writes ``starts.png`` (every
 camera at a sampled start of each task, the start poses drawn in) and, with ``--dataset`` (a
 LeRobotDataset v3), ``dataset.png``: per task, its first episode's first frame of each camera
-beside the simulation rendered at the poses the calibration estimates from it. It names the files
+beside the simulation rendered at the poses the calibration estimates from it, with the
+simulation's robot and objects outlined on the recorded frame; ``--world-params FILE`` (a
+calibrated sim's) renders through its cameras, light and colours. It names the files
 this call wrote, nothing else; without ``--dataset``, a ``dataset.png`` an earlier call left in the
 folder (perhaps of another world) is removed, and said so.
 """
@@ -23,6 +25,7 @@ import yaml
 from r2s_eval.config import compose_config, stop_before_running
 from r2s_eval.errors import R2SError
 from r2s_eval.paths import CONF_DIR
+from r2s_eval.sim import load_world_params
 from r2s_eval.stages import _cli
 from r2s_eval.world.preview import DATASET_PNG, STARTS_PNG, preview
 
@@ -41,7 +44,9 @@ def main(args: argparse.Namespace) -> None:
     size = args.size or (int(world["image_height"]), int(world["image_width"]))
     stale = Path(args.out) / DATASET_PNG
     stale = stale if args.dataset is None and stale.is_file() else None
-    out = preview(world, args.out, args.cameras or world["cameras"], tuple(size), args.seed, args.dataset, cfg["calib"])
+    params = load_world_params(args.world_params) if args.world_params else None
+    out = preview(world, args.out, args.cameras or world["cameras"], tuple(size), args.seed, args.dataset, cfg["calib"],
+                  params)
     print(f"wrote {out / STARTS_PNG}")
     if args.dataset is not None:
         print(f"wrote {out / DATASET_PNG}")
@@ -53,6 +58,8 @@ def parser() -> argparse.ArgumentParser:
     p = _cli.parser(__doc__.split("\n")[0], cfg=False)
     p.add_argument("world", nargs="?", help="a world of conf/world (default: the experiment's)")
     p.add_argument("--dataset", help="a LeRobotDataset v3 recorded in this world: its first frames beside the sim")
+    p.add_argument("--world-params", help="a calibrated sim's world parameters (results/calib/world_params.json): "
+                                          "its cameras, light and colours; default: the model's")
     p.add_argument("--experiment", default="demo", help="the experiment whose cameras and calibration to use")
     p.add_argument("--out", default="reports/world_preview", help="folder for starts.png (and dataset.png)")
     p.add_argument("--cameras", nargs="+", help="default: the experiment's world.cameras")

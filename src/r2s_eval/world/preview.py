@@ -1,6 +1,7 @@
 """A look at a world before a run: every camera at a sampled start of each task, and, given a
-dataset, each camera's first recorded frame beside the simulation rendered at the poses the
-calibration estimates from it.
+dataset, each camera's first recorded frame (the simulation's robot and objects outlined on it)
+beside the simulation rendered at the poses the calibration estimates from it, through the
+model's cameras or a calibrated sim's.
 
 A wrong camera pose, a wrong unit or a mislabelled object shows at a glance: the estimated poses
 are drawn into both images (a dot at each object's centre, a line along its yaw, its name), so
@@ -18,10 +19,11 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.calib.episodes import estimate_episodes
-from r2s_eval.data.contract import read_metadata, scan_video
-from r2s_eval.data.dataset import camera_key
+from r2s_eval.data import STATE_KEY
+from r2s_eval.data.contract import read_metadata
+from r2s_eval.data.frames import episode_rows, read_frames
 from r2s_eval.errors import DataError
-from r2s_eval.sim import Robot, TabletopEnv, world_robot
+from r2s_eval.sim import Robot, TabletopEnv, WorldParams, world_robot
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, world_tasks
@@ -96,59 +98,51 @@ def _first_episodes(meta, tasks: Mapping[str, Task]) -> dict[str, int]:
     return first
 
 
-def _first_frames(meta, episodes: Sequence[int], cameras: Sequence[str]) -> dict[tuple[int, str], np.ndarray]:
-    """The first frame of each episode from each camera, {(episode, camera): image}: every video
-    file is decoded once (a file holds many episodes)."""
-    wanted: dict[str, list[tuple[int, str, float]]] = {}
-    for camera in dict.fromkeys(cameras):
-        key = camera_key(camera)
-        if key not in meta.features:
-            raise DataError(f"dataset {meta.root}: records no camera {camera!r} ({key}); it records "
-                            f"{sorted(k for k in meta.features if k.startswith('observation.images.'))}")
-        for episode in episodes:
-            ep = meta.episodes[meta.episodes["episode_index"] == episode].iloc[0]
-            rel = meta.video_file(key, ep[f"videos/{key}/chunk_index"], ep[f"videos/{key}/file_index"])
-            wanted.setdefault(rel, []).append((episode, camera, float(ep[f"videos/{key}/from_timestamp"])))
-    frames = {}
-    for rel, items in wanted.items():
-        scan = scan_video(meta.root / rel, [t0 for _, _, t0 in items], 0.5 / meta.fps)
-        for episode, camera, t0 in items:
-            if t0 not in scan.images:
-                raise DataError(f"dataset {meta.root}: {rel}: no frame of episode {episode} at {t0:.3f} s"
-                                + (f" ({scan.error})" if scan.error else ""))
-            frames[episode, camera] = scan.images[t0]
-    return frames
+def _outlined(image: np.ndarray, env: TabletopEnv, camera: str) -> np.ndarray:
+    """``image`` with the simulation's robot and objects outlined on it, as ``camera`` sees them:
+    where the recording and the simulated camera agree, the outlines hug what the frame shows."""
+    labels, _ = env.render(camera, size=image.shape[:2], segmentation=True)
+    drawn = labels >= 2  # the robot's arms and the objects (0 background, 1 table)
+    edges = drawn & ~(cv2.erode(drawn.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    out = image.copy()
+    out[edges] = (0, 255, 255)
+    return out
 
 
 def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, cameras: Sequence[str], calib: dict,
-                       world: dict) -> np.ndarray:
-    """Per task the dataset records, its first episode: each camera's first frame beside the
-    simulation rendered at the poses estimated from the calibration camera's frame."""
+                       world: dict, params: WorldParams | None = None) -> np.ndarray:
+    """Per task the dataset records, its first episode: each camera's first frame with the
+    simulation outlined on it, beside the simulation rendered at the poses the calibration
+    estimates from it (its robot at the recorded first state), in the world ``params`` (a
+    calibrated sim's world parameters: its cameras, light and colours; None: the model's)."""
     meta = read_metadata(dataset_root)
     first = _first_episodes(meta, tasks)
-    frames = _first_frames(meta, list(first.values()), [calib["camera"], *cameras])
+    frames = read_frames(meta, [(e, 0) for e in first.values()], [calib["camera"], *cameras])
     rows = []
     with tempfile.TemporaryDirectory(prefix="r2s_eval_preview.") as scratch:
         index = []
         for key, episode in first.items():
-            frame = frames[episode, calib["camera"]]
+            frame = frames[episode, 0, calib["camera"]]
             name = f"episode_{episode:06d}.png"
             cv2.imwrite(str(Path(scratch) / name), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
             index.append({"episode_index": episode, "task": key, "first_frame": name})
-        estimates = estimate_episodes(pd.DataFrame(index), scratch, calib, world, desc="preview")
+        estimates = estimate_episodes(pd.DataFrame(index), scratch, calib, world, desc="preview", cameras=params)
     for key, episode in first.items():
         mine = estimates[estimates["episode_index"] == episode]
         poses = {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in mine.itertuples()}
+        state = episode_rows(meta, episode, [STATE_KEY])[STATE_KEY][0]
         row = []
         for cam in cameras:
-            real = frames[episode, cam]
+            real = frames[episode, 0, cam]
             factor = max(1, -(-MIN_SHOWN_PX // real.shape[0]))
             shown = cv2.resize(real, None, fx=factor, fy=factor, interpolation=cv2.INTER_NEAREST)
-            env = TabletopEnv(tasks[key], image_size=shown.shape[:2], cameras=(cam,), robot=world_robot(world))
+            env = TabletopEnv(tasks[key], params, image_size=shown.shape[:2], cameras=(cam,), robot=world_robot(world))
             try:
                 env.reset(object_poses=poses, settle=False, observe=False)
-                row += [_labelled(_draw_poses(shown, env, cam, poses), f"{key} ep {episode}: {cam}, recorded"),
-                        _labelled(_draw_poses(env.render(cam), env, cam, poses), f"{cam}, simulated at the estimate")]
+                env.pose_robot(state)
+                row += [_labelled(_draw_poses(_outlined(shown, env, cam), env, cam, poses),
+                                  f"{key} ep {episode}: {cam}, sim outlined"),
+                        _labelled(_draw_poses(env.render(cam), env, cam, poses), f"{cam}, simulated")]
             finally:
                 env.close()
         rows.append(row)
@@ -156,7 +150,7 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
 
 
 def preview(world: dict, out: str | Path, cameras: Sequence[str], size_hw: tuple[int, int], seed: int = 0,
-            dataset: str | Path | None = None, calib: dict | None = None) -> Path:
+            dataset: str | Path | None = None, calib: dict | None = None, params: WorldParams | None = None) -> Path:
     """Write the preview PNG(s) of ``world`` (a ``world`` config slice); returns the folder written.
 
     Without ``dataset``, a ``dataset.png`` an earlier call left in ``out`` is removed: the folder
@@ -167,7 +161,7 @@ def preview(world: dict, out: str | Path, cameras: Sequence[str], size_hw: tuple
     starts = render_starts(tasks, cameras, size_hw, seed, world_robot(world))
     cv2.imwrite(str(out / STARTS_PNG), cv2.cvtColor(starts, cv2.COLOR_RGB2BGR))
     if dataset is not None:
-        side = dataset_beside_sim(tasks, dataset, cameras, calib, world)
+        side = dataset_beside_sim(tasks, dataset, cameras, calib, world, params)
         cv2.imwrite(str(out / DATASET_PNG), cv2.cvtColor(side, cv2.COLOR_RGB2BGR))
     else:
         (out / DATASET_PNG).unlink(missing_ok=True)

@@ -1,0 +1,45 @@
+"""Stage: score the camera calibration against the reality twin's truth (nothing downstream reads
+it but the world report).
+
+For each camera estimate (``METHOD=FILE``: calib_board's, calib_silhouette's) and for the model's
+own poses, each camera's distance from the twin's true pose (position mm, rotation deg, in its
+parent's frame); and, from the calibrated sim's world parameters, which estimate was used and
+the appearance fit's colour error before and after. Writes::
+
+    {"cameras": {"model" | METHOD: {camera: {"position_mm": .., "rotation_deg": ..}}},
+     "used": METHOD | "none", "appearance": {"residual_before": .., "residual_after": ..}}
+"""
+
+from __future__ import annotations
+
+from r2s_eval.calib.cameras import score_calibration
+from r2s_eval.errors import DataError
+from r2s_eval.report.calibration_report import camera_lines
+from r2s_eval.sim import load_world_params
+from r2s_eval.stages import _cli
+from r2s_eval.utils.io import read_json, write_json
+
+READS = ("world", "tasks")  # config paths the --cfg slice holds (see _reads.py)
+
+
+def main(args) -> None:
+    cfg = args.cfg
+    estimates = {}
+    for value in args.cameras:
+        method, sep, path = value.partition("=")
+        if not sep:
+            raise DataError(f"--cameras {value!r}: expected METHOD=FILE")
+        estimates[method] = read_json(path)
+    report = score_calibration(estimates, read_json(args.world_params), load_world_params(args.twin), cfg["world"],
+                               cfg["tasks"])
+    print("\n".join(camera_lines(report)))
+    write_json(args.out, report, provenance=True)
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--twin", required=True, help="the twin's world parameters (its true cameras)")
+    p.add_argument("--cameras", nargs="*", default=[], help="METHOD=FILE: a camera estimate to score")
+    p.add_argument("--world-params", required=True, help="the calibrated sim's world parameters")
+    p.add_argument("--out", required=True)
+    _cli.run(main, p)

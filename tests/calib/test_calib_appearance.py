@@ -1,0 +1,63 @@
+"""The calibrated sim's light and colours from first frames: a twin's look is fitted back."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from r2s_eval.calib.appearance import AppearanceModel, Frame, fit_appearance
+from r2s_eval.sim import WorldParams
+from r2s_eval.sim.build import make_env
+from r2s_eval.sim.tasks import bundled_world
+
+CAMERA = "head_left"
+LOOK = WorldParams(light_intensity_scale=1.3, light_dir_offset=(0.1, -0.15, 0.05), table_rgb_offset=(-0.06, 0.04, 0.05),
+                   object_rgb_offset={"cup": (0.05, 0.06, -0.04), "plate": (-0.05, 0.03, 0.06)})
+
+
+def first_frames(params: WorldParams, n: int = 3) -> list[Frame]:
+    """Rendered first frames of cup_on_plate in a world of ``params``: what a recording shows."""
+    world = bundled_world()
+    env = make_env("cup_on_plate", world, params, cameras=(CAMERA,))
+    frames = []
+    for seed in range(n):
+        env.reset(seed=seed, settle=False, observe=False)
+        poses = {name: tuple(p["planar"]) for name, p in env.object_poses().items()}
+        frames.append(Frame("cup_on_plate", seed, poses, env.state().astype(float), env.render(CAMERA)))
+    env.close()
+    return frames
+
+
+def test_a_rooms_light_and_paint_are_fitted_back():
+    model = AppearanceModel(first_frames(LOOK), bundled_world(), WorldParams(), CAMERA)
+    try:
+        fitted, report = fit_appearance(model, prior=0.01)
+    finally:
+        model.close()
+    assert report["residual_before"] > 5.0
+    assert report["residual_after"] < 0.3 * report["residual_before"], report
+    assert abs(fitted.light_intensity_scale - 1.0) > 0.1  # the fit moved the light, not only the paint
+
+
+def test_the_fit_keeps_the_cameras_and_joints_it_was_given():
+    given = WorldParams(camera_pos_offset_m={CAMERA: (0.001, 0.0, 0.0)}, joint_offset_rad={"left": (0.01,) * 6})
+    frames = first_frames(dataclasses.replace(LOOK, camera_pos_offset_m=given.camera_pos_offset_m), n=1)
+    model = AppearanceModel(frames, bundled_world(), given, CAMERA)
+    try:
+        fitted, _ = fit_appearance(model, prior=0.01)
+    finally:
+        model.close()
+    assert fitted.camera_pos_offset_m == given.camera_pos_offset_m and fitted.joint_offset_rad == given.joint_offset_rad
+
+
+def test_a_world_as_nominal_as_the_model_stays_put():
+    model = AppearanceModel(first_frames(WorldParams(), n=1), bundled_world(), WorldParams(), CAMERA)
+    try:
+        fitted, report = fit_appearance(model, prior=0.01)
+    finally:
+        model.close()
+    assert report["residual_before"] < 0.5
+    assert abs(fitted.light_intensity_scale - 1.0) < 0.02
+    assert np.abs(fitted.table_rgb_offset).max() < 0.01

@@ -1,12 +1,16 @@
 """The README and the docs site (MkDocs, `docs/`): the site builds with no broken link or anchor,
-the README's links into it land, and what both show is the same text."""
+the README's links into it land, what both show is the same text, and every commit they cite
+for a measured number is in the repository's history."""
 
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 README = (REPO / "README.md").read_text()
@@ -72,3 +76,45 @@ def test_the_tests_page_names_every_benchmark():
     page = (REPO / "docs" / "tests.md").read_text()
     scripts = sorted(p.name for p in (REPO / "benchmarks").glob("*.py"))
     assert scripts and [s for s in scripts if f"`python benchmarks/{s}" not in page] == []
+
+
+# A measured number names the commit it was measured at ("(measured with `...` at commit 1a2b3c4)",
+# "at commits 1a2b3c4 and 5d6e7f8"): the hashes after "commit" or "commits", a list joined by
+# commas or "and", a line break anywhere between.
+CITED = re.compile(r"\bcommits?\s+`?([0-9a-f]{7,40})\b`?((?:(?:\s*,\s*|,?\s+and\s+)`?[0-9a-f]{7,40}\b`?)*)")
+
+
+def cited_commits(text: str) -> list[str]:
+    return [h for first, rest in CITED.findall(text) for h in [first, *re.findall(r"[0-9a-f]{7,40}", rest)]]
+
+
+def test_the_citation_pattern_reads_every_form_the_pages_use():
+    text = ("(measured with `python benchmarks/x.py` at commit 1a2b3c4), at\ncommit 5d6e7f8; at commits 0a1b2c3"
+            " and 4d5e6f7, commits 89abcde, fedcba9 and 7654321; at commit abc1234 and then")
+    assert cited_commits(text) == ["1a2b3c4", "5d6e7f8", "0a1b2c3", "4d5e6f7", "89abcde", "fedcba9", "7654321",
+                                   "abc1234"]
+    assert cited_commits("git commit -m 'a message', commit 12ab and commit the change") == []
+
+
+def test_every_commit_the_pages_cite_is_in_the_history():
+    # So that a citation can be neither made up nor mistyped: every "commit <hash>" in the README
+    # and the docs' pages names a commit of this repository. A checkout without its history (a
+    # source tarball, a shallow clone) cannot tell, and skips.
+    git = shutil.which("git")
+    top = subprocess.run([git, "rev-parse", "--show-toplevel"], cwd=REPO, capture_output=True, text=True,
+                         check=False) if git else None
+    if top is None or top.returncode != 0 or Path(top.stdout.strip()).resolve() != REPO:
+        pytest.skip("no git history here (a source tarball?)")
+    shallow = subprocess.run([git, "rev-parse", "--is-shallow-repository"], cwd=REPO, capture_output=True, text=True,
+                             check=False)
+    if shallow.stdout.strip() == "true":
+        pytest.skip("a shallow clone: older commits are not here")
+    cited: dict[str, set[str]] = {}
+    for page in [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]:
+        for sha in cited_commits(page.read_text()):
+            cited.setdefault(sha, set()).add(str(page.relative_to(REPO)))
+    assert cited, "the pages cite no commit: the pattern no longer reads their citations"
+    unknown = {sha: sorted(pages) for sha, pages in cited.items()
+               if subprocess.run([git, "cat-file", "-e", f"{sha}^{{commit}}"], cwd=REPO,
+                                 capture_output=True, check=False).returncode != 0}
+    assert not unknown, f"commits cited but not in this repository's history: {unknown}"

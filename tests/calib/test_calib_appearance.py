@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
 
 from r2s_eval.calib.appearance import AppearanceModel, Frame, fit_appearance
 from r2s_eval.sim import WorldParams

@@ -233,6 +233,9 @@ def test_ranking_says_what_adaptive_judging_decided_and_cost(make_fit):
     account = {"alpha": 0.05, "stop": "units_exhausted", "items": 84, "calls": 84, "requests": 0,
                "describe_calls": 40, "describe_requests": 0, "undecided": ["a vs b"], "pairs": pairs}
     text = ranking_text({"k": fit, "v": fit}, {"a": 0.8, "b": 0.5, "c": 0.1}, adaptive={"k": account, "v": None})
+    assert text.splitlines()[0].startswith("Ranking at the last checkpoint (k: 84 comparisons in all, adaptive; "
+                                           "v: 10 per policy pair): BT score")
+    assert "(10 comparisons per policy pair)" in ranking_text({"k": fit}, {"a": 0.8, "b": 0.5, "c": 0.1})
     assert text.splitlines()[-1] == ("k: adaptive judging stopped (units exhausted) after 84 comparisons; judge calls: "
                                      "40 describe + 84 compare; decided at alpha 0.05 over all pairs: a > c, b > c; "
                                      "left undecided: a vs b")

@@ -1,12 +1,13 @@
 """Camera poses from a ChArUco board take: the board, finding it in a frame, and the fit.
 
 A take is a short recording of a ChArUco board (OpenCV's ``cv2.aruco``) with the arm's joint
-states. Where the board is fixed and the camera moves with the arm (a wrist camera), the take
-gives the camera's pose on its arm link (hand-eye, ``cv2.calibrateHandEye`` to start, the board's
-pose found with it); where the camera is fixed, either the board lies at a pose the lab states
-(each frame a ``solvePnP``) or an arm carries it (eye-to-hand, the board's pose on the link found
-with the camera's). Every estimate is then refined over all frames at once by least squares on
-the corners' reprojection error.
+states. With the board lying on the table at a pose the lab states, a fixed camera's pose comes
+from each frame's ``solvePnP`` against it, and a camera on an arm (a wrist camera) gets its pose
+on its link from the arm's poses at each frame (hand-eye); its views can also find where the
+board lies (``planar``: slid and turned on the table), which checks the statement. With the
+board carried by an arm, the fixed cameras and the board's pose on the link are found together
+(eye to hand, ``cv2.calibrateHandEye`` to start). Every estimate is then refined over all frames
+at once by least squares on the corners' reprojection error.
 
 The board's own frame is OpenCV's: origin at the top-left corner of the printed image, x along
 its columns, y along its rows, z into the board (away from a camera that sees its face).
@@ -162,8 +163,8 @@ def fit_camera(views: Sequence[View], K: np.ndarray, board: Board, T_world_from_
     table: found from the views by sliding and turning it on the table from the stated pose) or
     ``free`` (found from scratch, hand-eye; needs the camera or the board to move with the arm).
     Views whose own reprojection error exceeds ``max_rms_px`` after the fit are left out and the
-    fit repeated; fewer than ``min_frames`` usable views is an error naming ``where`` and every
-    frame left out with why (``left_out``: those the board was not found in)."""
+    fit repeated once; fewer than ``min_frames`` usable views is an error naming ``where`` and
+    every frame left out with why (``left_out``: those the board was not found in)."""
     frames = [v.frame for v in views]
     if len(frames) >= 2 and board_freedom != "fixed":
         camera_moves = _moves([T_world_from_parent[f] for f in frames])
@@ -174,7 +175,7 @@ def fit_camera(views: Sequence[View], K: np.ndarray, board: Board, T_world_from_
         raise DataError(f"{where}: a {board_freedom} board needs its stated pose")
     left_out = dict(left_out or {})
     views = list(views)
-    for _ in range(3):
+    for attempt in range(2):  # a fit, then once more without the frames it could not explain
         if len(views) < min_frames:
             raise DataError(f"{where}: {len(views)} usable frames, at least {min_frames} needed"
                             + (f"; left out: {_said(left_out)}" if left_out else ""))
@@ -182,12 +183,10 @@ def fit_camera(views: Sequence[View], K: np.ndarray, board: Board, T_world_from_
         fit = _refine(views, K, board, T_world_from_parent, T_world_from_mount, T_cam, T_board, board_freedom)
         bad = {v.frame: f"reprojection error {rms:.2f} px after the fit (limit {max_rms_px:g})"
                for v, rms in zip(views, fit.per_view_rms) if rms > max_rms_px}
-        if not bad:
+        if not bad or attempt == 1:
             break
         left_out.update(bad)
         views = [v for v in views if v.frame not in bad]
-    else:
-        raise DataError(f"{where}: frames keep exceeding the reprojection limit: {_said(left_out)}")
     return CameraFit(fit.T_parent_from_cam, fit.T_mount_from_board, board_freedom != "fixed",
                      [v.frame for v in views], left_out, fit.rms_px, fit.std_position_mm, fit.std_rotation_deg)
 

@@ -9,6 +9,7 @@ The robot-silhouette estimate (``r2s_eval.calib.silhouette``) writes the same re
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Mapping, Sequence
 
@@ -82,15 +83,16 @@ def calibrate_from_board(take_path: str, world: Mapping, board_cfg: Mapping, tas
                 else:
                     views.append(found)
             parent_poses = {f: world_poses[f][parents[cam]] for f in world_poses}
-            camera_moves = env.model.body_weldid[parents[cam]] != 0
-            # A board on the table: fixed cameras take its stated pose, a moving camera finds where
-            # it lies (slid and turned on the table from the stated pose). A carried board: found.
-            freedom = "free" if stated is None else "planar" if camera_moves else "fixed"
-            fit = fit_camera(views, K, board, parent_poses, {f: world_poses[f][holder or 0] for f in world_poses},
-                             stated, freedom, min_frames=min_frames,
-                             max_rms_px=float(board_cfg["max_reprojection_px"]),
-                             where=f"board take {take_path}, camera {cam}", left_out=left_out)
-            out[cam] = {**camera_record(env, cam, fit.T_parent_from_cam), **_fit_record(fit, stated)}
+            holder_poses = {f: world_poses[f][holder or 0] for f in world_poses}
+            fitted = functools.partial(fit_camera, views, K, board, parent_poses, holder_poses, stated,
+                                       min_frames=min_frames, max_rms_px=float(board_cfg["max_reprojection_px"]),
+                                       where=f"board take {take_path}, camera {cam}", left_out=left_out)
+            # A board on the table: every camera takes its stated pose (as the fixed ones must). A
+            # camera on an arm also finds where the board lies (slid and turned on the table from
+            # the statement), which says how far off the statement is. A carried board: found.
+            fit = fitted("free" if stated is None else "fixed")
+            found = fitted("planar") if stated is not None and env.model.body_weldid[parents[cam]] != 0 else None
+            out[cam] = {**camera_record(env, cam, fit.T_parent_from_cam), **_fit_record(fit, stated, found)}
             log.info("%s: %d frames, reprojection %.2f px, standard error %.2f mm / %.3f deg; %d frames left out",
                      cam, len(fit.frames_used), fit.rms_px, fit.std_position_mm, fit.std_rotation_deg,
                      len(fit.frames_left_out))
@@ -101,14 +103,14 @@ def calibrate_from_board(take_path: str, world: Mapping, board_cfg: Mapping, tas
     return {"method": "board", "take": str(take_path), "frames": len(take.states), "cameras": out}
 
 
-def _fit_record(fit: CameraFit, stated: np.ndarray | None) -> dict:
+def _fit_record(fit: CameraFit, stated: np.ndarray | None, found: CameraFit | None) -> dict:
     record = {"frames_used": fit.frames_used,
               "frames_left_out": {str(f): why for f, why in sorted(fit.frames_left_out.items())},
               "reprojection_px": fit.rms_px, "std_position_mm": fit.std_position_mm,
               "std_rotation_deg": fit.std_rotation_deg}
-    if fit.board_found and stated is not None:
-        mm, deg = poses.distance(fit.T_mount_from_board, stated)
-        record["board_from_stated"] = {"mm": mm, "deg": deg}  # the found board against the lab's statement
+    if found is not None:  # the board's pose the views give against the lab's statement
+        mm, deg = poses.distance(found.T_mount_from_board, stated)
+        record["board_from_stated"] = {"mm": mm, "deg": deg}
     return record
 
 

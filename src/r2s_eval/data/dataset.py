@@ -72,7 +72,6 @@ class DatasetRecorder:
         if self.tmp_root.exists():
             shutil.rmtree(self.tmp_root)
         self.root.parent.mkdir(parents=True, exist_ok=True)
-        cameras = sum(1 for f in features.values() if f["dtype"] == "video")
         try:
             rgb_encoder = RGBEncoderConfig(**video) if video else None
         except (TypeError, ValueError) as exc:

@@ -311,14 +311,18 @@ def ranking_text(fits: Mapping[str, pd.DataFrame], reference_rate: Mapping[str, 
             rows[p] += f"{cell:>34}"
     n = int(max(f["checkpoint"].max() for f in fits.values())) if fits else 0
     interval, level = fit_interval(dict(fits)) if fits else ("binomial", 0.95)
-    title = (f"Ranking at the last checkpoint ({n} comparisons per policy pair): "
-             f"BT score [{interval_label(interval, level)}] #rank")
+    adaptive = {judge: account for judge, account in (adaptive or {}).items() if account}
+    # An adaptive judge stops where its pairs are decided: it says how much it judged in all.
+    judged = (f"{n} comparisons per policy pair" if not adaptive else "; ".join(
+        f"{judge}: {adaptive[judge]['items']} comparisons in all, adaptive" if judge in adaptive
+        else f"{judge}: {n} per policy pair" for judge in sorted(fits)))
+    title = f"Ranking at the last checkpoint ({judged}): BT score [{interval_label(interval, level)}] #rank"
     notes = [f"BT CI: {interval} bootstrap, {INTERVAL_TEXT.get(interval, 'bootstrap')}",
              f"{reference_name} %: mean of the per-task success rates"
              + (f" [{100 * level:g}% CI, trials resampled within each task]" if reference_ci else "")]
     if planted_order and reference_ci:
         notes.append(planted_order_line(reference_rate, reference_ci, planted_order, level))
-    notes += [adaptive_line(judge, account) for judge, account in sorted((adaptive or {}).items()) if account]
+    notes += [adaptive_line(judge, account) for judge, account in sorted(adaptive.items())]
     return "\n".join([title, header, *rows.values(), *notes]) + "\n"
 
 

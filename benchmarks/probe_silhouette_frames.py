@@ -4,8 +4,7 @@ In a finished twin run's folder, fits every recorded fixed camera from the robot
 the teleop recording (``r2s_eval.calib.silhouette``, the run's config otherwise) with several
 frame counts, picking either the most different arm poses among every 5th frame (what the stage
 does) or only each episode's first frame (the arm at home in all of them), and prints each
-camera's error against the twin's true pose, the silhouette mismatch left and the fit's own
-standard error.
+camera's error against the twin's true pose and the silhouette mismatch left.
 
 Run::
 
@@ -44,8 +43,7 @@ def main() -> None:
     world, silhouette = cfg["world"], dict(cfg["calib"]["cameras"]["silhouette"], min_frames=1, max_mismatch=1.0)
     episodes = [int(e) for e in pd.read_parquet(run / "results/ingest/episodes.parquet")["episode_index"]]
     truth = load_world_params(run / "results/real/twin_params.json")
-    print(f"{'frames':>6} {'picked':22s} {'camera':12s} {'error mm':>9} {'deg':>6} {'mismatch':>9} "
-          f"{'std mm':>7} {'std deg':>8} {'s':>5}")
+    print(f"{'frames':>6} {'picked':22s} {'camera':12s} {'error mm':>9} {'deg':>6} {'mismatch':>9} {'s':>5}")
     for label, stride in PICKS.items():
         for n in args.frames:
             started = time.perf_counter()
@@ -58,8 +56,7 @@ def main() -> None:
             for cam, e in errors.items():
                 fit = record["cameras"][cam]
                 print(f"{record['frames']:6d} {label:22s} {cam:12s} {e['position_mm']:9.2f} {e['rotation_deg']:6.3f} "
-                      f"{fit['mismatch']:9.3f} {fit['std_position_mm']:7.2f} {fit['std_rotation_deg']:8.3f} "
-                      f"{seconds:5.0f}", flush=True)
+                      f"{fit['mismatch']:9.3f} {seconds:5.0f}", flush=True)
             if stride > 5 and record["frames"] < n:
                 break  # every first frame is in already
 

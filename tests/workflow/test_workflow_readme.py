@@ -13,6 +13,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import cv2
 import pandas as pd
 import pytest
 
@@ -34,6 +35,8 @@ BAD_OVERRIDES = ("snakemake -j 2 reports/realsim_table.tex --config "
                  "overrides='[stats.nboot=500,policies.act.steps=abc,rollout.horizon.chunk=0]'")
 PUSH, PULL = "python -m r2s_eval.artifacts push", "python -m r2s_eval.artifacts pull"
 WORLD_REPORT = "python -m r2s_eval.stages.world_report"
+CALIBRATED_LOOK = ("python -m r2s_eval.world tabletop --experiment smoke --dataset results/real/dataset "
+                   "--world-params results/calib/world_params.json")
 PLAN_SMOKE = "snakemake -n --config experiment=smoke"
 PANDA_PREVIEW = "python -m r2s_eval.world panda"
 ADAPTIVE_SMOKE = "snakemake -j 2 reports/realsim_table.tex --config experiment=smoke overrides='[compare.allocation=adaptive]'"
@@ -220,6 +223,12 @@ def test_readme_commands_in_a_finished_run(smoke_run, clone):
     header, rule, *rows = shown.stdout.splitlines()
     assert header.split()[:2] == ["task", "object"] and set(rule) == {"-"}
     assert any(row.startswith("cup_on_plate") for row in rows), shown.stdout
+    assert "camera pose error against the twin" in shown.stdout and "the calibrated sim uses: board" in shown.stdout
+    # The recording through the calibrated sim's cameras, the simulation outlined on it.
+    look = run_as_written(readme_command(CALIBRATED_LOOK), clone)
+    assert look.returncode == 0, look.stderr
+    assert f"wrote {Path('reports/world_preview/dataset.png')}" in look.stdout
+    assert cv2.imread(str(clone / "reports" / "world_preview" / "dataset.png")) is not None
 
 
 def test_readme_helpers_read_the_readme_as_written():

@@ -155,8 +155,12 @@ def test_every_parquet_records_its_provenance(smoke_run):
     from r2s_eval.utils.io import read_provenance
 
     results = smoke_run.workdir / "results"
-    files = [p for p in results.rglob("*.parquet")  # lerobot datasets and hidden resume folders aside
-             if not any(part == "dataset" or part.startswith(".") for part in p.relative_to(results).parts)]
+    # LeRobot datasets (the teleop recordings, the board take, replayed sim data: LeRobot writes
+    # their parquet files) and hidden resume folders aside.
+    lerobot_roots = {info.parent.parent for info in results.rglob("meta/info.json")}
+    files = [p for p in results.rglob("*.parquet")
+             if not any(parent in lerobot_roots for parent in p.parents)
+             and not any(part.startswith(".") for part in p.relative_to(results).parts)]
     assert len(files) > 10
     for path in files:
         prov = read_provenance(path)

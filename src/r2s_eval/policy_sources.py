@@ -16,6 +16,13 @@ Trained candidates (`type: act | diffusion | pi0 | ...`) are configured in
 
 Both take `action_map` (robot index per policy action dimension; default: identity).
 
+A third kind has no weights of its own:
+
+    type: variant           another candidate's checkpoint run with an execution change
+      of                    that candidate (trained here, a checkpoint or a server; not a variant)
+      execution             the change: r2s_eval.rollout.execution (jitter, hesitation, a late
+                            gripper, a low-pass); planted quality at equal weights
+
 This module sits above both `r2s_eval.policies` (the in-process models) and `r2s_eval.serving`
 (the client of a policy server): it picks between them, and neither imports it.
 """
@@ -33,8 +40,23 @@ from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
 from r2s_eval.policies.types.registry import read_policy_defaults
 from r2s_eval.serving.keymap import resolve_key_map
 
-__all__ = ["ARMS", "SOURCE_TYPES", "action_map", "check_checkpoint", "check_server", "checkpoint_hash", "for_arm",
-           "is_external", "open_policy", "result_identity", "validate_source_cfg"]
+__all__ = [
+    "ARMS",
+    "SOURCE_TYPES",
+    "VARIANT",
+    "action_map",
+    "check_checkpoint",
+    "check_server",
+    "checkpoint_hash",
+    "for_arm",
+    "is_external",
+    "is_variant",
+    "open_policy",
+    "result_identity",
+    "unwrap_variant",
+    "validate_source_cfg",
+    "validate_variant_cfg",
+]
 
 SOURCE_TYPES = ("checkpoint", "server")
 ARMS = ("real", "sim")
@@ -49,8 +71,40 @@ _PER_TYPE = {kind: _DEFAULTS[kind] for kind in SOURCE_TYPES}
 TRANSPORT_KEYS = frozenset({"path", "host", "port", "api_key_env", "connect_timeout_s", "reply_timeout_s", "connect_retries", "device"})
 
 
+VARIANT = "variant"
+VARIANT_KEYS = ("type", "name", "of", "execution")
+
+
 def is_external(cfg: Mapping) -> bool:
     return cfg.get("type") in SOURCE_TYPES
+
+
+def is_variant(cfg: Mapping) -> bool:
+    return cfg.get("type") == VARIANT
+
+
+def validate_variant_cfg(cfg: Mapping, name: str | None = None) -> dict:
+    """Completed copy of a variant entry: `of` names a candidate, `execution` changes something.
+    Whether `of` is in the line-up is the configuration check's (it sees every entry)."""
+    from r2s_eval.rollout.execution import complete_execution
+
+    who = f"policies.{name or cfg.get('name') or '?'}"
+    unknown = sorted(set(cfg) - set(VARIANT_KEYS))
+    if unknown:
+        raise PolicyConfigError(f"{who} (variant): unknown key(s) {unknown}; allowed: {list(VARIANT_KEYS)}")
+    if not isinstance(cfg.get("of"), str) or not cfg["of"]:
+        raise PolicyConfigError(f"{who}.of: name the candidate whose checkpoint the variant runs, got {cfg.get('of')!r}")
+    return {"type": VARIANT, "name": cfg.get("name"), "of": cfg["of"],
+            "execution": complete_execution(cfg.get("execution"), who)}
+
+
+def unwrap_variant(policy_cfg: Mapping) -> tuple[dict, dict | None]:
+    """A rollout's policy config as (what opens the weights, the execution change or None): a
+    variant's rollout config holds its base's under `weights` (the workflow's candidate identity,
+    ``{"type": "variant", "of": name, "weights": <the base's>, "execution": ...}``)."""
+    if is_variant(policy_cfg):
+        return dict(policy_cfg["weights"]), dict(policy_cfg["execution"])
+    return dict(policy_cfg), None
 
 
 def validate_source_cfg(cfg: Mapping, name: str | None = None) -> dict:

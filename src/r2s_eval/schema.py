@@ -135,10 +135,17 @@ def _twin_magnitudes() -> type:
 
 def _check_policy(name: str, entry: dict) -> dict:
     from r2s_eval.policies.trained_config import validate_policy_cfg
-    from r2s_eval.policy_sources import is_external, validate_source_cfg
+    from r2s_eval.policy_sources import (
+        is_external,
+        is_variant,
+        validate_source_cfg,
+        validate_variant_cfg,
+    )
 
     if is_external(entry):
         return validate_source_cfg(entry, name)
+    if is_variant(entry):
+        return validate_variant_cfg(entry, name)
     return validate_policy_cfg(dict(entry, name=name))
 
 
@@ -146,7 +153,7 @@ def _policy_schema(entry: dict) -> type | None:
     from r2s_eval.policies.types import SUPPORTED_TYPES
 
     kind = entry.get("type")
-    return {"checkpoint": CheckpointPolicy, "server": ServerPolicy}.get(kind) or (
+    return {"checkpoint": CheckpointPolicy, "server": ServerPolicy, "variant": VariantPolicy}.get(kind) or (
         TrainedPolicy if kind in SUPPORTED_TYPES else None)
 
 
@@ -457,6 +464,13 @@ class OverallRanking(Figure):
 
 
 @dataclass
+class StabilityReport(Figure):
+    decimals: Count
+    real_color: str
+    judge_markers: Annotated[list[str], NonEmpty()]
+
+
+@dataclass
 class SecondsPerTrial:
     execution: NonNegative
     reset: NonNegative
@@ -505,6 +519,7 @@ class Report:
     fidelity: FidelityReport
     case_study: CaseStudy
     results_browser: ResultsBrowser
+    stability: StabilityReport
 
 
 @dataclass
@@ -527,6 +542,16 @@ class Ablation:
 @dataclass
 class Fidelity:
     ablation: Ablation
+
+
+@dataclass
+class Stability:
+    """The evaluation repeated on disjoint blocks of inits (r2s_eval.stats.stability); 0: off."""
+
+    repetitions: Annotated[int, Range(min=0)]
+    real_trials_per_task: PositiveInt
+    trials_curve: Annotated[list[PositiveInt], NonEmpty()]
+    truth_z: Positive
 
 
 LiberoCamera = Literal["agentview", "robot0_eye_in_hand"]
@@ -671,6 +696,37 @@ class ServerPolicy(ExternalPolicy):
     connect_retries: Count = optional(_SOURCE_DEFAULTS)
 
 
+_EXECUTION = "r2s_eval.rollout.execution"
+
+
+@dataclass
+class Hesitation:
+    """Stops and restarts: after every `every_steps` commands, hold the last for `pause_steps`."""
+
+    every_steps: PositiveInt
+    pause_steps: PositiveInt
+
+
+@dataclass
+class Execution:
+    """How a variant's commands change on their way to the robot (r2s_eval.rollout.execution)."""
+
+    action_noise_std: NonNegative = optional(_EXECUTION)
+    hesitate: Hesitation | None = optional(_EXECUTION)
+    gripper_delay_steps: Count = optional(_EXECUTION)
+    lowpass: Annotated[float, Range(0, 1, open_max=True)] = optional(_EXECUTION)
+
+
+@dataclass
+class VariantPolicy:
+    """Another candidate's checkpoint run with an execution change: planted quality."""
+
+    type: Literal["variant"]
+    of: str  # a candidate of the line-up that is not a variant (checked with the line-up)
+    execution: Execution
+    name: str | None = optional("r2s_eval.policy_sources")
+
+
 @dataclass
 class Config:
     """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
@@ -692,6 +748,7 @@ class Config:
     report: Report
     annotate: Annotate
     fidelity: Fidelity
+    stability: Stability
     libero: Libero | None = optional("LIBERO experiments compose it (conf/libero); the real-to-sim setting has none")
 
 
@@ -892,8 +949,8 @@ def _camera_calibration_problems(cfg: dict, robot) -> list[Problem]:
 
 def _cross_problems(cfg: dict) -> list[Problem]:
     """Contradictions between groups (run once every group has passed its own schema)."""
-    from r2s_eval.sim.reading import WorldError
     from r2s_eval.sim.assembly import load_world
+    from r2s_eval.sim.reading import WorldError
 
     problems: list[Problem] = []
     real, world = cfg["real"], cfg["world"]
@@ -949,7 +1006,9 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("rollout.video_fps", f"must divide the control rate ({control_hz} Hz): the video "
                                                      f"keeps every k-th control step, got {rollout['video_fps']}"))
     trained = {name: p for name, entry in cfg["policies"].items()
-               if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server")}
+               if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server", "variant")}
+    problems += _variant_problems(cfg["policies"])
+    problems += _stability_problems(cfg)
     for i, name in enumerate(cfg["fidelity"]["ablation"]["policies"]):
         if name not in trained:
             problems.append(Problem(f"fidelity.ablation.policies[{i}]", f"must be a candidate trained here "
@@ -973,6 +1032,45 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("report.judge_audit.planted_order",
                                 f"names {strangers}, not candidates of this line-up {sorted(cfg['policies'])}; "
                                 f"list the line-up's planted order (best first) or set it to null"))
+    return problems
+
+
+def _stability_problems(cfg: dict) -> list[Problem]:
+    """Repetitions need the twin (its other trials are the truth) and blocks of inits large
+    enough for the real trials asked."""
+    k = cfg["stability"]["repetitions"]
+    if not k:
+        return []
+    if k == 1:
+        return [Problem("stability.repetitions", "must be 0 (off) or at least 2, got 1")]
+    if cfg["real"]["source"] != "twin" or cfg.get("libero") is not None:
+        return [Problem("stability.repetitions", "needs real.source twin: the twin's trials of the other "
+                                                 "repetitions are the truth (set stability.repetitions=0)")]
+    per_block = cfg["rollout"]["inits_per_task"] // k
+    wanted = max(cfg["stability"]["real_trials_per_task"], *cfg["stability"]["trials_curve"])
+    problems = []
+    if per_block < wanted:
+        problems.append(Problem("stability.repetitions", f"{k} repetitions of rollout.inits_per_task "
+                                                         f"{cfg['rollout']['inits_per_task']} leave {per_block} inits per "
+                                                         f"task each, fewer than the {wanted} real trials asked"))
+    real_inits = cfg["rollout"]["real_inits_per_task"]
+    if real_inits is not None and real_inits < k * per_block:
+        problems.append(Problem("rollout.real_inits_per_task", f"the repetitions need real trials on all "
+                                                               f"{k * per_block} inits per task (null), got {real_inits}"))
+    return problems
+
+
+def _variant_problems(policies: dict) -> list[Problem]:
+    """A variant runs a candidate of the same line-up that has weights of its own."""
+    problems = []
+    for name, entry in policies.items():
+        if entry.get("type") != "variant":
+            continue
+        base = entry.get("of")
+        if base not in policies or policies[base].get("type") == "variant":
+            others = sorted(p for p, e in policies.items() if e.get("type") != "variant")
+            problems.append(Problem(f"policies.{name}.of", f"must name a candidate of this line-up that is not a "
+                                                           f"variant {others}, got {base!r}"))
     return problems
 
 

@@ -19,7 +19,9 @@ def test_experiments_compose():
     smoke = compose_config(CONF, "smoke")
     demo = compose_config(CONF, "demo")
     assert smoke["teleop"]["episodes_per_task"] < demo["teleop"]["episodes_per_task"]
-    assert set(smoke["policies"]) == {"act", "act_subset", "act_weak"}
+    # The smoke's line-up adds a planted-quality variant of act (act's weights, stops and restarts).
+    assert set(smoke["policies"]) == {"act", "act_subset", "act_weak", "act_hesitant"}
+    assert smoke["policies"]["act_hesitant"]["of"] == "act" and smoke["stability"]["repetitions"] == 2
     # The demo's middle policy has a cut step budget; each line-up's planted order names its own.
     assert set(demo["policies"]) == {"act", "act_short", "act_weak"}
     assert demo["report"]["judge_audit"]["planted_order"] == ["act", "act_short", "act_weak"]

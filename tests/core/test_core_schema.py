@@ -173,7 +173,7 @@ def test_a_missing_group_option_is_a_config_error():
 def test_every_group_has_a_schema():
     top = {p for p in known_paths() if "." not in p}
     assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
-            "compare", "stats", "report", "annotate", "fidelity", "tasks", "seed", "libero"} == top
+            "compare", "stats", "report", "annotate", "fidelity", "stability", "tasks", "seed", "libero"} == top
 
 
 def _problem_lines(err: pytest.ExceptionInfo) -> list[str]:
@@ -243,7 +243,7 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
 
     data, trials = tmp_path / "my_teleop", tmp_path / "trials.csv"
     cfg = compose_config(CONF, "smoke", ["real=dataset", f"real.dataset_root={data}", f"real.reference_csv={trials}",
-                                         "fidelity.ablation.policies=[]"])
+                                         "fidelity.ablation.policies=[]", "stability.repetitions=0"])
     with pytest.raises(ConfigError) as err:
         missing_inputs(cfg)
     assert _problem_lines(err) == [

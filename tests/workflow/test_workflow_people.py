@@ -26,7 +26,7 @@ from tests.helpers.people import (
 from .conftest import planned_jobs, snakemake
 
 pytestmark = pytest.mark.slow
-LINE_UP = ["act", "act_subset", "act_weak"]  # the smoke line-up, best first by construction
+LINE_UP = ["act", "act_hesitant", "act_subset", "act_weak"]  # the smoke line-up, best first by construction
 
 
 @pytest.fixture(scope="module")

@@ -41,7 +41,8 @@ def test_failed_ingest_lets_no_training_run(tmp_path):
     reference = tmp_path / "reference.csv"
     reference.write_text("policy,task,trials,successes\n")
     overrides = ["real=dataset", f"real.dataset_root='{data}'",
-                 f"real.reference_csv='{reference}'", "fidelity.ablation.policies=[]"]
+                 f"real.reference_csv='{reference}'", "fidelity.ablation.policies=[]",
+                 "stability.repetitions=0"]
     run = tmp_path / "run"
     targets = ("results/train/real/act", "results/train/sim/act")
 
@@ -66,7 +67,7 @@ def test_a_lab_without_a_twin_cross_evaluates_its_real_checkpoints_in_the_sim(tm
     reference = tmp_path / "reference.csv"
     reference.write_text("policy,task,trials,successes\n")
     overrides = ["real=dataset", f"real.dataset_root='{data}'", f"real.reference_csv='{reference}'",
-                 "fidelity.ablation.policies=[]", "+policies.act.seeds=2"]
+                 "fidelity.ablation.policies=[]", "stability.repetitions=0", "+policies.act.seeds=2"]
     plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/fidelity_table.tex", overrides=overrides).stdout)
     by_rule = {}
     for rule, wildcards in plan:

@@ -14,6 +14,7 @@ pytestmark = pytest.mark.slow
 
 # Reports drawn from the Bradley-Terry fits, and those drawn from the verdicts themselves.
 FIT_REPORTS = {"bt_scores_table", "bt_convergence", "overall_ranking"}
+SMOKE_LINE_UP = ("act", "act_subset", "act_weak", "act_hesitant")  # act_hesitant: act's weights, planted stops
 VERDICT_REPORTS = {"win_rate_matrix", "case_study"}
 
 
@@ -26,7 +27,7 @@ def test_report_has_real_numbers(smoke_run):
     ranking = (smoke_run.workdir / "reports" / "ranking.txt").read_text()
     assert "act_weak" in ranking and "real success %" in ranking
     reference = pd.read_parquet(smoke_run.workdir / "results" / "reference" / "success.parquet")
-    assert set(reference["policy"]) == {"act", "act_subset", "act_weak"}
+    assert set(reference["policy"]) == set(SMOKE_LINE_UP)
     assert (reference["trials"] > 0).all()
     # Six rollouts per policy cannot order the policies significantly (the demo's reference is
     # where orderings are judged); what must hold is that the reference is exactly what the
@@ -49,7 +50,7 @@ def test_each_stage_contract(smoke_run):
     replay = pd.read_parquet(results / "replay" / "log.parquet")
     assert replay["attempts"].between(1, 9).all() and replay["success"].any()
     for arm in ("real", "sim"):
-        for policy in ("act", "act_subset", "act_weak"):
+        for policy in SMOKE_LINE_UP:
             folder = results / "rollout" / arm / policy
             episodes = pd.read_parquet(folder / "episodes.parquet")
             assert len(episodes) == 6
@@ -103,8 +104,9 @@ def test_statistics_change_reruns_only_fit_onward(smoke_run):
 def test_judge_change_reruns_describe_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["+judges.kinematic.progress_margin=0.07"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
+    # The repeated evaluations rank from the verdicts too.
     expected = {"describe", "descriptions", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table",
-                "results_browser", *FIT_REPORTS, *VERDICT_REPORTS}
+                "results_browser", "stability", *FIT_REPORTS, *VERDICT_REPORTS}
     assert rules == expected, rules
 
 
@@ -128,8 +130,8 @@ def test_policy_change_reruns_only_that_policy(smoke_run):
 @pytest.mark.parametrize("override", ["rollout.real_inits_per_task=3", "rollout.real_video_size=[64,64]"])
 def test_real_side_change_reruns_only_real_rollouts_onward(smoke_run, override):
     # Only the real arm reads rollout.real_inits_per_task and real_video_size: sim rollouts and
-    # judging stay.
-    proc = snakemake(smoke_run.workdir, "-n", overrides=[override])
+    # judging stay. (Fewer real trials than inits leave the repetitions without their truth.)
+    proc = snakemake(smoke_run.workdir, "-n", overrides=[override, "stability.repetitions=0"])
     jobs = planned_jobs(proc.stdout)
     assert {wc.get("arm") for rule, wc in jobs if rule == "rollout"} == {"real"}, jobs
     assert not {rule for rule, _ in jobs} & {"train", "rollout_inits", "compare_pairs", "describe", "judge_pairs", "fit"}
@@ -140,7 +142,7 @@ def test_receding_horizon_change_reruns_rollouts_not_training(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.horizon.execute=4"])
     jobs = planned_jobs(proc.stdout)
     rollouts = {(wc["arm"], wc["policy"]) for rule, wc in jobs if rule == "rollout"}
-    assert rollouts == {(arm, p) for arm in ("real", "sim") for p in ("act", "act_subset", "act_weak")}, rollouts
+    assert rollouts == {(arm, p) for arm in ("real", "sim") for p in SMOKE_LINE_UP}, rollouts
     assert not {rule for rule, _ in jobs} & {"train", "teleop", "ingest", "replay", "rollout_inits"}
 
 
@@ -218,7 +220,7 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
 
     rollouts = sorted((smoke_run.workdir / "results" / "rollout" / "sim").glob("act*"))
     episodes = load_episodes([str(d) for d in rollouts if d.is_dir()])
-    assert len(episodes) == 18 and episodes["length"].nunique() > 1  # lengths differ, requests must not
+    assert len(episodes) == 24 and episodes["length"].nunique() > 1  # lengths differ, requests must not
     for video_input in ("frames", "video"):
         with ChatServer() as server:
             judge = make_judge({"backend": "openai", "base_url": server.url, "model": "test-vlm",
@@ -230,6 +232,8 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
             texts = tuple((role, t.replace(episodes["instruction"].iloc[0], "<instruction>")) for role, t in e["texts"])
             videos = tuple(tuple(sorted(v.items())) for v in e["videos"])
             signatures[e["kind"]].add((texts, e["n_images"], videos))
+            # Nor do the planted variant's name or its execution change reach the judge.
+            assert not any(secret in t for _, t in e["texts"] for secret in ("act_hesitant", "hesitate", "variant"))
         assert sum(1 for e in server.log if e["kind"] == "describe") == len(episodes)
         assert {k: len(v) for k, v in signatures.items()} == {"describe": 1}, video_input
 
@@ -237,7 +241,7 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
 def test_shuffled_label_control_is_flat_where_the_real_ranking_is_not(smoke_run):
     audit = json.loads((smoke_run.workdir / "results" / "audit" / "kinematic.json").read_text())
     control = audit["shuffled_label_control"]
-    assert control["n_permutations"] >= 10 and set(control["policies"]) == {"act", "act_subset", "act_weak"}
+    assert control["n_permutations"] >= 10 and set(control["policies"]) == set(SMOKE_LINE_UP)
 
     def spread(fit):
         return max(fit["scores"].values()) - min(fit["scores"].values())
@@ -258,3 +262,35 @@ def test_a_second_run_in_a_fresh_directory_gives_the_same_bytes(smoke_run, tmp_p
     second = tmp_path / "second"
     snakemake(second, "-j", "2")
     assert_same_outputs(smoke_run.workdir, second)
+
+
+def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_disjoint_inits(smoke_run):
+    results = smoke_run.workdir / "results"
+    for arm in ("sim", "real"):
+        base = pd.read_parquet(results / "rollout" / arm / "act" / "episodes.parquet")
+        variant = pd.read_parquet(results / "rollout" / arm / "act_hesitant" / "episodes.parquet")
+        # The same initial configurations and episode seeds, other (opaque) episode ids.
+        assert list(variant["init_id"]) == list(base["init_id"]) and list(variant["seed"]) == list(base["seed"])
+        assert not set(variant["episode_id"]) & set(base["episode_id"])
+        for ep in variant.itertuples():
+            actions = pd.read_parquet(results / "rollout" / arm / "act_hesitant" / ep.trajectory_path)["action"]
+            held = [a == b for a, b in zip(actions.map(tuple), actions.map(tuple).iloc[1:])]
+            # Stops: after every 10 commands the last is held for 3 more control steps.
+            if ep.length > 13:
+                assert held[9:12] == [True] * 3, (ep.episode_id, held[:15])
+    audit = json.loads((results / "audit" / "kinematic.json").read_text())
+    [card] = audit["planted_quality"]
+    assert (card["variant"], card["clean"]) == ("act_hesitant", "act") and card["n_pair_verdicts"] == 30
+    assert card["n_pairs"] >= 1 and "bt_separated" in card and "success_overlap" in card
+    assert "act\\_hesitant vs act" in (smoke_run.workdir / "reports" / "judge_card_table.tex").read_text()
+    summary = json.loads((results / "stability" / "summary.json").read_text())
+    assert summary["repetitions"] == 2 and summary["inits_per_repetition_and_task"] == 3
+    assert set(summary["evaluations"]) == {"real 1", "real 3", "kinematic", "video"}
+    assert summary["behind_each_repetition"]["sim_rollouts_per_policy"] == 3
+    assert "act vs act_hesitant" in summary["truth"]["adjacent_pairs"]
+    assert (smoke_run.workdir / "reports" / "stability.png").stat().st_size > 0
+    # New weights for act: its variant's rollouts rerun with it, nothing of the variant is trained.
+    jobs = planned_jobs(snakemake(smoke_run.workdir, "-n", overrides=["policies.act.lr=0.0009"]).stdout)
+    assert {("rollout", arm) for arm in ("sim", "real")} <= {(r, wc.get("arm")) for r, wc in jobs
+                                                            if wc.get("policy") == "act_hesitant"}
+    assert not [wc for r, wc in jobs if r in ("train", "train_replicate") and wc.get("policy") == "act_hesitant"]

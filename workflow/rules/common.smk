@@ -16,8 +16,10 @@ from r2s_eval.policy_sources import (
     checkpoint_hash,
     for_arm,
     is_external,
+    is_variant,
     result_identity,
     validate_source_cfg,
+    validate_variant_cfg,
 )
 from r2s_eval.judge.base import stage_defaults, transport_keys
 from r2s_eval.libero import ACTION_DIM as LIBERO_ACTION_DIM
@@ -68,9 +70,17 @@ class _ResumingWorkflow(type(workflow)):
 # are real-to-sim.
 LIBERO = CFG.get("libero") is not None
 POLICIES = sorted(CFG["policies"])
+# A variant runs another candidate's weights with an execution change (planted quality): never trained.
+VARIANT_CFG = {p: validate_variant_cfg(CFG["policies"][p], p) for p in POLICIES if is_variant(CFG["policies"][p])}
+VARIANTS = {p: cfg["of"] for p, cfg in VARIANT_CFG.items()}
 # Candidates trained here; checkpoint and server candidates skip training.
-TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p])]
-EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if p not in TRAINED}
+TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p]) and p not in VARIANTS]
+EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if is_external(CFG["policies"][p])}
+
+
+def weights_of(policy):
+    """The candidate whose weights `policy` runs: its own, or a variant's base's."""
+    return VARIANTS.get(policy, policy)
 ARMS = ["sim"] if LIBERO else ["real", "sim"]
 
 
@@ -153,7 +163,10 @@ CHECKPOINT_HASH_MEMO = "results/.cache/checkpoint_hashes.json"
 
 def candidate_identity(policy, arm):
     """What decides a candidate's rollouts: its type, or a checkpoint's content, or a server's
-    config without its address."""
+    config without its address; a variant's: its base's and its execution change."""
+    if policy in VARIANTS:
+        return {"type": "variant", "of": VARIANTS[policy], "weights": candidate_identity(VARIANTS[policy], arm),
+                "execution": VARIANT_CFG[policy]["execution"]}
     if policy in TRAINED:
         return {"type": CFG["policies"][policy]["type"]}
     source = for_arm(EXTERNAL[policy], arm)
@@ -164,6 +177,7 @@ def candidate_identity(policy, arm):
 
 
 def candidate_transport(policy, arm):
+    policy = weights_of(policy)
     if policy in TRAINED:
         return Untracked({})
     source = for_arm(EXTERNAL[policy], arm)

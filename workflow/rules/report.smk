@@ -34,6 +34,10 @@ else:
         *FIDELITY_ABLATION,
         *SHARED_REPORTS,
     ]
+# The evaluation repeated on disjoint blocks of inits (stability.repetitions; the twin's trials are the truth).
+STABILITY = TWIN and CFG["stability"]["repetitions"] >= 2
+if STABILITY:
+    REPORTS += ["reports/stability_table.tex", *expand("reports/stability.{ext}", ext=FIGURE_EXTS)]
 
 
 rule reports:
@@ -71,21 +75,29 @@ rule realsim_success_table:
         " --rollouts {input.rollouts} --out {output} --log {log}"
 
 
+# A line-up with variants (planted quality) also reads the judge's fit and the reference's
+# intervals: are the clean and the variant apart in BT while their success is not?
+PLANTED = ({"fit": "results/fit/{judge}.parquet", "validation": "results/validate/{judge}.json"}
+           if VARIANTS else {})
+
+
 rule judge_audit:
     input:
         verdicts="results/judge/{judge}/verdicts.parquet",
         rollouts=SIM_ROLLOUTS,
         annotations=[HUMAN_ANNOTATIONS] if HUMAN_ANNOTATIONS else [],
+        **PLANTED,
     output:
         "results/audit/{judge}.json",
     params:
-        cfg=stage_params("judge_audit"),
+        cfg=stage_params("judge_audit", **({"planted_variants": VARIANTS} if VARIANTS else {})),
         annotations=f"--annotations {HUMAN_ANNOTATIONS}" if HUMAN_ANNOTATIONS else "",
+        planted=lambda w, input: f"--fit {input.fit} --validation {input.validation}" if VARIANTS else "",
     log:
         "logs/report/judge_audit/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.judge_audit --cfg {params.cfg:q} --judge {wildcards.judge}"
-        " --verdicts {input.verdicts} --rollouts {input.rollouts} {params.annotations}"
+        " --verdicts {input.verdicts} --rollouts {input.rollouts} {params.annotations} {params.planted}"
         " --out {output} --log {log}"
 
 
@@ -275,3 +287,24 @@ rule results_browser:
         "{PY} -m r2s_eval.stages.results_browser --cfg {params.cfg:q} --fits {input.fits}"
         " --validation {input.validation} --audits {input.audits} --verdicts {input.verdicts} {params.descriptions}"
         " --rollouts {input.rollouts} --figures {input.figures} --out {output.page} --media {output.media} --log {log}"
+
+
+if STABILITY:
+
+    rule stability:
+        input:
+            real=expand("results/rollout/real/{policy}", policy=POLICIES),
+            verdicts=expand("results/judge/{judge}/verdicts.parquet", judge=JUDGES),
+        output:
+            summary="results/stability/summary.json",
+            table="reports/stability_table.tex",
+            pdf="reports/stability.pdf",
+            png="reports/stability.png",
+        params:
+            cfg=stage_params("stability", **({"planted_variants": VARIANTS} if VARIANTS else {})),
+        log:
+            "logs/report/stability.log",
+        shell:
+            "{PY} -m r2s_eval.stages.stability --cfg {params.cfg:q} --real-rollouts {input.real}"
+            " --verdicts {input.verdicts} --out {output.summary} --table {output.table}"
+            " --pdf {output.pdf} --png {output.png} --log {log}"

@@ -41,10 +41,10 @@ def _gpu_jobs():
         # In-process candidates run on rollout.device (a checkpoint entry's own device wins);
         # a policy server's model runs wherever the server does.
         "rollout": (("arm", "policy"), [
-            (arm, p) for arm in ARMS for p in POLICIES
-            if p in TRAINED and _on_gpu(CFG["rollout"]["device"])
-            or p in EXTERNAL and EXTERNAL[p]["type"] == "checkpoint"
-            and _on_gpu(for_arm(EXTERNAL[p], arm).get("device") or CFG["rollout"]["device"])
+            (arm, p) for arm in ARMS for p in POLICIES  # a variant's model is its base's
+            if weights_of(p) in TRAINED and _on_gpu(CFG["rollout"]["device"])
+            or weights_of(p) in EXTERNAL and EXTERNAL[weights_of(p)]["type"] == "checkpoint"
+            and _on_gpu(for_arm(EXTERNAL[weights_of(p)], arm).get("device") or CFG["rollout"]["device"])
         ]),
     }
     # The fidelity checks roll out trained candidates only (workflow/rules/fidelity.smk).

@@ -17,8 +17,8 @@ WORLD_PARAMS = {"sim": "results/calib/world_params.json", "real": "results/real/
 
 def rollout_inputs(wildcards):
     inputs = {"inits": "results/rollout/inits.parquet", "world": WORLD_PARAMS[wildcards.arm]}
-    if wildcards.policy in TRAINED:
-        inputs["policy"] = f"results/train/{wildcards.arm}/{wildcards.policy}"
+    if weights_of(wildcards.policy) in TRAINED:  # a variant runs its base's weights
+        inputs["policy"] = f"results/train/{wildcards.arm}/{weights_of(wildcards.policy)}"
     return inputs
 
 

@@ -251,3 +251,39 @@ def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[f
         wrapped = textwrap.fill(caption, int(opts["wrap_chars"]))
         fig.suptitle(f"{title}\n{wrapped}" if caption else title, fontsize=float(opts["font_size"]))
     return fig
+
+
+# ------------------------------------------------------------------- stability
+
+
+def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
+    """Agreement with the truth against the real trials an evaluation spends (per task and
+    policy, after the teleop data): real evaluations at m trials (a line; the repetitions' mean,
+    their range as a band) and each judge's sim ranking at none (a marker with its range)."""
+    cards = summary["evaluations"]
+    real = sorted((int(name.split()[1]), card) for name, card in cards.items() if name.startswith("real "))
+    judges = [(name, card) for name, card in cards.items() if not name.startswith("real ")]
+
+    def spread(card):
+        shares = [100 * c["share"] for c in card["per_repetition"] if c["share"] is not None]
+        return (np.mean(shares), min(shares), max(shares)) if shares else (np.nan, np.nan, np.nan)
+
+    with matplotlib.rc_context(_rc(opts)):
+        fig = _figure(opts["width_in"], opts["height_in"])
+        ax = fig.subplots()
+        m = np.array([k for k, _ in real], dtype=float)
+        mean, low, high = (np.array(v) for v in zip(*(spread(card) for _, card in real))) if real else ([],) * 3
+        ax.plot(m, mean, "o-", color=opts["real_color"], label="real evaluation")
+        ax.fill_between(m, low, high, color=opts["real_color"], alpha=0.2, linewidth=0)
+        for k, (name, card) in enumerate(judges):
+            avg, lo, hi = spread(card)
+            ax.errorbar([0], [avg], yerr=[[avg - lo], [hi - avg]], fmt=opts["judge_markers"][k % len(opts["judge_markers"])],
+                        capsize=3, label=f"r2s-eval, {name} judge")
+        ax.set_xlabel("real trials per task and policy")
+        ax.set_ylabel("pairs ordered as the truth (%)")
+        ax.set_ylim(0, 102)
+        ax.set_xlim(-1, (m.max() if len(m) else 20) + 1)
+        ax.set_title(f"{summary['repetitions']} repetitions, {len(summary['policies'])} candidates")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right", fontsize="small")
+    return fig

@@ -7,7 +7,7 @@ hand-made rows. Rates are fractions in [0, 1]; the tables turn them into percent
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -281,6 +281,41 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
     return out
 
 
+def planted_quality(verdicts: pd.DataFrame, success: dict[str, bool], variants: Mapping[str, str], *,
+                    fit: pd.DataFrame | None = None, reference_ci: Mapping[str, tuple] | None = None,
+                    n_boot: int, level: float, seed: int) -> list[dict]:
+    """Per variant (``variants``: {variant: the candidate whose weights it runs, the clean one}),
+    on the comparisons of the two whose rollouts had the same sim outcome: the share of verdicts
+    preferring the clean run, with its unit-bootstrap interval. With ``fit`` (the judge's BT
+    table), whether the two scores' intervals at the last checkpoint are apart with the clean one
+    above (``bt_separated``); with ``reference_ci`` ({policy: (low, high)}, the reference's
+    success intervals), whether those overlap (``success_overlap``): a quality difference the
+    judge sees where success cannot tell the two apart."""
+    pi, pj = verdicts["policy_i"].astype(str).to_numpy(), verdicts["policy_j"].astype(str).to_numpy()
+    same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+                                                               verdicts["episode_b"].astype(str))], dtype=bool)
+    winner = verdicts["winner"].astype(str).to_numpy()
+    units = _units(verdicts)
+    last = last_checkpoint(fit) if fit is not None else None
+    out = []
+    for variant, clean in sorted(variants.items()):
+        pair = ((pi == variant) & (pj == clean)) | ((pi == clean) & (pj == variant))
+        keep = pair & same
+        card = unit_share(winner[keep] == clean, [u for u, k in zip(units, keep) if k], n_boot=n_boot, level=level,
+                          seed=seed)
+        card.update(variant=variant, clean=clean, n_pair_verdicts=int(pair.sum()))
+        if last is not None and {variant, clean} <= set(last.index):
+            card.update(bt_clean=[float(last.loc[clean, c]) for c in ("score", "ci_low", "ci_high")],
+                        bt_variant=[float(last.loc[variant, c]) for c in ("score", "ci_low", "ci_high")])
+            card["bt_separated"] = bool(last.loc[clean, "ci_low"] > last.loc[variant, "ci_high"])
+        if reference_ci and variant in reference_ci and clean in reference_ci:
+            (lo_c, hi_c), (lo_v, hi_v) = reference_ci[clean], reference_ci[variant]
+            card["success_ci_clean"], card["success_ci_variant"] = [lo_c, hi_c], [lo_v, hi_v]
+            card["success_overlap"] = bool(max(lo_c, lo_v) <= min(hi_c, hi_v))
+        out.append(card)
+    return out
+
+
 def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int, n_boot: int, level: float,
                     seed: int) -> dict | None:
     """The shuffled-label control of the BT fit (:func:`~r2s_eval.stats.shuffled_label_control`)
@@ -300,6 +335,8 @@ def shuffled_labels(verdicts: pd.DataFrame, *, n_permutations: int, n_boot: int,
 def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotations: pd.DataFrame | None = None,
                 annotations_source: str = "annotations", swapped_letter_columns: Sequence[str] = (),
                 swapped_winner_columns: Sequence[str] = (), planted_order: Sequence[str] | None = None,
+                planted_variants: Mapping[str, str] | None = None, fit: pd.DataFrame | None = None,
+                reference_ci: Mapping[str, tuple] | None = None,
                 n_boot: int, ci_level: float, seed: int, shuffled_permutations: int) -> dict:
     """How far one judge can be trusted beyond the ranking metrics: its report card.
 
@@ -308,7 +345,8 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
     with human annotators where annotations are given (``human_agreement``: the share, and
     ``human``: the annotators' own agreement and everything by outcome category), agreement with the sim outcomes on
     mixed-outcome pairs (``outcome_agreement``), agreement with a planted policy order on
-    same-outcome pairs (``planted_order_agreement``, None without ``planted_order``) and the
+    same-outcome pairs (``planted_order_agreement``, None without ``planted_order``), planted
+    quality per variant (``planted_quality``: :func:`planted_quality`; empty without variants) and the
     shuffled-label control of the BT fit (``shuffled_label_control``). Missing quantities
     are None; each share comes with the counts it rests on.
     """
@@ -336,6 +374,8 @@ def judge_audit(verdicts: pd.DataFrame, sim_episodes: pd.DataFrame, *, annotatio
         out.update({"human_agreement": None, "n_annotated_pairs": 0, "n_annotations": 0, "human": None})
     out["outcome_agreement"] = outcome_agreement(verdicts, success, **shares)
     out["planted_order_agreement"] = planted_order_agreement(verdicts, success, planted_order, **shares)
+    out["planted_quality"] = planted_quality(verdicts, success, planted_variants or {}, fit=fit,
+                                             reference_ci=reference_ci, **shares)
     out["shuffled_label_control"] = shuffled_labels(verdicts, n_permutations=shuffled_permutations, **shares)
     return out
 

@@ -377,7 +377,32 @@ def judge_card_table(audits: Mapping[str, dict], decimals: int = 1) -> str:
         r"Planted order: verdicts following the line-up's built-in order where both had the same outcome.",
         r"Shuffled flat: share of label-permuted BT fits whose CIs all contain 100/$n$ (permutations).",
     ]
-    return _tabular("l" + "c" * 5, header, body, notes=notes)
+    return _tabular("l" + "c" * 5, header, body, notes=notes) + planted_quality_table(audits, decimals, level)
+
+
+def _yes_no(value) -> str:
+    return DASH if value is None else ("yes" if value else "no")
+
+
+def planted_quality_table(audits: Mapping[str, dict], decimals: int = 1, level: str = "95\\%") -> str:
+    """Per judge and variant (a candidate's weights run with an execution change): the share of
+    same-outcome verdicts preferring the clean run [CI] (pairs), whether the BT intervals put the
+    clean run above the variant, whether their success intervals overlap. Empty without variants."""
+    body = []
+    for judge in sorted(audits):
+        for card in audits[judge].get("planted_quality") or ():
+            body.append(_row([latex_escape(judge), latex_escape(f"{card['variant']} vs {card['clean']}"),
+                              _share_cell(card, decimals), _yes_no(card.get("bt_separated")),
+                              _yes_no(card.get("success_overlap"))]))
+    if not body:
+        return ""
+    header = [_row(["Judge", "Variant vs clean", r"Prefers clean$\uparrow$", "BT apart", "Success overlap"])]
+    notes = [
+        rf"Planted quality: the clean candidate's weights run with an execution change; in \%, {level} CIs over",
+        r"distinct (task, init) units; parentheses: same-outcome pairs. BT apart: the clean run's interval above",
+        r"the variant's; success overlap: their reference success intervals overlap.",
+    ]
+    return "\n" + _tabular("llccc", header, body, notes=notes)
 
 
 def validation_report(validations: Mapping[str, dict], audits: Mapping[str, dict], fits: Mapping[str, pd.DataFrame],
@@ -393,3 +418,34 @@ def validation_report(validations: Mapping[str, dict], audits: Mapping[str, dict
     ranking = ranking_text(fits, reference_rates(reference).to_dict(), reference_interval(validations),
                            planted_order=planted_order, reference_name=reference_name, adaptive=adaptive)
     return table, ranking
+
+
+def stability_table(summary: Mapping, decimals: int = 1) -> str:
+    """The repeated evaluations side by side (r2s_eval.stages.stability): per evaluation (a real
+    one at m trials per task, each judge), how often its ranking equals the truth, its mean
+    Kendall distance to it, and each adjacent pair's flip rate over the repetitions; in percent
+    but the distance."""
+    names = list(summary["evaluations"])
+    cards = summary["evaluations"]
+    pct = lambda v: _pct(v, decimals)  # noqa: E731
+    body = [
+        _row(["Ranking equals the truth", *(pct(cards[n]["equal_share"]) for n in names)]),
+        _row(["Kendall distance (pairs)", *(DASH if cards[n]["kendall_distance"] is None
+                                            else f"{cards[n]['kendall_distance']:.{decimals}f}" for n in names)]),
+        _row(["Pairs ordered as the truth", *(pct(cards[n]["agreement"]) for n in names)]),
+    ]
+    flips = [_row([latex_escape(pair), *(pct(cards[n]["pairs"][pair]["flip_rate"]) for n in names)])
+             for pair in summary["truth"]["adjacent_pairs"]]
+    header = [_row(["", *(latex_escape(n if not n.startswith("real ") else f"real, {n[5:]} trials/task")
+                          for n in names)])]
+    behind = summary["behind_each_repetition"]
+    notes = [
+        rf"{summary['repetitions']} repetitions, disjoint initial configurations, checkpoints fixed; each rests on "
+        rf"{behind['sim_rollouts_per_policy']} sim rollouts per policy",
+        rf"(the judges) or {summary['tasks']} tasks $\times$ m real trials per policy; the truth on "
+        rf"{summary['truth']['real_trials_per_policy']} other real trials per policy and the planted pairs.",
+        r"Flip rate: share of repetitions on the minority side of the pair's order (0: always the same; 50: a coin).",
+    ]
+    return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",
+                                                                             *[""] * len(names)]), *flips],
+                    notes=notes)

@@ -29,7 +29,14 @@ from dataclasses import dataclass, field
 import mujoco
 
 from r2s_eval.horizon import Horizon
-from r2s_eval.policies.interface import STATE_KEY, TASK_KEY, ChunkPolicy, PolicyError, RecedingHorizon
+from r2s_eval.policies.interface import (
+    STATE_KEY,
+    TASK_KEY,
+    ChunkPolicy,
+    PolicyError,
+    RecedingHorizon,
+)
+from r2s_eval.rollout.execution import ExecutedCommands, Execution
 from r2s_eval.rollout.loop import EpisodeRecorder
 from r2s_eval.sim import TabletopEnv
 
@@ -117,6 +124,7 @@ class _Lane:
         self.planned: PlannedEpisode | None = None
         self.episode: EpisodeRecorder | None = None
         self.runner: RecedingHorizon | None = None
+        self.commands: ExecutedCommands | None = None  # a variant's execution change
         self.sink = None  # what the episode's frames go to (its video writer)
         self.finished = False
 
@@ -156,12 +164,14 @@ def run_batched(
     threads: int = 1,
     success_hold_steps: int = 3,
     frame_every: int = 1,
+    execution: Execution | None = None,
 ) -> None:
     """Run every episode of `planned`, up to `batch_episodes` at a time.
 
     `open_episode(planned)` returns the sink the episode's frames go to (its `add(frame)` is
     called from a worker thread); `on_finished(planned, recorder, policy_stats, sink)` writes a
     finished episode (from a worker thread). `policy` is called from this thread only.
+    `execution`: a variant's change of the commands on their way to the robot (None: none).
     """
     lanes = [_Lane(i) for i in range(max(1, int(batch_episodes)))]
     workers = _Workers(min(int(threads), len(lanes)))
@@ -191,7 +201,8 @@ def run_batched(
             lane.episode.render_observation()
 
     def advance(lane: _Lane) -> None:  # on the lane's worker
-        lane.episode.step(lane.runner.pop_action())
+        pop = lane.runner.pop_action
+        lane.episode.step(pop() if lane.commands is None else lane.commands.next(pop))
         if lane.episode.done:
             on_finished(lane.planned, lane.episode, lane.runner.stats, lane.sink)
             lane.finished = True
@@ -220,6 +231,7 @@ def run_batched(
                     try:
                         lane.runner = RecedingHorizon(policy, horizon, action_map,
                                                       slot=lane.planned.slot, seed=lane.planned.seed)
+                        lane.commands = None if execution is None else execution.start(lane.planned.seed)
                     except BaseException as exc:
                         raise _named(exc, [lane.planned], arm)
             active = [lane for lane in lanes if lane.planned is not None]
@@ -231,7 +243,7 @@ def run_batched(
                     policy.release(lane.planned.slot)
                     log.info("%s init %d: %s in %d steps", lane.planned.task, lane.planned.init_id,
                              "success" if lane.episode.success else "failure", len(lane.episode.rows))
-                    lane.planned = lane.episode = lane.runner = lane.sink = None
+                    lane.planned = lane.episode = lane.runner = lane.commands = lane.sink = None
             step += 1
     except BaseException:
         for lane in lanes:  # episodes in flight are dropped; finished ones are already written

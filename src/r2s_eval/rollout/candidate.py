@@ -24,11 +24,22 @@ import pandas as pd
 from tqdm import tqdm
 
 from r2s_eval.horizon import Horizon
-from r2s_eval.policy_sources import action_map, checkpoint_hash, is_external, open_policy
+from r2s_eval.policy_sources import (
+    action_map,
+    checkpoint_hash,
+    is_external,
+    open_policy,
+    unwrap_variant,
+)
 from r2s_eval.rollout.batch import EnvPool, PlannedEpisode, run_batched
+from r2s_eval.rollout.episode_store import (
+    EpisodeFolder,
+    collect_episodes,
+    episode_store,
+)
+from r2s_eval.rollout.execution import Execution
 from r2s_eval.rollout.inits import poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
-from r2s_eval.rollout.episode_store import EpisodeFolder, collect_episodes, episode_store
 from r2s_eval.sim import get_task, load_world_params, world_robot
 from r2s_eval.sim.build import make_env
 from r2s_eval.utils.io import config_hash, file_sha256
@@ -61,6 +72,7 @@ def episodes_identity(cfg: dict, policy_cfg: dict, policy, inits: str, world_par
     """What the finished episodes depend on: config (``cfg``: everything the job was configured
     with), inits, world, and the policy's content."""
     parts = {"cfg": cfg, "inits": file_sha256(inits), "twin": file_sha256(world_params) if world_params else None}
+    policy_cfg, _ = unwrap_variant(policy_cfg)  # a variant's weights are its base's
     if not is_external(policy_cfg):
         parts["policy"] = checkpoint_hash(trained_dir)
     elif policy_cfg["type"] == "server":
@@ -85,8 +97,9 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     whose data trained the checkpoint, where it is not ``arm`` (a cross-evaluation: its rows say so).
 
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
-    ``policy_cfg``: what decides the candidate's rollouts; ``trained_dir``: its folder when
-    trained here; ``transport``: where a checkpoint or server lies (kept out of the episodes'
+    ``policy_cfg``: what decides the candidate's rollouts (a variant's: its base's under `weights`
+    and its execution change, ``r2s_eval.rollout.execution``); ``trained_dir``: its folder when
+    trained here (a variant's: its base's); ``transport``: where a checkpoint or server lies (kept out of the episodes'
     identity: moving it changes no result); ``batch_episodes``: episodes stepped side by side;
     ``threads``: worker threads for physics, rendering and video (model calls stay on one:
     neither changes a result, so neither is part of the identity either).
@@ -97,7 +110,12 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
         cfg["trained_on"] = trained_on
     params = load_world_params(world_params) if world_params else None
     table = select_inits(pd.read_parquet(inits), arm, rollout.get("real_inits_per_task"))
-    source = {**policy_cfg, **(transport or {})}
+    weights_cfg, execution_cfg = unwrap_variant(policy_cfg)
+    robot = world_robot(world)
+    execution = None if execution_cfg is None else Execution.from_config(
+        execution_cfg, joints=[i for i, f in enumerate(robot.features) if f.joint is not None],
+        grippers=[i for i, f in enumerate(robot.features) if f.joint is None])
+    source = {**weights_cfg, **(transport or {})}
     model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"),
                         call_batch=rollout["model_batch"])
     try:
@@ -125,11 +143,11 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
         run_batched(
             model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
             arm=arm, horizon=horizon,
-            action_map=action_map(policy_cfg, world_robot(world).action_dim), max_steps=rollout["max_steps"],
+            action_map=action_map(weights_cfg, robot.action_dim), max_steps=rollout["max_steps"],
             video_camera=rollout["video_camera"], video_size=video_size(rollout, arm),
             open_episode=lambda p: EpisodeFolder(store, p, rollout["video_fps"]), on_finished=finished,
             batch_episodes=batch_episodes, threads=threads,
-            frame_every=video_frame_every(rollout["video_fps"], world_robot(world).control_dt_s),
+            frame_every=video_frame_every(rollout["video_fps"], robot.control_dt_s), execution=execution,
         )
         progress.close()
     finally:

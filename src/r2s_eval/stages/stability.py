@@ -1,0 +1,56 @@
+"""Stage: how stable each ranking is when the evaluation is repeated with fresh initial configurations.
+
+Each task's rollout inits are split into ``stability.repetitions`` disjoint blocks; repetition r
+ranks the candidates from block r alone, the checkpoints fixed: each judge by a Bradley-Terry fit
+of the comparisons of block r's sim rollouts, and a real evaluation by the success of block r's
+first ``stability.real_trials_per_task`` real trials per task and policy (and, for the figure,
+of its first m for each m of ``trials_curve``). The truth of repetition r: planted pairs by
+construction, every other pair by the twin's success over the real trials of the other blocks
+where it is clear (``r2s_eval.stats.stability``). Writes the summary JSON, the table and the
+figure of agreement with the truth against real trials spent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from r2s_eval.report.figures import save_figure, stability_figure
+from r2s_eval.report.tables import stability_table
+from r2s_eval.rollout.episode_store import load_episodes
+from r2s_eval.stages import _cli
+from r2s_eval.stats.stability import stability_summary
+from r2s_eval.utils.io import write_json, write_text
+
+READS = ("stability", "rollout.inits_per_task", "report.stability")  # config paths the --cfg slice holds
+PROVIDED = ("planted_variants",)  # {variant: the candidate whose weights it runs}, from the line-up
+
+
+def main(args) -> None:
+    cfg = args.cfg
+    opts = cfg["stability"]
+    real = load_episodes(args.real_rollouts)
+    verdicts = {Path(path).parent.name: pd.read_parquet(path) for path in args.verdicts}  # <judge>/verdicts.parquet
+    summary = stability_summary(
+        real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
+        real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
+        truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}))
+    write_json(args.out, summary, provenance=True)
+    report = cfg["report.stability"]
+    write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")
+    save_figure(stability_figure(summary, report), args.pdf, args.png, dpi=report["dpi"])
+    for name, card in summary["evaluations"].items():
+        print(f"{name:>12}: equal to the truth {card['equal_share']}, Kendall distance {card['kendall_distance']}, "
+              f"flip rates {[round(p['flip_rate'], 2) for p in card['pairs'].values()]}")
+
+
+if __name__ == "__main__":
+    p = _cli.parser(__doc__)
+    p.add_argument("--real-rollouts", nargs="+", required=True, help="real-side rollout folders, one per policy")
+    p.add_argument("--verdicts", nargs="+", required=True, help="verdicts per judge (results/judge/<judge>/verdicts.parquet)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--table", required=True)
+    p.add_argument("--pdf", required=True)
+    p.add_argument("--png", required=True)
+    _cli.run(main, p)

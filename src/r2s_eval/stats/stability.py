@@ -1,0 +1,184 @@
+"""How stable a ranking is when the evaluation is repeated, against a truth the twin knows.
+
+The evaluation is repeated k times with the checkpoints fixed and fresh initial configurations:
+each task's inits are split into k disjoint blocks, and repetition r uses block r only (its sim
+rollouts, the judges' comparisons of them, and for a real evaluation its first m real trials per
+task). Nothing is shared between repetitions, so their spread is what a lab would see rerunning
+the evaluation.
+
+The truth is a set of pairwise orders (`Order`: +1, the first policy of the pair is better; -1,
+the second; 0, the truth cannot tell). A planted pair (a variant and the candidate whose weights
+it runs) is ordered by construction, the clean one first. Every other pair is ordered by the
+twin's success over many trials where the difference is beyond `z` standard errors; closer pairs
+are undecided and count neither way. The twin's trials behind the truth of repetition r are the
+other repetitions' (kept apart from the real evaluation it judges).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from itertools import combinations
+
+import numpy as np
+import pandas as pd
+
+from r2s_eval.errors import DataError, StatsError
+from r2s_eval.stats.bradley_terry import bt_scores, fit_bradley_terry
+
+Pair = tuple[str, str]  # (a, b), a before b in the line-up's sorted order
+Order = dict[Pair, int]  # +1: a above b, -1: b above a, 0: tied / undecided
+
+
+def pairs_of(policies: Sequence[str]) -> list[Pair]:
+    return list(combinations(sorted(policies), 2))
+
+
+def order_of(scores: Mapping[str, float], tol: float = 1e-9) -> Order:
+    """Every pair's order under ``scores`` (higher is better; equal scores tie)."""
+    return {(a, b): int(np.sign(scores[a] - scores[b])) if abs(scores[a] - scores[b]) > tol else 0
+            for a, b in pairs_of(list(scores))}
+
+
+def success_rates(trials: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """Per policy, the mean over tasks of the per-task success rate, and its standard error
+    (binomial within each task). ``trials``: rows with policy, task, success."""
+    per_task = trials.groupby(["policy", "task"])["success"].agg(["mean", "count"])
+    var = per_task["mean"] * (1 - per_task["mean"]) / per_task["count"]
+    rate = per_task["mean"].groupby(level="policy").mean()
+    tasks = per_task["mean"].groupby(level="policy").size()
+    se = np.sqrt(var.groupby(level="policy").sum()) / tasks
+    return rate, se
+
+
+def truth_order(trials: pd.DataFrame, variants: Mapping[str, str], policies: Sequence[str], z: float) -> Order:
+    """The truth over ``policies``: planted pairs by construction (``variants``: {variant: clean}),
+    the others by the twin's success in ``trials`` where it differs by more than ``z`` standard
+    errors (else 0, undecided)."""
+    rate, se = success_rates(trials)
+    missing = sorted(set(policies) - set(rate.index))
+    if missing:
+        raise StatsError(f"no real trials of {missing} behind the truth")
+    out = {}
+    for a, b in pairs_of(policies):
+        if variants.get(a) == b or variants.get(b) == a:
+            out[(a, b)] = 1 if variants.get(b) == a else -1
+            continue
+        gap = float(rate[a] - rate[b])
+        out[(a, b)] = int(np.sign(gap)) if abs(gap) > z * float(np.hypot(se[a], se[b])) else 0
+    return out
+
+
+def bt_order(verdicts: pd.DataFrame, policies: Sequence[str]) -> tuple[Order, dict[str, float]]:
+    """The order of the Bradley-Terry scores fitted to ``verdicts`` (policy_i, policy_j, winner)."""
+    names = sorted(policies)
+    index = {p: k for k, p in enumerate(names)}
+    wins = np.zeros((len(names), len(names)))
+    for pi, pj, winner in zip(verdicts["policy_i"].astype(str), verdicts["policy_j"].astype(str),
+                              verdicts["winner"].astype(str)):
+        loser = pj if winner == pi else pi
+        wins[index[winner], index[loser]] += 1
+    scores = dict(zip(names, (float(s) for s in bt_scores(fit_bradley_terry(wins, names=names)))))
+    return order_of(scores), scores
+
+
+def agreement(order: Order, truth: Order) -> dict:
+    """How ``order`` stands against ``truth`` on the pairs the truth decides: the share ordered
+    as the truth (a tie counts half), the Kendall distance (pairs against it, a tie a half) and
+    whether the two agree on every decided pair."""
+    decided = [pair for pair, sign in truth.items() if sign]
+    if not decided:
+        return {"decided_pairs": 0, "share": None, "kendall_distance": None, "equal": None}
+    against = sum(1.0 if order[p] == -truth[p] else 0.5 if order[p] == 0 else 0.0 for p in decided)
+    return {"decided_pairs": len(decided), "share": 1 - against / len(decided), "kendall_distance": against,
+            "equal": against == 0}
+
+
+def adjacent_pairs(rate: Mapping[str, float], variants: Mapping[str, str]) -> list[Pair]:
+    """Neighbours in the truth's order: candidates by success, each variant right below the
+    candidate whose weights it runs (where its success would place it above)."""
+    ranked = [p for p in sorted(rate, key=lambda p: (-rate[p], p)) if p not in variants]
+    for variant in sorted(variants, key=lambda v: (-rate[v], v)):
+        clean = variants[variant]
+        below = ranked[ranked.index(clean) + 1:]
+        at = ranked.index(clean) + 1 + next((k for k, p in enumerate(below) if rate[p] < rate[variant]), len(below))
+        ranked.insert(at, variant)
+    return [tuple(sorted(pair)) for pair in zip(ranked, ranked[1:])]
+
+
+def repeated(orders: Sequence[Order], truths: Sequence[Order], pairs: Sequence[Pair]) -> dict:
+    """Over k repetitions (``orders[r]`` judged against ``truths[r]``): how often the ranking
+    equals the truth, the mean Kendall distance and agreement share, and per pair of ``pairs``
+    its flip rate (the share of repetitions on the minority side of that pair's order, a tie
+    counting half to each: 0 = always the same order, 0.5 = a coin) and the share of
+    repetitions ordering it against the truth (where the truth decides it; a tie counts half)."""
+    if len(orders) != len(truths) or not orders:
+        raise StatsError("one truth per repetition, at least one repetition")
+    cards = [agreement(o, t) for o, t in zip(orders, truths)]
+    judged = [c for c in cards if c["share"] is not None]
+    out = {"repetitions": len(orders),
+           "equal_share": float(np.mean([c["equal"] for c in judged])) if judged else None,
+           "kendall_distance": float(np.mean([c["kendall_distance"] for c in judged])) if judged else None,
+           "agreement": float(np.mean([c["share"] for c in judged])) if judged else None,
+           "per_repetition": cards, "pairs": {}}
+    for pair in pairs:
+        signs = np.array([o[pair] for o in orders], dtype=float)
+        above = float(np.sum(signs > 0) + 0.5 * np.sum(signs == 0))
+        decided = [(o[pair], t[pair]) for o, t in zip(orders, truths) if t[pair]]
+        wrong = (float(np.mean([1.0 if s == -t else 0.5 if s == 0 else 0.0 for s, t in decided])) if decided else None)
+        out["pairs"][f"{pair[0]} vs {pair[1]}"] = {
+            "flip_rate": min(above, len(orders) - above) / len(orders), "against_truth": wrong,
+            "truth_decided": len(decided), "first_above": above}
+    return out
+
+
+def blocks(inits_per_task: int, repetitions: int) -> list[range]:
+    """Each repetition's init ids: k disjoint blocks of inits_per_task // k (the rest unused)."""
+    size = inits_per_task // repetitions
+    return [range(r * size, (r + 1) * size) for r in range(repetitions)]
+
+
+def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, inits_per_task: int,
+                      repetitions: int, real_trials_per_task: int, trials_curve, truth_z: float,
+                      variants: dict[str, str]) -> dict:
+    """``real``: every real trial (policy, task, init_id, success); ``verdicts``: per judge its
+    verdicts (policy_i, policy_j, winner, task, init_id)."""
+    policies = sorted(real["policy"].astype(str).unique())
+    parts = blocks(inits_per_task, repetitions)
+    size = len(parts[0])
+    if real_trials_per_task > size or max(trials_curve) > size:
+        raise DataError(f"a repetition has {size} inits per task, fewer than the real trials asked "
+                        f"({real_trials_per_task}, curve up to {max(trials_curve)})")
+    all_rate, _ = success_rates(real)
+    pairs = adjacent_pairs(all_rate.to_dict(), variants)
+    truths, real_orders = [], {m: [] for m in sorted({*trials_curve, real_trials_per_task})}
+    judge_orders = {judge: [] for judge in verdicts}
+    comparisons = {judge: [] for judge in verdicts}
+    for part in parts:
+        inside = real["init_id"].isin(part)
+        truths.append(truth_order(real[~inside], variants, policies, truth_z))
+        for m in real_orders:
+            first = real[real["init_id"].isin(part[:m])]
+            real_orders[m].append(order_of(success_rates(first)[0].to_dict()))
+        for judge, table in verdicts.items():
+            own = table[table["init_id"].astype(int).isin(part)]
+            if own.empty:
+                raise DataError(f"judge {judge}: no comparison from inits {part.start}-{part.stop - 1}")
+            judge_orders[judge].append(bt_order(own, policies)[0])
+            comparisons[judge].append(len(own))
+    evaluations = {f"real {m}": repeated(orders, truths, pairs) for m, orders in real_orders.items()}
+    evaluations.update({judge: repeated(orders, truths, pairs) for judge, orders in judge_orders.items()})
+    tasks = int(real["task"].nunique())
+    return {
+        "repetitions": repetitions, "inits_per_repetition_and_task": size, "tasks": tasks, "policies": policies,
+        "variants": variants, "real_trials_per_task": real_trials_per_task,
+        "truth": {"definition": "planted pairs by construction; others by the twin's success over the other "
+                                f"repetitions' real trials where it differs by more than {truth_z} standard errors",
+                  "real_trials_per_policy": tasks * size * (repetitions - 1),
+                  "success_all_trials": {p: float(all_rate[p]) for p in policies},
+                  "decided_pairs": [sum(1 for s in t.values() if s) for t in truths],
+                  "adjacent_pairs": [f"{a} vs {b}" for a, b in pairs]},
+        "behind_each_repetition": {"sim_rollouts_per_policy": tasks * size,
+                                   "real_trials_per_policy": {m: tasks * m for m in real_orders},
+                                   "comparisons": {j: [int(n) for n in c] for j, c in comparisons.items()}},
+        "evaluations": evaluations,
+    }

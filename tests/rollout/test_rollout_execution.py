@@ -1,0 +1,163 @@
+"""Planted quality: a variant's commands differ from its base's only by the stated change, and
+nothing of the variant reaches a judge."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from r2s_eval.errors import PolicyConfigError
+from r2s_eval.judge import KinematicJudge, describe_rollouts
+from r2s_eval.rollout import sample_inits
+from r2s_eval.rollout.candidate import run_candidate
+from r2s_eval.rollout.execution import _NOISE_STREAM, Execution, complete_execution
+from r2s_eval.sim import get_task, world_robot
+from r2s_eval.sim.tasks import bundled_world
+from r2s_eval.utils.numerics import deterministic_torch
+from tests.helpers.policies import save_random_policy
+
+JOINTS, GRIPPERS = (0, 1, 2, 4, 5, 6), (3, 7)
+
+
+def _stream(n: int = 40, dim: int = 8) -> list[np.ndarray]:
+    return [np.arange(dim, dtype=np.float32) + 0.01 * k for k in range(n)]
+
+
+def _executed(execution: dict, n_out: int, seed: int = 5) -> tuple[np.ndarray, int]:
+    """The first `n_out` commands sent for the scripted stream, and how many it took from it."""
+    stream = iter(_stream())
+    taken = []
+
+    def pop():
+        taken.append(1)
+        return next(stream)
+
+    commands = Execution.from_config(execution, JOINTS, GRIPPERS).start(seed)
+    return np.array([commands.next(pop) for _ in range(n_out)]), len(taken)
+
+
+def test_jitter_changes_the_arm_joints_only_by_the_episode_seeds_draws():
+    sent, taken = _executed({"action_noise_std": 0.01}, 10)
+    base = np.array(_stream()[:10])
+    rng = np.random.default_rng([5, _NOISE_STREAM])
+    expected = base.astype(np.float64)
+    for k in range(10):
+        expected[k, list(JOINTS)] += rng.normal(0.0, 0.01, len(JOINTS))
+    assert taken == 10 and sent.dtype == np.float32
+    np.testing.assert_array_equal(sent[:, list(GRIPPERS)], base[:, list(GRIPPERS)])
+    np.testing.assert_allclose(sent, expected.astype(np.float32), atol=1e-7)
+    assert np.abs(sent - base)[:, list(JOINTS)].max() > 0
+    # Same seed, same draws; another episode's seed, others.
+    assert np.array_equal(_executed({"action_noise_std": 0.01}, 10)[0], sent)
+    assert not np.array_equal(_executed({"action_noise_std": 0.01}, 10, seed=6)[0], sent)
+
+
+def test_hesitation_inserts_pauses_and_skips_nothing():
+    sent, taken = _executed({"hesitate": {"every_steps": 3, "pause_steps": 2}}, 13)
+    base = np.array(_stream())
+    # Three commands, the third held for two more steps, three more, ...
+    order = [0, 1, 2, 2, 2, 3, 4, 5, 5, 5, 6, 7, 8]
+    np.testing.assert_array_equal(sent, base[order])
+    assert taken == 9
+
+
+def test_a_late_gripper_gets_its_commands_k_steps_late():
+    sent, _ = _executed({"gripper_delay_steps": 3}, 12)
+    base = np.array(_stream()[:12])
+    np.testing.assert_array_equal(sent[:, list(JOINTS)], base[:, list(JOINTS)])
+    delayed = np.array([base[max(0, k - 3), list(GRIPPERS)] for k in range(12)])
+    np.testing.assert_array_equal(sent[:, list(GRIPPERS)], delayed)
+
+
+def test_a_lowpass_filters_the_joints_and_leaves_the_grippers():
+    sent, _ = _executed({"lowpass": 0.5}, 6)
+    base = np.array(_stream()[:6], dtype=np.float64)
+    filtered = base[0, list(JOINTS)]
+    for k in range(1, 6):
+        filtered = 0.5 * filtered + 0.5 * base[k, list(JOINTS)]
+        np.testing.assert_allclose(sent[k, list(JOINTS)], filtered, atol=1e-6)
+    np.testing.assert_array_equal(sent[:, list(GRIPPERS)], base[:, list(GRIPPERS)].astype(np.float32))
+
+
+@pytest.mark.parametrize("execution, message", [
+    ({}, "changes nothing"),
+    ({"action_noise": 0.1}, r"unknown key\(s\) \['action_noise'\]"),
+    ({"lowpass": 1.0}, r"lowpass must be in \[0, 1\)"),
+    ({"hesitate": {"every_steps": 5}}, "every_steps: N, pause_steps: P"),
+    ({"gripper_delay_steps": -1}, "gripper_delay_steps must be >= 0"),
+])
+def test_an_execution_that_is_wrong_or_changes_nothing_names_the_key(execution, message):
+    with pytest.raises(PolicyConfigError, match=message):
+        complete_execution(execution, "policies.act_shaky")
+
+
+# -- through the rollout stage ---------------------------------------------------------------
+
+TASKS = ["cup_on_plate", "stack_blocks"]
+WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left"]}
+ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 2, "real_inits_per_task": None, "max_steps": 12,
+           "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64],
+           "real_video_size": None, "video_fps": 10}
+SEED = 3
+SHAKY = {"type": "variant", "of": "act", "weights": {"type": "act"},
+         "execution": complete_execution({"action_noise_std": 0.02}, "policies.act_shaky")}
+
+
+def test_a_variant_runs_its_bases_weights_with_the_stated_change_and_a_judge_sees_none_of_it(tmp_path):
+    inits = tmp_path / "inits.parquet"
+    sample_inits([get_task(t) for t in TASKS], ROLLOUT["inits_per_task"], SEED).to_parquet(inits)
+    act = save_random_policy(tmp_path / "weights", WORLD["cameras"], (48, 48))
+
+    def run(policy, policy_cfg):
+        deterministic_torch(1)
+        return run_candidate(tmp_path / policy, policy=policy, arm="sim", seed=SEED, rollout=ROLLOUT, world=WORLD,
+                             policy_cfg=policy_cfg, inits=str(inits), trained_dir=str(act), batch_episodes=2)
+
+    base, shaky = run("act", {"type": "act"}), run("act_shaky", SHAKY)
+    features = world_robot(WORLD).features  # the bundled world: 6 joints and a gripper per arm
+    robot_joints = [i for i, f in enumerate(features) if f.joint is not None]
+    robot_grippers = [i for i, f in enumerate(features) if f.joint is None]
+    assert robot_grippers == [6, 13]
+    assert list(base["init_id"]) == list(shaky["init_id"]) and list(base["seed"]) == list(shaky["seed"])
+    for (_, b), (_, v) in zip(base.iterrows(), shaky.iterrows()):
+        first_b = np.stack(pd.read_parquet(tmp_path / "act" / b["trajectory_path"])["action"].to_numpy())[0]
+        first_v = np.stack(pd.read_parquet(tmp_path / "act_shaky" / v["trajectory_path"])["action"].to_numpy())[0]
+        # Same seed, same first observation: the same model output, then the episode's own noise.
+        noise = np.random.default_rng([int(v["seed"]), _NOISE_STREAM]).normal(0.0, 0.02, len(robot_joints))
+        np.testing.assert_array_equal(first_v[robot_grippers], first_b[robot_grippers])
+        np.testing.assert_allclose(first_v[robot_joints], first_b[robot_joints] + noise, atol=1e-6)
+        assert not np.array_equal(first_v, first_b)
+
+    # What a judge receives of the variant's rollouts: the instruction and content-named recordings.
+    seen = []
+
+    class Spy(KinematicJudge):
+        inputs = ("video", "trajectory")
+
+        def describe(self, rollout):
+            seen.append((rollout, rollout.video_path.read_bytes() + rollout.trajectory_path.read_bytes()))
+            return super().describe(rollout)
+
+    describe_rollouts(shaky, tmp_path / "act_shaky", Spy({"backend": "kinematic"}), tmp_path / "cache")
+    assert len(seen) == len(shaky)
+    for rollout, files in seen:
+        visible = " ".join((rollout.instruction, rollout.video_path.name, rollout.trajectory_path.name)).encode()
+        for secret in (b"act_shaky", b"variant", b"action_noise_std", b"execution", b"0.02"):
+            assert secret not in visible and secret not in files, secret
+
+
+def test_a_variant_of_no_candidate_is_a_config_error_naming_the_key():
+    from pathlib import Path
+
+    from r2s_eval.config import compose_config
+    from r2s_eval.errors import ConfigError
+
+    conf = Path(__file__).resolve().parents[2] / "conf"
+    shaky = "+policies.act_shaky={type: variant, of: %s, execution: {action_noise_std: 0.01}}"
+    cfg = compose_config(conf, "smoke", overrides=[shaky % "act"])
+    assert cfg["policies"]["act_shaky"]["of"] == "act"
+    with pytest.raises(ConfigError, match=r"policies\.act_shaky\.of.*'actt'"):
+        compose_config(conf, "smoke", overrides=[shaky % "actt"])
+    with pytest.raises(ConfigError, match=r"policies\.act_shaky\.execution.*lowpass"):
+        compose_config(conf, "smoke", overrides=["+policies.act_shaky={type: variant, of: act, execution: {lowpass: 2}}"])

@@ -1,0 +1,97 @@
+"""Stability of a ranking over repeated evaluations, on planted tables."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from r2s_eval.stats.stability import (
+    adjacent_pairs,
+    agreement,
+    blocks,
+    order_of,
+    repeated,
+    stability_summary,
+    success_rates,
+    truth_order,
+)
+
+VARIANTS = {"good_shaky": "good"}
+
+
+def _trials(rates: dict[str, float], inits: int, tasks=("t1", "t2")) -> pd.DataFrame:
+    """Real trials whose success share per task is exactly the rate (successes on the first inits
+    of every block of ten, so every block of inits holds the same share)."""
+    rows = []
+    for policy, rate in rates.items():
+        for task in tasks:
+            for init in range(inits):
+                rows.append({"policy": policy, "task": task, "init_id": init, "success": (init % 10) < round(10 * rate)})
+    return pd.DataFrame(rows)
+
+
+def test_the_truth_orders_planted_pairs_by_construction_and_the_rest_where_the_twin_is_clear():
+    trials = _trials({"good": 0.6, "good_shaky": 0.6, "close": 0.5, "weak": 0.0}, inits=50)
+    rate, se = success_rates(trials)
+    assert rate["good"] == pytest.approx(0.6) and se["good"] == pytest.approx(np.sqrt(0.24 / 50) / np.sqrt(2))
+    truth = truth_order(trials, VARIANTS, sorted(rate.index), z=1.96)
+    assert truth[("good", "good_shaky")] == 1  # equal success: the clean run by construction
+    assert truth[("close", "good")] == 0  # 10 points on 100 trials each: within 1.96 standard errors
+    assert truth[("good", "weak")] == 1 and truth[("close", "weak")] == 1
+    assert truth[("close", "good_shaky")] == 0
+
+
+def test_agreement_counts_ties_half_and_skips_undecided_pairs():
+    truth = {("a", "b"): 1, ("a", "c"): 1, ("b", "c"): 0}
+    assert agreement({("a", "b"): 1, ("a", "c"): 1, ("b", "c"): -1}, truth) == {
+        "decided_pairs": 2, "share": 1.0, "kendall_distance": 0.0, "equal": True}
+    card = agreement({("a", "b"): -1, ("a", "c"): 0, ("b", "c"): 1}, truth)
+    assert card["kendall_distance"] == 1.5 and card["share"] == 0.25 and card["equal"] is False
+    assert order_of({"a": 2.0, "b": 1.0, "c": 2.0}) == {("a", "b"): 1, ("a", "c"): 0, ("b", "c"): -1}
+
+
+def test_flip_rates_and_the_share_against_the_truth_over_repetitions():
+    truth = {("a", "b"): 1, ("a", "c"): 1, ("b", "c"): 0}
+    orders = [{("a", "b"): 1, ("a", "c"): 1, ("b", "c"): 1}] * 3 + [{("a", "b"): -1, ("a", "c"): 1, ("b", "c"): -1}]
+    card = repeated(orders, [truth] * 4, [("a", "b"), ("b", "c")])
+    assert card["repetitions"] == 4 and card["equal_share"] == 0.75 and card["kendall_distance"] == 0.25
+    assert card["pairs"]["a vs b"] == {"flip_rate": 0.25, "against_truth": 0.25, "truth_decided": 4, "first_above": 3.0}
+    # An undecided pair still has a flip rate (how stable its order is), but nothing against the truth.
+    assert card["pairs"]["b vs c"]["flip_rate"] == 0.25 and card["pairs"]["b vs c"]["against_truth"] is None
+
+
+def test_a_variant_sits_right_below_its_clean_candidate():
+    rate = {"good": 0.6, "good_shaky": 0.62, "close": 0.58, "weak": 0.0}
+    assert adjacent_pairs(rate, VARIANTS) == [("good", "good_shaky"), ("close", "good_shaky"), ("close", "weak")]
+    rate["good_shaky"] = 0.3
+    assert adjacent_pairs(rate, VARIANTS) == [("close", "good"), ("close", "good_shaky"), ("good_shaky", "weak")]
+
+
+def test_a_judge_that_sees_quality_is_stable_where_a_small_real_evaluation_flips():
+    k, per_block = 4, 10
+    rates = {"good": 0.6, "good_shaky": 0.6, "weak": 0.1}
+    real = _trials(rates, inits=k * per_block)
+    # The real side of one block: `good_shaky` got lucky there (its first 10 inits of block 1 all succeed).
+    real.loc[(real["policy"] == "good_shaky") & real["init_id"].between(10, 19), "success"] = True
+    verdicts = []
+    for init in range(k * per_block):
+        for task in ("t1", "t2"):
+            for pi, pj, winner in (("good", "good_shaky", "good"), ("good", "weak", "good"),
+                                   ("good_shaky", "weak", "good_shaky"), ("good", "good_shaky", "good")):
+                verdicts.append({"policy_i": pi, "policy_j": pj, "winner": winner, "task": task, "init_id": init})
+    verdicts = pd.DataFrame(verdicts)
+    # One upset per pair and block keeps every BT strength positive.
+    for start in range(0, k * per_block, per_block):
+        first = verdicts.index[verdicts["init_id"] == start][:3]
+        verdicts.loc[first, "winner"] = ["good_shaky", "weak", "weak"]
+    summary = stability_summary(real, {"kinematic": verdicts}, inits_per_task=k * per_block, repetitions=k,
+                                real_trials_per_task=per_block, trials_curve=[5, 10], truth_z=1.96, variants=VARIANTS)
+    judge, real10 = summary["evaluations"]["kinematic"], summary["evaluations"]["real 10"]
+    assert judge["equal_share"] == 1.0 and judge["pairs"]["good vs good_shaky"]["flip_rate"] == 0.0
+    # The real evaluation ties the planted pair on three blocks and reverses it on one.
+    assert real10["pairs"]["good vs good_shaky"]["against_truth"] == pytest.approx((3 * 0.5 + 1) / 4)
+    assert summary["behind_each_repetition"]["sim_rollouts_per_policy"] == 2 * per_block
+    assert summary["behind_each_repetition"]["comparisons"]["kinematic"] == [per_block * 2 * 4] * k
+    assert summary["truth"]["real_trials_per_policy"] == 2 * per_block * (k - 1)
+    assert blocks(45, 4) == [range(0, 11), range(11, 22), range(22, 33), range(33, 44)]

@@ -107,3 +107,22 @@ def test_adaptive_budget_beyond_the_last_checkpoint_is_refused(tmp_path):
     proc = snakemake(tmp_path / "run", "-n", overrides=["compare.allocation=adaptive", "compare.budget=5000"], check=False)
     assert proc.returncode != 0
     assert "compare.budget" in proc.stdout + proc.stderr and "checkpoints.stop" in proc.stdout + proc.stderr
+
+
+def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
+    # The one-off run behind "Where ranking is hard" (about 70 minutes from a finished demo): its
+    # command as written plans three variants that are never trained, a close candidate that is,
+    # and the repetitions' job.
+    from .conftest import clone_checkout, readme_command, run_as_written
+
+    clone = clone_checkout(tmp_path / "r2s-eval")
+    command = readme_command("snakemake -j 2 reports/realsim_table.tex reports/judge_card_table.tex "
+                             "reports/stability_table.tex reports/stability.png --config experiment=validation")
+    proc = run_as_written(command.replace("snakemake -j 2", "snakemake -n -j 2"), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    jobs = dict(line.split() for line in proc.stdout.split("Job stats:")[1].split("total")[0].splitlines()[3:]
+                if line.strip())
+    # Seven candidates on two arms; four trained (act, act_close, act_short, act_weak) per arm.
+    assert (jobs["rollout"], jobs["train"], jobs["stability"], jobs["describe"]) == ("14", "8", "1", "14"), jobs
+    trained = {wc["policy"] for rule, wc in planned_jobs(proc.stdout) if rule == "train"}
+    assert trained == {"act", "act_close", "act_short", "act_weak"}

@@ -232,8 +232,10 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
             texts = tuple((role, t.replace(episodes["instruction"].iloc[0], "<instruction>")) for role, t in e["texts"])
             videos = tuple(tuple(sorted(v.items())) for v in e["videos"])
             signatures[e["kind"]].add((texts, e["n_images"], videos))
-            # Nor do the planted variant's name or its execution change reach the judge.
-            assert not any(secret in t for _, t in e["texts"] for secret in ("act_hesitant", "hesitate", "variant"))
+            # Nor do the planted variant's name or its execution settings reach the judge (the prompt
+            # itself asks whether the robot hesitates, of every rollout alike).
+            assert not any(secret in t for _, t in e["texts"]
+                           for secret in ("act_hesitant", "every_steps", "pause_steps", "variant"))
         assert sum(1 for e in server.log if e["kind"] == "describe") == len(episodes)
         assert {k: len(v) for k, v in signatures.items()} == {"describe": 1}, video_input
 

@@ -137,18 +137,10 @@ def to_json(value: Any) -> str:
 
 def candidate_configs(experiment: str = "demo") -> dict[str, dict]:
     """The validated config of every candidate policy of `experiment`."""
-    from r2s_eval.policies.trained_config import validate_policy_cfg
-    from r2s_eval.policy_sources import is_external, is_variant, validate_source_cfg, validate_variant_cfg
-
-    def validated(name: str, cfg: dict) -> dict:
-        if is_external(cfg):
-            return validate_source_cfg(dict(cfg, name=name))
-        if is_variant(cfg):
-            return validate_variant_cfg(dict(cfg, name=name))
-        return validate_policy_cfg(dict(cfg, name=name))
+    from r2s_eval.policy_sources import validate_candidate_cfg
 
     policies = compose_config(CONF_DIR, experiment)["policies"]
-    return {name: validated(name, cfg) for name, cfg in policies.items()}
+    return {name: validate_candidate_cfg(dict(cfg, name=name), name) for name, cfg in policies.items()}
 
 
 def candidate_config(name: str, experiment: str = "demo", **changes: Any) -> dict:

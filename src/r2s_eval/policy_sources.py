@@ -54,6 +54,7 @@ __all__ = [
     "open_policy",
     "result_identity",
     "unwrap_variant",
+    "validate_candidate_cfg",
     "validate_source_cfg",
     "validate_variant_cfg",
 ]
@@ -96,6 +97,18 @@ def validate_variant_cfg(cfg: Mapping, name: str | None = None) -> dict:
         raise PolicyConfigError(f"{who}.of: name the candidate whose checkpoint the variant runs, got {cfg.get('of')!r}")
     return {"type": VARIANT, "name": cfg.get("name"), "of": cfg["of"],
             "execution": complete_execution(cfg.get("execution"), who)}
+
+
+def validate_candidate_cfg(cfg: Mapping, name: str) -> dict:
+    """Completed copy of any candidate entry, by its kind: trained here, a checkpoint, a server or
+    a variant (the one dispatch the config check and the line-up readers share)."""
+    from r2s_eval.policies.trained_config import validate_policy_cfg
+
+    if is_external(cfg):
+        return validate_source_cfg(cfg, name)
+    if is_variant(cfg):
+        return validate_variant_cfg(cfg, name)
+    return validate_policy_cfg(dict(cfg, name=name))
 
 
 def unwrap_variant(policy_cfg: Mapping) -> tuple[dict, dict | None]:

@@ -134,19 +134,9 @@ def _twin_magnitudes() -> type:
 
 
 def _check_policy(name: str, entry: dict) -> dict:
-    from r2s_eval.policies.trained_config import validate_policy_cfg
-    from r2s_eval.policy_sources import (
-        is_external,
-        is_variant,
-        validate_source_cfg,
-        validate_variant_cfg,
-    )
+    from r2s_eval.policy_sources import validate_candidate_cfg
 
-    if is_external(entry):
-        return validate_source_cfg(entry, name)
-    if is_variant(entry):
-        return validate_variant_cfg(entry, name)
-    return validate_policy_cfg(dict(entry, name=name))
+    return validate_candidate_cfg(entry, name)
 
 
 def _policy_schema(entry: dict) -> type | None:

@@ -79,6 +79,8 @@ rule realsim_success_table:
 # intervals: are the clean and the variant apart in BT while their success is not?
 PLANTED = ({"fit": "results/fit/{judge}.parquet", "validation": "results/validate/{judge}.json"}
            if VARIANTS else {})
+# What the stages that read the line-up's variants are given (nothing without any: no rerun).
+PLANTED_VARIANTS = {"planted_variants": VARIANTS} if VARIANTS else {}
 
 
 rule judge_audit:
@@ -90,7 +92,7 @@ rule judge_audit:
     output:
         "results/audit/{judge}.json",
     params:
-        cfg=stage_params("judge_audit", **({"planted_variants": VARIANTS} if VARIANTS else {})),
+        cfg=stage_params("judge_audit", **PLANTED_VARIANTS),
         annotations=f"--annotations {HUMAN_ANNOTATIONS}" if HUMAN_ANNOTATIONS else "",
         planted=lambda w, input: f"--fit {input.fit} --validation {input.validation}" if VARIANTS else "",
     log:
@@ -301,7 +303,7 @@ if STABILITY:
             pdf="reports/stability.pdf",
             png="reports/stability.png",
         params:
-            cfg=stage_params("stability", **({"planted_variants": VARIANTS} if VARIANTS else {})),
+            cfg=stage_params("stability", **PLANTED_VARIANTS),
         log:
             "logs/report/stability.log",
         shell:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
@@ -38,7 +37,7 @@ from r2s_eval.rollout.episode_store import (
     episode_store,
 )
 from r2s_eval.rollout.execution import Execution
-from r2s_eval.rollout.inits import poses_of
+from r2s_eval.rollout.inits import episode_seed, poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
 from r2s_eval.sim import get_task, load_world_params, world_robot
 from r2s_eval.sim.build import make_env
@@ -61,9 +60,9 @@ def planned_episodes(inits: pd.DataFrame, arm: str, policy: str, seed: int) -> l
     """Every episode, in the inits' order; its index there is the policy slot it runs in."""
     planned = []
     for task, init_id in inits[["task", "init_id"]].drop_duplicates().itertuples(index=False):
-        episode_seed = int(np.random.default_rng([seed, int(init_id)]).integers(2**31))
-        planned.append(PlannedEpisode(len(planned), task, int(init_id), episode_seed,
-                                      episode_id(arm, policy, task, init_id, episode_seed), poses_of(inits, task, init_id)))
+        seed_of_episode = episode_seed(seed, init_id)
+        planned.append(PlannedEpisode(len(planned), task, int(init_id), seed_of_episode,
+                                      episode_id(arm, policy, task, init_id, seed_of_episode), poses_of(inits, task, init_id)))
     return planned
 
 

@@ -23,3 +23,9 @@ def sample_inits(tasks: list[Task], inits_per_task: int, seed: int) -> pd.DataFr
 def poses_of(inits: pd.DataFrame, task: str, init_id: int) -> dict[str, tuple[float, float, float]]:
     rows = inits[(inits["task"] == task) & (inits["init_id"] == init_id)]
     return {r.object: (float(r.x_m), float(r.y_m), float(r.yaw_rad)) for r in rows.itertuples()}
+
+
+def episode_seed(seed: int, init_id: int) -> int:
+    """The seed of the episode from init ``init_id`` (its image and encoder noise, the policy's
+    draws), from the experiment's ``seed``: the same for every policy and arm."""
+    return int(np.random.default_rng([int(seed), int(init_id)]).integers(2**31))

@@ -1,9 +1,11 @@
 """One closed-loop episode: the policy acts, the world steps, everything is recorded.
 
-`EpisodeRecorder` is what an episode records, one control step at a time: the judge video's
-frames and the trajectory rows. `run_episode` drives one episode with a policy's `act`; the
-batched loop (`r2s_eval.rollout.batch`) drives many recorders side by side. Both record through
-the same recorder, so an episode's bytes do not depend on which loop ran it.
+`Episode` is one episode (reset, observation, step, success, video frame), shared with the
+Gymnasium environment (`r2s_eval.world.gym_env`); `EpisodeRecorder` is what an episode records,
+one control step at a time: the judge video's frames and the trajectory rows. `run_episode`
+drives one episode with a policy's `act`; the batched loop (`r2s_eval.rollout.batch`) drives
+many recorders side by side. Both record through the same recorder, so an episode's bytes do
+not depend on which loop ran it.
 """
 
 from __future__ import annotations
@@ -58,41 +60,38 @@ def _record(env: TabletopEnv, step: int, obs: dict, action: np.ndarray) -> dict:
     return row
 
 
-class EpisodeRecorder:
-    """One episode in `env` from `object_poses`: reset, then `step(action)` until `done`.
+class Episode:
+    """One episode in `env`: reset from `object_poses` (None: the task's sampler, seeded by
+    `seed`) and `seed`, then `step(action)` until `done`. The one definition of an episode that
+    r2s-eval's rollout loops and the Gymnasium environment (`r2s_eval.world.gym_env`) share.
 
-    Ends when the success check has held for `success_hold_steps` steps, or after `max_steps`.
-    Holding success for a few steps keeps a cup that is let go mid-air from counting.
+    Success: the task's success check has held for `success_hold_steps` steps (holding it for a
+    few steps keeps a cup that is let go mid-air from counting). `done`: success, or `max_steps`
+    steps (None: no limit; a Gymnasium ``TimeLimit`` truncates instead).
 
-    Video: one frame every `frame_every` control steps (step 0 included) from `video_camera`,
-    handed to `on_frame` (default: kept in `frames`); `video_frame_every` turns a video frame rate
-    into that stride. With `video_size` (H, W) the frame is rendered at that size for the judges,
-    whatever the policy consumes; with None it is the policy's own image of that camera when
-    the policy watches it (else a render at the env's image size). A rendered frame carries the
-    world's image noise from its own generator (seeded by the episode), so recording it never
-    changes what the policy observes.
+    `frame()` is the episode's video frame now, from `video_camera`: with `video_size` (H, W) it
+    is rendered at that size, whatever the policy consumes; with None it is the policy's own
+    image of that camera when the policy watches it (else a render at the env's image size). A
+    rendered frame carries the world's image noise from its own generator (seeded by the
+    episode, drawn once per frame), so recording it never changes what the policy observes.
     """
 
-    def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]], seed: int,
-                 max_steps: int, video_camera: str, video_size: tuple[int, int] | None = None,
-                 success_hold_steps: int = 3, on_frame: Callable[[np.ndarray], None] | None = None,
-                 frame_every: int = 1):
+    def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]] | None, seed: int,
+                 max_steps: int | None, video_camera: str, video_size: tuple[int, int] | None = None,
+                 success_hold_steps: int = 3):
         self.env = env
-        self.frame_every = int(frame_every)
-        self.max_steps = int(max_steps)
+        self.seed = int(seed)
+        self.max_steps = None if max_steps is None else int(max_steps)
         self.success_hold_steps = int(success_hold_steps)
         self.video_camera = video_camera
         self._video_key = f"observation.images.{video_camera}"
         self._size = None if video_size is None else (int(video_size[0]), int(video_size[1]))
-        self._video_rng = np.random.default_rng([seed, 0x71DE0])  # the judge video's own noise stream
-        self.frames: list[np.ndarray] = []
-        self._on_frame = on_frame or self.frames.append
-        self.rows: list[dict] = []
+        self._video_rng = np.random.default_rng([self.seed, 0x71DE0])  # the judge video's own noise stream
+        self.steps = 0
         self.held = 0
         self.instruction = env.task.instruction  # language-conditioned policies read it
-        self.obs = env.reset(object_poses, seed=seed)
+        self.obs = env.reset(object_poses, seed=self.seed)
         self._has_images = True
-        self._on_frame(self._frame())
 
     def render_observation(self) -> None:
         """Render this step's camera images now (from the thread that owns the renderers)."""
@@ -105,7 +104,8 @@ class EpisodeRecorder:
             self._has_images = True
         return self.obs
 
-    def _frame(self) -> np.ndarray:
+    def frame(self) -> np.ndarray:
+        """The video frame of this step (draws the next noise of the video's stream)."""
         if self._size is None and self.video_camera in self.env.cameras:
             return self._images()[self._video_key]
         rgb = self.env.render(self.video_camera, size=self._size)  # clean: the observations' noise stream stays theirs
@@ -125,15 +125,38 @@ class EpisodeRecorder:
 
     @property
     def done(self) -> bool:
-        return self.success or len(self.rows) >= self.max_steps
+        return self.success or (self.max_steps is not None and self.steps >= self.max_steps)
 
     def step(self, action: np.ndarray) -> None:
         self.obs = self.env.step(action, images=False)
         self._has_images = False
+        self.steps += 1
+        self.held = self.held + 1 if self.env.is_success() else 0
+
+
+class EpisodeRecorder(Episode):
+    """An `Episode` recorded one control step at a time: the trajectory rows, and the video.
+
+    Video: one frame every `frame_every` control steps (step 0 included), handed to `on_frame`
+    (default: kept in `frames`); `video_frame_every` turns a video frame rate into that stride.
+    """
+
+    def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]], seed: int,
+                 max_steps: int, video_camera: str, video_size: tuple[int, int] | None = None,
+                 success_hold_steps: int = 3, on_frame: Callable[[np.ndarray], None] | None = None,
+                 frame_every: int = 1):
+        super().__init__(env, object_poses, seed, max_steps, video_camera, video_size, success_hold_steps)
+        self.frame_every = int(frame_every)
+        self.frames: list[np.ndarray] = []
+        self._on_frame = on_frame or self.frames.append
+        self.rows: list[dict] = []
+        self._on_frame(self.frame())
+
+    def step(self, action: np.ndarray) -> None:
+        super().step(action)
         self.rows.append(_record(self.env, len(self.rows), self.obs, action))
         if len(self.rows) % self.frame_every == 0:
-            self._on_frame(self._frame())
-        self.held = self.held + 1 if self.rows[-1]["success"] else 0
+            self._on_frame(self.frame())
 
     def result(self) -> EpisodeResult:
         return EpisodeResult(success=self.success, length=len(self.rows), frames=self.frames,

@@ -67,3 +67,27 @@ def feature_ranges(robot: Robot) -> dict[str, tuple[float, float]]:
         lo, hi = sorted((v - f.offset) / f.scale for v in model_range)
         ranges[f.name] = (lo, hi)
     return ranges
+
+
+def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_name: str = "this world") -> None:
+    """Raise ConfigError (one line naming ``source``) when ``params`` were fitted for another
+    world: they name an arm, a joint count, a camera or an object ``world_cfg`` does not have."""
+    robot = world_robot(world_cfg)
+    objects = set(world_cfg.get("objects") or {})
+    for arm, offsets in params.joint_offset_rad.items():
+        if arm not in robot.arms:
+            raise ConfigError(f"{source}: world parameters of another world: joint offsets of arm {arm!r}, "
+                              f"{world_name} has arms {sorted(robot.arms)}")
+        if len(offsets) != len(robot.arms[arm].joints):
+            raise ConfigError(f"{source}: world parameters of another world: {len(offsets)} joint offsets for arm "
+                              f"{arm!r}, which has {len(robot.arms[arm].joints)} joints in {world_name}")
+    for key in ("camera_pos_offset_m", "camera_rot_offset_rad"):
+        for camera in getattr(params, key):
+            if camera not in robot.rig:
+                raise ConfigError(f"{source}: world parameters of another world: {key} of camera {camera!r}, "
+                                  f"{world_name} has cameras {sorted(robot.rig)}")
+    for key in ("object_mass_scale", "object_size_scale", "object_rgb_offset"):
+        for name in getattr(params, key):
+            if name not in objects:
+                raise ConfigError(f"{source}: world parameters of another world: {key} of object {name!r}, "
+                                  f"{world_name} has objects {sorted(objects)}")

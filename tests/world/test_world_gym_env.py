@@ -217,15 +217,21 @@ def test_bad_input_is_named_in_one_line(tmp_path, inits, act):
         assert expected in message and "\n" not in message, message
 
 
+DOCS_EVAL = ("lerobot-eval --policy.path=results/train/sim/act/pretrained_model --policy.n_action_steps=5 "
+             "--env.type=r2s_eval --env.task=cup_on_plate --env.cameras='[head_left]' "
+             "--env.world_params=results/calib/world_params.json --env.inits=results/rollout/inits.parquet "
+             "--env.episode_length=110 --eval.n_episodes=6 --eval.batch_size=1 --seed=0 --output_dir=outputs/eval/act_sim")
+
+
 def test_lerobot_eval_runs_on_our_environment(tmp_path, act, inits, world_params):
-    """`lerobot-eval` as a user runs it: the plugin found by LeRobot's discovery, three episodes."""
+    """`lerobot-eval` as a user runs it: the plugin found by LeRobot's discovery, two short episodes."""
     _plugin()
     out = tmp_path / "eval"
     cmd = [sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={act}", "--env.type=r2s_eval",
            f"--env.task={TASK}", f"--env.world_params={world_params}", f"--env.inits={inits}",
            f"--env.experiment_seed={SEED}", "--env.cameras=[head_left]", f"--env.image_height={SIZE[0]}",
            f"--env.image_width={SIZE[1]}", "--env.episode_length=6", "--eval.n_episodes=2", "--eval.batch_size=1",
-           "--seed=0", "--policy.device=cpu", f"--output_dir={out}"]
+           "--seed=0", "--policy.n_action_steps=5", f"--output_dir={out}"]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     info = json.loads((out / "eval_info.json").read_text())
@@ -233,4 +239,27 @@ def test_lerobot_eval_runs_on_our_environment(tmp_path, act, inits, world_params
     assert metrics["successes"] == [False, False]  # an untrained ACT does not put the cup on the plate
     assert info["overall"]["n_episodes"] == 2
     assert [Path(p).name for p in metrics["video_paths"]] == ["eval_episode_0.mp4", "eval_episode_1.mp4"]
-    assert all((tmp_path / p).is_file() or Path(p).is_file() for p in metrics["video_paths"])
+
+
+@pytest.mark.slow
+def test_lerobot_eval_runs_as_the_docs_show_it(tmp_path, world_params):
+    """`lerobot-eval` as the docs page runs it, in a clone, on what a smoke run leaves (its
+    checkpoint replaced by the same ACT untrained, its inits and calibrated world by ours): LeRobot
+    finds the plugin, runs the six episodes from the six inits and writes their success. A minute
+    of CPU (six episodes of 110 steps), hence `-m slow`."""
+    from tests.workflow.conftest import clone_checkout, readme_command, run_as_written
+
+    _plugin()
+    clone = clone_checkout(tmp_path / "r2s-eval")
+    save_random_policy(clone / "results" / "train" / "sim" / "act", CAMERAS, (128, 128))
+    (clone / "results" / "rollout").mkdir(parents=True)
+    sample_inits([get_task(TASK)], 6, 0).to_parquet(clone / "results" / "rollout" / "inits.parquet")
+    (clone / "results" / "calib").mkdir(parents=True)
+    (clone / "results" / "calib" / "world_params.json").write_text(world_params.read_text())
+    proc = run_as_written(readme_command(DOCS_EVAL), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    info = json.loads((clone / "outputs" / "eval" / "act_sim" / "eval_info.json").read_text())
+    metrics = info["per_task"][0]["metrics"]
+    assert metrics["successes"] == [False] * 6  # an untrained ACT does not put the cup on the plate
+    assert info["overall"]["n_episodes"] == 6
+    assert all((clone / p).is_file() for p in metrics["video_paths"]) and len(metrics["video_paths"]) == 6

@@ -130,6 +130,12 @@ def test_the_rollout_benchmark_renders_without_mujoco_gl(clone):
     assert re.search(r"batched / one at a time: [\d.]+x", proc.stdout), proc.stdout
 
 
+LEROBOT_EVAL = ("lerobot-eval --policy.path=results/train/sim/act/pretrained_model --policy.n_action_steps=5 "
+                "--env.type=r2s_eval --env.task=cup_on_plate --env.cameras='[head_left]' "
+                "--env.world_params=results/calib/world_params.json --env.inits=results/rollout/inits.parquet "
+                "--env.episode_length=110 --eval.n_episodes=6 --eval.batch_size=1 --seed=0 --output_dir=outputs/eval/act_sim")
+
+
 def _contents(root: Path) -> dict[str, str]:
     """Every file under results/ and reports/ by its SHA-256."""
     return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
@@ -229,6 +235,17 @@ def test_readme_commands_in_a_finished_run(smoke_run, clone):
     assert look.returncode == 0, look.stderr
     assert f"wrote {Path('reports/world_preview/dataset.png')}" in look.stdout
     assert cv2.imread(str(clone / "reports" / "world_preview" / "dataset.png")) is not None
+    # LeRobot's own lerobot-eval on the calibrated sim (docs/lerobot.md), with the `act` the run
+    # trained on sim data, from the rollout stage's inits and episode seeds: the rollout stage's
+    # success, episode for episode (the two ask the model on 1 and 32 rows: they may part only
+    # where a rounding of 1e-8 decides an episode, which it did in none of 30 measured).
+    evaluated = run_as_written(readme_command(LEROBOT_EVAL), clone)
+    assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+    metrics = json.loads((clone / "outputs" / "eval" / "act_sim" / "eval_info.json").read_text())["per_task"][0]["metrics"]
+    stage = pd.read_parquet(clone / "results" / "rollout" / "sim" / "act" / "episodes.parquet")
+    stage = stage[stage["task"] == "cup_on_plate"].sort_values("init_id")
+    assert metrics["successes"] == stage["success"].astype(bool).tolist(), (metrics["successes"], stage["success"].tolist())
+    assert len(metrics["video_paths"]) == len(stage) and all((clone / v).is_file() for v in metrics["video_paths"])
 
 
 def test_readme_helpers_read_the_readme_as_written():

@@ -217,12 +217,6 @@ def test_bad_input_is_named_in_one_line(tmp_path, inits, act):
         assert expected in message and "\n" not in message, message
 
 
-DOCS_EVAL = ("lerobot-eval --policy.path=results/train/sim/act/pretrained_model --policy.n_action_steps=5 "
-             "--env.type=r2s_eval --env.task=cup_on_plate --env.cameras='[head_left]' "
-             "--env.world_params=results/calib/world_params.json --env.inits=results/rollout/inits.parquet "
-             "--env.episode_length=110 --eval.n_episodes=6 --eval.batch_size=1 --seed=0 --output_dir=outputs/eval/act_sim")
-
-
 def test_lerobot_eval_runs_on_our_environment(tmp_path, act, inits, world_params):
     """`lerobot-eval` as a user runs it: the plugin found by LeRobot's discovery, two short episodes."""
     _plugin()
@@ -239,27 +233,3 @@ def test_lerobot_eval_runs_on_our_environment(tmp_path, act, inits, world_params
     assert metrics["successes"] == [False, False]  # an untrained ACT does not put the cup on the plate
     assert info["overall"]["n_episodes"] == 2
     assert [Path(p).name for p in metrics["video_paths"]] == ["eval_episode_0.mp4", "eval_episode_1.mp4"]
-
-
-@pytest.mark.slow
-def test_lerobot_eval_runs_as_the_docs_show_it(tmp_path, world_params):
-    """`lerobot-eval` as the docs page runs it, in a clone, on what a smoke run leaves (its
-    checkpoint replaced by the same ACT untrained, its inits and calibrated world by ours): LeRobot
-    finds the plugin, runs the six episodes from the six inits and writes their success. A minute
-    of CPU (six episodes of 110 steps), hence `-m slow`."""
-    from tests.workflow.conftest import clone_checkout, readme_command, run_as_written
-
-    _plugin()
-    clone = clone_checkout(tmp_path / "r2s-eval")
-    save_random_policy(clone / "results" / "train" / "sim" / "act", CAMERAS, (128, 128))
-    (clone / "results" / "rollout").mkdir(parents=True)
-    sample_inits([get_task(TASK)], 6, 0).to_parquet(clone / "results" / "rollout" / "inits.parquet")
-    (clone / "results" / "calib").mkdir(parents=True)
-    (clone / "results" / "calib" / "world_params.json").write_text(world_params.read_text())
-    proc = run_as_written(readme_command(DOCS_EVAL), clone)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    info = json.loads((clone / "outputs" / "eval" / "act_sim" / "eval_info.json").read_text())
-    metrics = info["per_task"][0]["metrics"]
-    assert metrics["successes"] == [False] * 6  # an untrained ACT does not put the cup on the plate
-    assert info["overall"]["n_episodes"] == 6
-    assert all((clone / p).is_file() for p in metrics["video_paths"]) and len(metrics["video_paths"]) == 6

@@ -246,6 +246,12 @@ def test_readme_commands_in_a_finished_run(smoke_run, clone):
     stage = stage[stage["task"] == "cup_on_plate"].sort_values("init_id")
     assert metrics["successes"] == stage["success"].astype(bool).tolist(), (metrics["successes"], stage["success"].tolist())
     assert len(metrics["video_paths"]) == len(stage) and all((clone / v).is_file() for v in metrics["video_paths"])
+    # The page's Gymnasium example, as written, on the same calibrated sim.
+    page = (REPO / "docs" / "lerobot.md").read_text()
+    example = re.search(r"^```python\n(.*?)^```", page[page.index("## In Gymnasium"):], re.S | re.M).group(1)
+    (clone / "gym_example.py").write_text(example + "assert frame.ndim == 3 and obs['agent_pos'].shape == (14,)\n")
+    ran = run_as_written("python gym_example.py", clone)
+    assert ran.returncode == 0, ran.stderr[-3000:]
 
 
 def test_readme_helpers_read_the_readme_as_written():

@@ -277,7 +277,9 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
         ax.fill_between(m, low, high, color=opts["real_color"], alpha=0.2, linewidth=0)
         for k, (name, card) in enumerate(judges):
             avg, lo, hi = spread(card)
-            ax.errorbar([0], [avg], yerr=[[avg - lo], [hi - avg]], fmt=opts["judge_markers"][k % len(opts["judge_markers"])],
+            # Side by side around 0 (all spend no real trials), so their ranges do not overlap.
+            x = 0.4 * (k - (len(judges) - 1) / 2)
+            ax.errorbar([x], [avg], yerr=[[avg - lo], [hi - avg]], fmt=opts["judge_markers"][k % len(opts["judge_markers"])],
                         capsize=3, label=f"r2s-eval, {name} judge")
         ax.set_xlabel("real trials per task and policy")
         ax.set_ylabel("pairs ordered as the truth (%)")

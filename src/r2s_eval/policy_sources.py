@@ -20,7 +20,7 @@ A third kind has no weights of its own:
 
     type: variant           another candidate's checkpoint run with an execution change
       of                    that candidate (trained here, a checkpoint or a server; not a variant)
-      execution             the change: r2s_eval.rollout.execution (jitter, hesitation, a late
+      execution             the change: r2s_eval.policies.execution (jitter, hesitation, a late
                             gripper, a low-pass); planted quality at equal weights
 
 This module sits above both `r2s_eval.policies` (the in-process models) and `r2s_eval.serving`
@@ -36,6 +36,7 @@ from collections.abc import Mapping
 
 from r2s_eval.errors import PolicyConfigError
 from r2s_eval.policies.checkpoint_files import checkpoint_hash, resolve_checkpoint
+from r2s_eval.policies.execution import complete_execution
 from r2s_eval.policies.interface import ActionMap, ChunkPolicy, PolicyError
 from r2s_eval.policies.types.registry import read_policy_defaults
 from r2s_eval.serving.keymap import resolve_key_map
@@ -87,8 +88,6 @@ def is_variant(cfg: Mapping) -> bool:
 def validate_variant_cfg(cfg: Mapping, name: str | None = None) -> dict:
     """Completed copy of a variant entry: `of` names a candidate, `execution` changes something.
     Whether `of` is in the line-up is the configuration check's (it sees every entry)."""
-    from r2s_eval.rollout.execution import complete_execution
-
     who = f"policies.{name or cfg.get('name') or '?'}"
     unknown = sorted(set(cfg) - set(VARIANT_KEYS))
     if unknown:

@@ -686,7 +686,7 @@ class ServerPolicy(ExternalPolicy):
     connect_retries: Count = optional(_SOURCE_DEFAULTS)
 
 
-_EXECUTION = "r2s_eval.rollout.execution"
+_EXECUTION = "r2s_eval.policies.execution"
 
 
 @dataclass
@@ -699,7 +699,7 @@ class Hesitation:
 
 @dataclass
 class Execution:
-    """How a variant's commands change on their way to the robot (r2s_eval.rollout.execution)."""
+    """How a variant's commands change on their way to the robot (r2s_eval.policies.execution)."""
 
     action_noise_std: NonNegative = optional(_EXECUTION)
     hesitate: Hesitation | None = optional(_EXECUTION)

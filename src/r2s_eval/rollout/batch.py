@@ -36,7 +36,7 @@ from r2s_eval.policies.interface import (
     PolicyError,
     RecedingHorizon,
 )
-from r2s_eval.rollout.execution import ExecutedCommands, Execution
+from r2s_eval.policies.execution import ExecutedCommands, Execution
 from r2s_eval.rollout.loop import EpisodeRecorder
 from r2s_eval.sim import TabletopEnv
 

@@ -36,7 +36,7 @@ from r2s_eval.rollout.episode_store import (
     collect_episodes,
     episode_store,
 )
-from r2s_eval.rollout.execution import Execution
+from r2s_eval.policies.execution import Execution
 from r2s_eval.rollout.inits import episode_seed, poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
 from r2s_eval.sim import get_task, load_world_params, world_robot
@@ -97,7 +97,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
 
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
     ``policy_cfg``: what decides the candidate's rollouts (a variant's: its base's under `weights`
-    and its execution change, ``r2s_eval.rollout.execution``); ``trained_dir``: its folder when
+    and its execution change, ``r2s_eval.policies.execution``); ``trained_dir``: its folder when
     trained here (a variant's: its base's); ``transport``: where a checkpoint or server lies (kept out of the episodes'
     identity: moving it changes no result); ``batch_episodes``: episodes stepped side by side;
     ``threads``: worker threads for physics, rendering and video (model calls stay on one:

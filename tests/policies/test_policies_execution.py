@@ -11,7 +11,7 @@ from r2s_eval.errors import PolicyConfigError
 from r2s_eval.judge import KinematicJudge, describe_rollouts
 from r2s_eval.rollout import sample_inits
 from r2s_eval.rollout.candidate import run_candidate
-from r2s_eval.rollout.execution import _NOISE_STREAM, Execution, complete_execution
+from r2s_eval.policies.execution import _NOISE_STREAM, Execution, complete_execution
 from r2s_eval.sim import get_task, world_robot
 from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.utils.numerics import deterministic_torch

@@ -196,7 +196,8 @@ def test_the_success_of_the_task_terminates_the_episode(monkeypatch):
 def test_bad_input_is_named_in_one_line(tmp_path, inits, act):
     plugin = _plugin()
     cases = {
-        "unknown world 'mars'": lambda: plugin.R2SEvalEnv(world="mars"),
+        "unknown world 'mars'": lambda: plugin.R2SEvalEnv(world="mars").create_envs(1),
+        "--env.type=r2s_eval: unknown task 'fly' of world 'tabletop'": lambda: plugin.R2SEvalEnv(task="fly").create_envs(1),
         "unknown task 'fly' of world 'tabletop'": lambda: gym_env.WorldEnv(task="fly"),
         "no init 1000 of task 'cup_on_plate'": lambda: gym_env.WorldEnv(task=TASK, inits=str(inits),
                                                                          image_size=(16, 16)).reset(seed=1000),
@@ -211,7 +212,8 @@ def test_bad_input_is_named_in_one_line(tmp_path, inits, act):
     cases["reads observation.images.head_left, which world 'tabletop' does not record"] = lambda: plugin.R2SEvalEnv(
         task=TASK, cameras=["head_right"]).check_policy(act)
     for expected, make in cases.items():
-        with pytest.raises((ConfigError, DataError, PolicyError)) as err:
+        # The plugin ends LeRobot's command with the line (SystemExit); Python callers get the error.
+        with pytest.raises((ConfigError, DataError, PolicyError, SystemExit)) as err:
             make()
         message = str(err.value)
         assert expected in message and "\n" not in message, message
@@ -233,3 +235,15 @@ def test_lerobot_eval_runs_on_our_environment(tmp_path, act, inits, world_params
     assert metrics["successes"] == [False, False]  # an untrained ACT does not put the cup on the plate
     assert info["overall"]["n_episodes"] == 2
     assert [Path(p).name for p in metrics["video_paths"]] == ["eval_episode_0.mp4", "eval_episode_1.mp4"]
+
+
+def test_lerobot_eval_names_bad_input_in_one_line(tmp_path, act):
+    """What LeRobot's command prints for a world that does not exist: our line, no traceback."""
+    _plugin()
+    cmd = [sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={act}", "--env.type=r2s_eval",
+           "--env.world=mars",
+           "--eval.n_episodes=1", f"--output_dir={tmp_path / 'eval'}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert proc.stderr.strip().splitlines()[-1].startswith("--env.type=r2s_eval: unknown world 'mars': the worlds are ")

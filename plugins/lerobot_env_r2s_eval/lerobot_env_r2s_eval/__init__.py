@@ -17,6 +17,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
+from r2s_eval.errors import R2SError
 from r2s_eval.world import gym_env
 
 ENV_TYPE = "r2s_eval"
@@ -64,6 +65,16 @@ class R2SEvalEnv(EnvConfig):
     features_map: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self):
+        # LeRobot's command-line parser builds this config and buries any exception it raises
+        # under its own "Couldn't instantiate class" traceback: a fault in what the user wrote is
+        # kept and raised by create_envs, which LeRobot calls first, as one line.
+        self._problem = None
+        try:
+            self._describe_world()
+        except R2SError as err:
+            self._problem = err
+
+    def _describe_world(self) -> None:
         _, config = gym_env.load_world(self.world)
         self.fps = int(round(float(config["robot"]["control_hz"])))
         recorded = self.recorded()
@@ -112,12 +123,25 @@ class R2SEvalEnv(EnvConfig):
         return PolicyProcessorPipeline(steps=[RolloutImageLayout()]), PolicyProcessorPipeline(steps=[])
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False):
+        """LeRobot's environments of this task; a fault in the world, task, world parameters,
+        inits or policy ends the command with one line (SystemExit), not a traceback."""
+        try:
+            return self._create_envs(n_envs, use_async_envs)
+        except R2SError as err:
+            raise SystemExit(f"--env.type={ENV_TYPE}: {err}") from None
+
+    def _create_envs(self, n_envs: int, use_async_envs: bool):
         from lerobot.configs import parser
         from lerobot.envs.utils import freeze_after_episode_end
 
+        if self._problem is not None:
+            raise self._problem
         policy_dir = parser.get_path_arg("policy")  # lerobot-eval's --policy.path, checked before any model loads
         if policy_dir and (Path(policy_dir) / "config.json").is_file():
             self.check_policy(policy_dir)
+        # The first environment is built here, so a task or world parameters it cannot take
+        # are reported before LeRobot's vector environment wraps the error.
+        gym.make(self.gym_id, disable_env_checker=True, **self.gym_kwargs).close()
         # A finished episode is frozen (LeRobot's wrapper) rather than reset and stepped while
         # the other environments of the batch finish theirs.
         make_one = freeze_after_episode_end(

@@ -139,9 +139,11 @@ class R2SEvalEnv(EnvConfig):
         policy_dir = parser.get_path_arg("policy")  # lerobot-eval's --policy.path, checked before any model loads
         if policy_dir and (Path(policy_dir) / "config.json").is_file():
             self.check_policy(policy_dir)
-        # The first environment is built here, so a task or world parameters it cannot take
-        # are reported before LeRobot's vector environment wraps the error.
-        gym.make(self.gym_id, disable_env_checker=True, **self.gym_kwargs).close()
+        # The environments' arguments are checked here, so a task or world parameters they cannot
+        # take are reported before LeRobot's vector environment wraps the error.
+        kwargs = self.gym_kwargs
+        gym_env.checked_arguments(kwargs["world"], kwargs["task"], kwargs["world_params"], kwargs["inits"],
+                                  kwargs["image_size"], kwargs["cameras"])
         # A finished episode is frozen (LeRobot's wrapper) rather than reset and stepped while
         # the other environments of the batch finish theirs.
         make_one = freeze_after_episode_end(

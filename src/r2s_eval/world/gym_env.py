@@ -36,6 +36,7 @@ import yaml
 from gymnasium import spaces
 
 from r2s_eval.errors import ConfigError, DataError, PolicyError
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.rollout.inits import episode_seed, poses_of
 from r2s_eval.rollout.loop import Episode
 from r2s_eval.sim import load_world_params
@@ -44,7 +45,8 @@ from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import WORLDS_DIR, world_tasks
 
 ENV_ID = "r2s_eval/World-v0"
-DEFAULT_EPISODE_STEPS = 150  # the rollout stage's max_steps (conf/rollout/default.yaml)
+# The rollout stage's episode length, read from its config group's default (one owner).
+DEFAULT_EPISODE_STEPS = int(yaml.safe_load((CONF_DIR / "rollout" / "default.yaml").read_text())["max_steps"])
 
 
 def shipped_worlds() -> list[str]:
@@ -93,6 +95,36 @@ def check_policy_features(policy_features: dict[str, tuple], world: str | Path, 
             raise PolicyError(f"{policy}'s {key} has shape {tuple(shape)}, world {str(world)!r} records {tuple(recorded[key])}")
 
 
+def checked_arguments(world: str | Path, task: str, world_params: str | None = None, inits: str | None = None,
+                      image_size: tuple[int, int] | None = None, cameras: list[str] | None = None):
+    """``WorldEnv``'s arguments checked without building the simulation: (world name, world config
+    with ``image_size`` and ``cameras`` applied, world parameters or None, the task's inits or None).
+    Raises one line naming the world, task, camera, file or init table at fault."""
+    name, config = load_world(world)
+    if image_size is not None:
+        config = {**config, "image_height": int(image_size[0]), "image_width": int(image_size[1])}
+    if cameras is not None:
+        config = {**config, "cameras": list(cameras)}
+    tasks = world_tasks(config)
+    if task not in tasks:
+        raise ConfigError(f"unknown task {task!r} of world {name!r}; its tasks are {sorted(tasks)}")
+    robot = world_robot(config)
+    unknown = [c for c in config["cameras"] if c not in robot.rig]
+    if unknown:
+        raise ConfigError(f"world {name!r} has no camera {unknown[0]!r}; its cameras are {sorted(robot.rig)}")
+    params = None
+    if world_params is not None:
+        params = load_world_params(world_params)
+        check_world_params(params, config, str(world_params), f"world {name!r}")
+    task_inits = None
+    if inits is not None:
+        table = pd.read_parquet(inits)
+        task_inits = table[table["task"] == task]
+        if task_inits.empty:
+            raise DataError(f"{inits}: no initial configurations of task {task!r} (it has {sorted(set(table['task']))})")
+    return name, config, params, task_inits
+
+
 class WorldEnv(gym.Env):
     """One task of a world; see the module docstring for the arguments."""
 
@@ -103,28 +135,8 @@ class WorldEnv(gym.Env):
                  cameras: list[str] | None = None, video_camera: str | None = None,
                  video_size: tuple[int, int] | None = None, success_hold_steps: int = 3,
                  render_mode: str | None = "rgb_array"):
-        name, config = load_world(world)
-        if image_size is not None:
-            config = {**config, "image_height": int(image_size[0]), "image_width": int(image_size[1])}
-        if cameras is not None:
-            config = {**config, "cameras": list(cameras)}
-        tasks = world_tasks(config)
-        if task not in tasks:
-            raise ConfigError(f"unknown task {task!r} of world {name!r}; its tasks are {sorted(tasks)}")
+        name, config, params, self.inits = checked_arguments(world, task, world_params, inits, image_size, cameras)
         robot = world_robot(config)
-        unknown = [c for c in config["cameras"] if c not in robot.rig]
-        if unknown:
-            raise ConfigError(f"world {name!r} has no camera {unknown[0]!r}; its cameras are {sorted(robot.rig)}")
-        params = None
-        if world_params is not None:
-            params = load_world_params(world_params)
-            check_world_params(params, config, str(world_params), f"world {name!r}")
-        self.inits = None
-        if inits is not None:
-            table = pd.read_parquet(inits)
-            self.inits = table[table["task"] == task]
-            if self.inits.empty:
-                raise DataError(f"{inits}: no initial configurations of task {task!r} (it has {sorted(set(table['task']))})")
         self._inits_file = inits
         self.experiment_seed = int(experiment_seed)
         self.world_name, self.task = name, task

@@ -25,7 +25,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.paths import CONF_DIR
-from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem
+from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem, where
 
 
 def compose_config(
@@ -58,10 +58,71 @@ def compose_config(
     with open_dict(cfg):
         del cfg["hydra"]
     plain = sort_keys(OmegaConf.to_container(cfg, resolve=True))
-    problems = refused + config_problems(plain, composition_sources(config_dir, config_name, choices, overrides))
+    sources = composition_sources(config_dir, config_name, choices, overrides)
+    unset = derive_camera_settings(plain)
+    plain = sort_keys(plain)  # a derived key keeps its sorted place
+    problems = refused + config_problems(plain, sources)
+    if unset:  # one line for the settings the world could not fill (not one more per setting)
+        problems = [p for p in problems if not p.startswith(tuple(f"{key} (" for key in unset))]
+        problems.insert(len(refused), f"{unset[0]} ({where(unset[0], sources)}) is null (the world's first recorded "
+                                      f"fixed camera), but world.cameras {plain['world'].get('cameras')} records "
+                                      f"none (a camera on no arm); set {', '.join(unset)}")
     if problems:
         raise problems_error(problems)
     return plain
+
+
+def fixed_cameras(world: dict) -> list[str]:
+    """The recorded cameras of ``world`` (in ``world.cameras`` order) that stay put: rig cameras on
+    no arm (neither an arm's model camera nor one placed on a body of an arm)."""
+    rig = world.get("rig") or {}
+    arms = list(((world.get("robot") or {}).get("arms") or {}))
+    on_arm = lambda entry: "arm" in entry or any(str(entry.get("body", "")).startswith(f"{a}_") for a in arms)  # noqa: E731
+    return [c for c in world.get("cameras") or () if isinstance(rig.get(c), dict) and not on_arm(rig[c])]
+
+
+def derive_camera_settings(cfg: dict[str, Any]) -> list[str]:
+    """Fill in the camera settings left null from the world: ``calib.camera`` (the initial-pose
+    estimate's) and ``rollout.video_camera`` (the judges' videos) become its first recorded fixed
+    camera, and a trained candidate of a type without cameras of its own that names no
+    ``image_keys`` sees that camera. Returns the keys it could not fill (the world records no
+    fixed camera)."""
+    world = cfg.get("world") or {}
+    fixed = fixed_cameras(world) if isinstance(world, dict) else []
+    unset = [key for key, group in (("calib.camera", "calib"), ("rollout.video_camera", "rollout"))
+             if isinstance(cfg.get(group), dict) and cfg[group].get(key.split(".")[1], "") is None]
+    if cfg.get("libero") is None:
+        unset += _derive_image_keys(cfg.get("policies") or {}, fixed)
+    if not fixed:
+        return unset
+    for key in unset:
+        group, name = key.split(".")
+        cfg[group][name] = fixed[0]
+    return []
+
+
+def _derive_image_keys(policies: dict, fixed: list[str]) -> list[str]:
+    """Give each trained candidate that names no cameras (and whose type has none of its own)
+    the first fixed camera; the keys it could not fill (no fixed camera)."""
+    from r2s_eval.policies.types import policy_type
+    from r2s_eval.policies.types.registry import TOP_LEVEL_DEFAULTS
+
+    unset = []
+    for name, entry in policies.items():
+        if not isinstance(entry, dict) or entry.get("image_keys") is not None or entry.get("type") in (
+                "checkpoint", "server", "variant"):
+            continue
+        try:
+            own = policy_type(entry.get("type")).all_defaults()["image_keys"] != TOP_LEVEL_DEFAULTS["image_keys"]
+        except R2SError:
+            continue  # an unknown type: the schema names it
+        if own:
+            continue
+        if fixed:
+            entry["image_keys"] = [f"observation.images.{fixed[0]}"]
+        else:
+            unset.append(f"policies.{name}.image_keys")
+    return unset
 
 
 def _override_key(line: str) -> str:

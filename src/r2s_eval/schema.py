@@ -341,7 +341,7 @@ class CalibAppearance:
 
 @dataclass
 class Calib:
-    camera: Camera
+    camera: Camera | None  # None: derived from the world when composed (r2s_eval.config)
     segmenter: Annotated[dict, Tagged("type", {"hsv": HsvSegmenter, "grounded_sam": GroundedSamSegmenter})]
     refine: Refine
     calibration: Calibration
@@ -373,7 +373,7 @@ class Rollout:
     device: str
     batch_episodes: PositiveInt
     model_batch: PositiveInt
-    video_camera: Camera
+    video_camera: Camera | None  # None: derived from the world when composed (r2s_eval.config)
     video_size: tuple[PositiveInt, PositiveInt] | None
     real_video_size: tuple[PositiveInt, PositiveInt] | None
     video_fps: PositiveInt

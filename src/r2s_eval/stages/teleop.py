@@ -2,12 +2,15 @@
 
 Operators keep the demonstrations that succeed (as a lab discards botched takes); every
 attempt is logged. The twin's true initial poses go to a separate file used only to score
-the initial-pose estimates (``r2s_eval.twin.record``).
+the initial-pose estimates (``r2s_eval.twin.record``). The world's physical check
+(``r2s_eval.sim.world_check``) runs first: a world that fails it stops the stage before it
+records, one line per problem.
 """
 
 from __future__ import annotations
 
 from r2s_eval.sim import load_world_params
+from r2s_eval.sim.world_check import check_world
 from r2s_eval.stages import _cli
 from r2s_eval.twin.record import record_teleop
 from r2s_eval.utils.io import write_parquet
@@ -17,6 +20,8 @@ READS = ("teleop", "tasks", "suite", "world", "seed")  # config paths the --cfg 
 
 def main(args) -> None:
     cfg = args.cfg
+    # Fingers flung past their limits or a grasp that drops its object would record only failures.
+    check_world(cfg["world"], cfg["tasks"])
     truth, attempts = record_teleop(args.dataset, load_world_params(args.twin), teleop=cfg["teleop"], world=cfg["world"],
                                     tasks=cfg["tasks"], suite=cfg["suite"], seed=cfg["seed"])
     write_parquet(args.truth, truth, metadata={"stage": "teleop", "attempts": attempts})

@@ -28,14 +28,19 @@ from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, world_tasks
 
-LABEL_PX = 18  # height of the text band above each image
+LABEL_PX = 22  # height of the text band above each image
+LABEL_SCALE = 0.5  # the labels' font scale where they fit; a narrower panel gets a smaller font
 STARTS_PNG, DATASET_PNG = "starts.png", "dataset.png"  # what ``preview`` writes into its folder
+PANEL_PX = 320  # height of a starts.png panel: large enough to judge a camera's pose by
 MIN_SHOWN_PX = 256  # smaller frames are shown enlarged, so that the labels and marks stay legible
 
 
 def _labelled(image: np.ndarray, text: str) -> np.ndarray:
+    """``image`` under a band with ``text``, whole: its font shrinks until it fits the width."""
     band = np.full((LABEL_PX, image.shape[1], 3), 255, np.uint8)
-    cv2.putText(band, text, (3, LABEL_PX - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    (width, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, 1)
+    scale = LABEL_SCALE * min(1.0, (image.shape[1] - 6) / width)
+    cv2.putText(band, text, (3, LABEL_PX - 7), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
     return np.vstack([band, image])
 
 

@@ -8,7 +8,9 @@ that set it, with the closest known key when a key looks misplaced or misspelt.
 
 The schema states structure, types and ranges, never values: a field without a default must be
 set by the group's YAML file (which owns its default); a field declared ``optional(...)`` may be
-left out, and the code that reads it owns its default (named in the field's note). Open-ended
+left out, and the code that reads it owns its default (named in the field's note). The world
+group's keys, with their defaults, are typed in ``r2s_eval.sim.world_spec``; the checker and its
+markers are ``r2s_eval.typed``'s. Open-ended
 name -> settings maps are checked by their owners' validators: candidate policies by
 ``r2s_eval.policies.trained_config.validate_policy_cfg`` / ``r2s_eval.policy_sources.validate_source_cfg``,
 judges by constructing them with ``r2s_eval.judge.make_judge`` (which contacts no server), the

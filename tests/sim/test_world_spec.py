@@ -39,14 +39,14 @@ def test_the_robot_read_outside_a_config_lists_every_problem():
     world = copy.deepcopy(bundled_world())
     left = world["robot"]["arms"]["left"]
     left["gripper"] = {**left["gripper"], "ctrl": {"open": 0.05, "closed": 0.05}}  # the right arm's stays
-    left["home"] = [0.0]
+    world["robot"]["arms"]["right"]["home"] = [0.0]
     world["rig"]["wrist_left"]["arm"] = "middle"
     with pytest.raises(WorldError) as err:
         load_robot(world)
     assert str(err.value).splitlines() == [
         "3 world problems:",
         "  - world.robot.arms.left.gripper.ctrl: open and closed must differ, got 0.05 for both",
-        "  - world.robot.arms.left.home: must be a list of 6 numbers (one per joint), got [0.0]",
+        "  - world.robot.arms.right.home: must be a list of 6 numbers (one per joint), got [0.0]",
         "  - world.rig.wrist_left.arm: must be an arm of the robot ['left', 'right'], got 'middle'"]
 
 

@@ -680,8 +680,9 @@ def markdown() -> str:
                                                     cls.__doc__.startswith(cls.__name__ + "(") else ""), "",
                 "| key | type | default | unit | meaning |", "|---|---|---|---|---|"]
         for f in dataclasses.fields(cls):
-            out.append(f"| `{f.name}` | {_type_words(hints[f.name])} | {_default_words(f)} | "
-                       f"{f.metadata.get('unit', '')} | {f.metadata['doc']} |")
+            cells = (f"`{f.name}`", _type_words(hints[f.name]), _default_words(f), f.metadata.get("unit", ""),
+                     f.metadata["doc"])
+            out.append("| " + " | ".join(c.replace("|", "\\|").replace("<", "&lt;") for c in cells) + " |")
         out.append("")
     return "\n".join(out) + "\n" + RULES
 

@@ -34,7 +34,7 @@ import yaml
 
 from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.horizon import Horizon
-from r2s_eval.typed import (Count, Entries, FieldsOf, Increasing, Interval, Level, NonEmpty, NonNegative, OneOf, Positive,
+from r2s_eval.typed import (Count, Entries, FieldsOf, Interval, Level, NonEmpty, NonNegative, OneOf, Positive,
                             PositiveInt, Problem, Range, Share, Tagged, _check, _hints, _join, _split, optional)
 
 

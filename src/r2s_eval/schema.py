@@ -8,7 +8,9 @@ that set it, with the closest known key when a key looks misplaced or misspelt.
 
 The schema states structure, types and ranges, never values: a field without a default must be
 set by the group's YAML file (which owns its default); a field declared ``optional(...)`` may be
-left out, and the code that reads it owns its default (named in the field's note). Open-ended
+left out, and the code that reads it owns its default (named in the field's note). The world
+group's keys, with their defaults, are typed in ``r2s_eval.sim.world_spec``; the checker and its
+markers are ``r2s_eval.typed``'s. Open-ended
 name -> settings maps are checked by their owners' validators: candidate policies by
 ``r2s_eval.policies.trained_config.validate_policy_cfg`` / ``r2s_eval.policy_sources.validate_source_cfg``,
 judges by constructing them with ``r2s_eval.judge.make_judge`` (which contacts no server), the
@@ -23,8 +25,8 @@ import difflib
 import re
 import types
 import typing
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -32,87 +34,8 @@ import yaml
 
 from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.horizon import Horizon
-
-# ----------------------------------------------------------------------------- field markers
-
-
-@dataclass(frozen=True)
-class Range:
-    """Numeric bounds; `open_min` / `open_max` exclude the bound itself."""
-
-    min: float | None = None
-    max: float | None = None
-    open_min: bool = False
-    open_max: bool = False
-
-    def problem(self, v: float) -> str | None:
-        low = self.min is not None and (v <= self.min if self.open_min else v < self.min)
-        high = self.max is not None and (v >= self.max if self.open_max else v > self.max)
-        if not (low or high):
-            return None
-        lo = "-inf" if self.min is None else self.min
-        hi = "inf" if self.max is None else self.max
-        return f"must be in {'(' if self.open_min else '['}{lo}, {hi}{')' if self.open_max else ']'}, got {v!r}"
-
-
-@dataclass(frozen=True)
-class NonEmpty:
-    def problem(self, v: Sequence) -> str | None:
-        return "must not be empty" if len(v) == 0 else None
-
-
-@dataclass(frozen=True)
-class Increasing:
-    """A [low, high] pair with low <= high."""
-
-    def problem(self, v: Sequence) -> str | None:
-        return f"must be [low, high] with low <= high, got {list(v)}" if v[0] > v[1] else None
-
-
-@dataclass(frozen=True)
-class OneOf:
-    """A value from a vocabulary its owner defines (loaded when first needed)."""
-
-    values: Callable[[], Sequence[str]]
-
-    def problem(self, v: str) -> str | None:
-        known = list(self.values())
-        if v in known:
-            return None
-        close = difflib.get_close_matches(v, known, n=1)
-        return f"must be one of {known}, got {v!r}" + (f"; did you mean {close[0]!r}?" if close else "")
-
-
-@dataclass(frozen=True)
-class FieldsOf:
-    """Settings that go verbatim to a dataclass of another module: its field names and types."""
-
-    cls: Callable[[], type]
-
-
-@dataclass(frozen=True)
-class Tagged:
-    """A mapping whose `key` entry picks the schema of the rest."""
-
-    key: str
-    options: dict[str, type]
-
-
-@dataclass(frozen=True)
-class Entries:
-    """An open name -> settings map whose entries the owner's validator checks (it raises).
-
-    `schema`, where given, picks the dataclass that types an entry's keys (None: the owner's
-    validator alone); an entry whose keys fail it is reported key by key, the owner's
-    validator then judging only entries that passed."""
-
-    validate: Callable[[str, dict], Any]
-    schema: Callable[[dict], type | None] | None = None
-
-
-def optional(default_owner: str) -> Any:
-    """A key that may be left out; `default_owner` names the code that then supplies its value."""
-    return field(default=None, metadata={"default_owner": default_owner})
+from r2s_eval.typed import (Count, Entries, FieldsOf, Interval, Level, NonEmpty, NonNegative, OneOf, Positive,
+                            PositiveInt, Problem, Range, Share, Tagged, _check, _hints, _join, _split, optional)
 
 
 def _intervals() -> Sequence[str]:
@@ -153,13 +76,12 @@ def _check_judge(name: str, entry: dict) -> Any:
     return make_judge(entry)  # builds the judge object only: no model is loaded, no server asked
 
 
-PositiveInt = Annotated[int, Range(min=1)]
-Count = Annotated[int, Range(min=0)]
-Positive = Annotated[float, Range(min=0, open_min=True)]
-NonNegative = Annotated[float, Range(min=0)]
-Share = Annotated[float, Range(0, 1)]
-Level = Annotated[float, Range(0, 1, open_min=True, open_max=True)]
-Interval = Annotated[tuple[float, float], Increasing()]
+def _world_spec() -> type:
+    from r2s_eval.sim.world_spec import WorldSpec
+
+    return WorldSpec
+
+
 Camera = str  # a camera of the world's rig (checked with the world, in _cross_problems)
 
 # ----------------------------------------------------------------------------- groups
@@ -176,19 +98,6 @@ class Region:
 class SuiteTask:
     # null: the task's documented start regions; else {object: region} replacing them.
     init_regions: dict[str, Region] | None
-
-
-@dataclass
-class World:
-    image_height: PositiveInt
-    image_width: PositiveInt
-    cameras: Annotated[list[Camera], NonEmpty()]
-    # Checked by their owners, r2s_eval.sim.robot.load_robot and r2s_eval.sim.tasks.load_tasks
-    # (one problem named by its key).
-    robot: dict
-    rig: Annotated[dict[str, dict], NonEmpty()]
-    objects: Annotated[dict[str, dict], NonEmpty()]
-    tasks: Annotated[dict[str, dict], NonEmpty()]
 
 
 @dataclass
@@ -724,7 +633,7 @@ class Config:
     tasks: Annotated[list[str], NonEmpty()]  # keys of world.tasks
     seed: Count
     suite: dict[str, SuiteTask]  # keys of world.tasks
-    world: World
+    world: Annotated[dict, FieldsOf(_world_spec)]  # the world's keys: r2s_eval.sim.world_spec
     real: Real
     teleop: Teleop
     ingest: Ingest
@@ -742,115 +651,6 @@ class Config:
     libero: Libero | None = optional("LIBERO experiments compose it (conf/libero); the real-to-sim setting has none")
 
 
-# ----------------------------------------------------------------------------- checking
-
-
-@dataclass
-class Problem:
-    path: str
-    message: str
-    unknown: bool = False  # a key the schema does not know (a close known key is suggested)
-    owner: bool = False  # the message is an owner's validator's, quoted after a colon
-
-
-def _join(path: str, key: Any) -> str:
-    return f"{path}.{key}" if path else str(key)
-
-
-def _describe(value: Any) -> str:
-    return f"{value!r} ({type(value).__name__})"
-
-
-def _split(tp: Any) -> tuple[Any, list[Any]]:
-    if typing.get_origin(tp) is Annotated:
-        base, *markers = typing.get_args(tp)
-        inner, more = _split(base)
-        return inner, [*more, *markers]
-    return tp, []
-
-
-def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls, include_extras=True)
-
-
-def _check(value: Any, tp: Any, path: str) -> list[Problem]:
-    tp, markers = _split(tp)
-    if isinstance(value, str) and value == "???":
-        return [Problem(path, "has no value (??? in its file); set it, e.g. on the command line")]
-    for m in markers:
-        if isinstance(m, FieldsOf):
-            tp = m.cls()
-    tagged = next((m for m in markers if isinstance(m, Tagged)), None)
-    if tagged is not None:
-        if not isinstance(value, dict):
-            return [Problem(path, f"must be a mapping, got {_describe(value)}")]
-        tag = value.get(tagged.key)
-        if tag not in tagged.options:
-            return [Problem(_join(path, tagged.key), f"must be one of {list(tagged.options)}, got {tag!r}")]
-        tp = tagged.options[tag]
-    problems = _check_type(value, tp, path)
-    if problems:
-        return problems
-    for m in markers:
-        if hasattr(m, "problem") and value is not None:
-            message = m.problem(value)
-            if message:
-                problems.append(Problem(path, message))
-        elif isinstance(m, Entries):
-            for name, entry in value.items():
-                problems += _entry_problems(m, path, str(name), entry)
-    return problems
-
-
-def _check_type(value: Any, tp: Any, path: str) -> list[Problem]:
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if tp is Any:
-        return []
-    if origin in (Union, types.UnionType):
-        if value is None:
-            return [] if type(None) in args else [Problem(path, "must not be null")]
-        options = [a for a in args if a is not type(None)]
-        results = [_check(value, a, path) for a in options]
-        return [] if any(not r for r in results) else results[0]
-    if value is None:
-        return [Problem(path, "must not be null")]
-    if origin is Literal:
-        return [] if value in args else [Problem(path, f"must be one of {list(args)}, got {value!r}")]
-    if tp is bool:
-        return [] if isinstance(value, bool) else [Problem(path, f"must be true or false, got {_describe(value)}")]
-    if tp is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-        return [] if ok else [Problem(path, f"must be an integer, got {_describe(value)}")]
-    if tp is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        return [] if ok else [Problem(path, f"must be a number, got {_describe(value)}")]
-    if tp is str:
-        return [] if isinstance(value, str) else [Problem(path, f"must be a string, got {_describe(value)}")]
-    if origin in (list, tuple):
-        if not isinstance(value, list | tuple):
-            return [Problem(path, f"must be a list, got {_describe(value)}")]
-        if origin is tuple and Ellipsis not in args:
-            if len(value) != len(args):
-                return [Problem(path, f"must be a list of {len(args)} values, got {list(value)}")]
-            return [p for i, (v, a) in enumerate(zip(value, args)) for p in _check(v, a, f"{path}[{i}]")]
-        item = args[0] if args else Any
-        return [p for i, v in enumerate(value) for p in _check(v, item, f"{path}[{i}]")]
-    if tp is dict or origin is dict:
-        if not isinstance(value, dict):
-            return [Problem(path, f"must be a mapping, got {_describe(value)}")]
-        key_tp, value_tp = args if args else (Any, Any)
-        problems = []
-        for k, v in value.items():
-            key_problems = _check(k, key_tp, _join(path, k))
-            problems += [Problem(p.path, f"is not a known name: {p.message}") for p in key_problems]
-            if not key_problems:
-                problems += _check(v, value_tp, _join(path, k))
-        return problems
-    if dataclasses.is_dataclass(tp):
-        return _check_fields(value, tp, path)
-    raise TypeError(f"schema type {tp!r} at {path} is not supported")
-
-
 # Keys that were renamed: a config still using the old name is told the new one.
 RENAMED = {
     "rollout.chunk_size": "rollout.horizon.chunk",
@@ -858,46 +658,10 @@ RENAMED = {
 }
 
 
-def _unknown_key(path: str, parent: str) -> Problem:
-    if path in RENAMED:
-        return Problem(path, f"was renamed {RENAMED[path]}")
-    return Problem(path, f"is not a key of {parent or 'the config'}", True)
-
-
-def _check_fields(value: Any, cls: type, path: str) -> list[Problem]:
-    if not isinstance(value, dict):
-        return [Problem(path, f"must be a mapping, got {_describe(value)}")]
-    hints, fields = _hints(cls), {f.name: f for f in dataclasses.fields(cls)}
-    problems = [_unknown_key(_join(path, k), path) for k in value if k not in fields]
-    for name, f in fields.items():
-        if name not in value:
-            required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-            if required:
-                problems.append(Problem(_join(path, name), "is missing"))
-            continue
-        problems += _check(value[name], hints[name], _join(path, name))
-    return problems
-
-
-def _entry_problems(entries: Entries, path: str, name: str, entry: Any) -> list[Problem]:
-    where = _join(path, name)
-    if not isinstance(entry, dict):
-        return [Problem(where, f"must be a mapping of settings, got {_describe(entry)}")]
-    schema = entries.schema(entry) if entries.schema else None
-    if schema is not None:  # typed keys first; unknown keys are the owner's to explain
-        known = {f.name for f in dataclasses.fields(schema)}
-        if problems := _check_fields({k: v for k, v in entry.items() if k in known}, schema, where):
-            return problems
-    try:
-        entries.validate(name, entry)
-    except (ValueError, TypeError, KeyError, R2SError) as exc:
-        message = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
-        # Point at the entry's key the validator names first (its messages quote keys as 'key').
-        mentioned = [(message.find(f"'{k}'"), k) for k in entry if f"'{k}'" in message]
-        key = min(mentioned)[1] if mentioned else None
-        return [Problem(_join(where, key) if key else where, message, owner=True)]
-    return []
-
+def _renamed(problem: Problem) -> Problem:
+    if problem.unknown and problem.path in RENAMED:
+        return Problem(problem.path, f"was renamed {RENAMED[problem.path]}")
+    return problem
 
 # ----------------------------------------------------------------------------- cross-group checks
 
@@ -947,7 +711,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     try:
         robot, tasks = load_world(world)
     except WorldError as err:
-        return [Problem(err.path, err.message, owner=True)]
+        return [Problem(path, message, owner=True) for path, message in err.problems]
     def stranger(key: str) -> str:
         close = difflib.get_close_matches(key, list(tasks), n=1)
         return f"world.tasks {sorted(tasks)}" + (f"; did you mean {close[0]!r}?" if close else "")
@@ -1269,7 +1033,7 @@ def _unread_in_libero(sources: Sequence[Source]) -> list[Problem]:
 
 def config_problems(cfg: dict, sources: Sequence[Source] = ()) -> list[str]:
     """Every problem of the composed `cfg`, one line each naming the key and where it was set."""
-    problems = _check(cfg, Config, "")
+    problems = [_renamed(p) for p in _check(cfg, Config, "")]
     if not problems:
         problems = _cross_problems(cfg)
     if not problems and cfg.get("libero") is not None:

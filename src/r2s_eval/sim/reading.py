@@ -1,5 +1,6 @@
-"""Reading a world file: the error that names a wrong entry by its key, and the checks its
-readers (``tasks``, ``robot``) share."""
+"""Reading a world file: the error that names a wrong entry by its key (or lists every wrong
+entry), and the checks its readers share. The keys themselves are typed in
+``r2s_eval.sim.world_spec``."""
 
 from __future__ import annotations
 
@@ -14,11 +15,22 @@ from r2s_eval.paths import REPO_ROOT
 
 
 class WorldError(ConfigError):
-    """A wrong entry of a world: ``path`` is its dotted key (``world.tasks.<key>...``)."""
+    """A wrong entry of a world: ``path`` is its dotted key (``world.tasks.<key>...``);
+    ``problems`` every (key, message) when a world has several."""
 
     def __init__(self, path: str, message: str):
         super().__init__(f"{path}: {message}")
         self.path, self.message = path, message
+        self.problems = [(path, message)]
+
+    @classmethod
+    def listing(cls, problems: list[tuple[str, str]]) -> WorldError:
+        """One error for every problem: the problem's own line, or a count and one line each."""
+        error = cls(*problems[0])
+        if len(problems) > 1:
+            error.args = (f"{len(problems)} world problems:\n" + "\n".join(f"  - {p}: {m}" for p, m in problems),)
+            error.problems = list(problems)
+        return error
 
 
 def fail(where: str, message: str) -> WorldError:
@@ -70,8 +82,11 @@ def package_dir(name: str, where: str) -> Path:
 
 
 def file_path(ref: Any, where: str, what: str = "file") -> Path:
-    """The file a world names: a path (relative to the repository, or absolute) or
+    """The file a world names: a path (relative to the repository, or absolute), ``{path}``, or
     ``{package, resource}``, a file shipped inside an installed package; it must exist."""
+    if isinstance(ref, Mapping) and "path" in ref:
+        check_keys(dict(ref), {"path"}, {"path"}, where)
+        return file_path(ref["path"], f"{where}.path", what)
     if isinstance(ref, Mapping):
         check_keys(dict(ref), {"package", "resource"}, {"package", "resource"}, where)
         path = package_dir(str(ref["package"]), f"{where}.package") / str(ref["resource"])

@@ -9,31 +9,12 @@ condition (``r2s_eval.sim.predicates``), both compiled here into functions of th
 * ``progress(scene) -> float`` in [0, 1]: the highest stage reached *in the current state*;
   the env also keeps the running maximum over an episode.
 
-An object (``world.objects.<name>``): ``kind`` (cup, plate, ball, block, box: the builders and
-geometry of ``objects.py``; or mesh, a scanned object read from its file, ``meshes.py``), ``rgba`` (its colour, which the colour segmenter looks for), ``dims``
-(the kind's dimensions, metres), ``mass_kg``, optionally ``friction`` (1.0) and ``find``, how it is
-found in a camera frame: ``hue`` (an explicit HSV range ``{hue_lo, hue_hi, sat_min, val_min}``,
-OpenCV units; default: around ``rgba``) and ``prompt`` (the open-vocabulary segmenter's text,
-default ``"a <name>"``).
-
-A task entry (``world.tasks.<key>``)::
-
-    instruction: Pick the Cup and Place it on the Plate   # matched against a dataset's task strings
-    start:                                   # the task's objects (of the world's `objects`), in order
-      cup: {x_range_m: [-0.12, 0.06], y_range_m: [-0.16, 0.16]}   # + yaw_range_rad (default any yaw),
-      plate: {x_range_m: [...], y_range_m: [...]}                 #   placement, relative_to
-    plan: [{pick: cup}, {place_on: plate}]   # what the twin's scripted operator does (r2s_eval.twin.operator)
-    arm: nearest                             # an arm of the robot | nearest | behind_axis (default nearest)
-    clearance_m: 0.03                        # footprints kept this far apart at the start (default)
-    success: {all: [{upright: {object: cup}}, {on_top_of: {object: cup, support: plate}}, ...]}
-    progress: {objects: [cup], goal: {over: {object: cup, target: plate}}}
-
-Start regions are axis-aligned boxes on the table top (world frame, metres) for each object's
-planar pose (footprint centre, see ``objects.py``), with yaw uniform in ``yaw_range_rad``; poses
-are drawn by rejection sampling so footprints keep ``clearance_m``. A region ``relative_to``
-another object is expressed in that object's planar frame (its x, y rotated by its yaw) and the
-object starts on the other's support surface (a block inside a box). Each object starts in a
-placement (``upright`` by default, ``upside_down``, ``on_side``).
+The keys of an object (``world.objects.<name>``) and a task entry (``world.tasks.<key>``), their
+defaults and units are ``r2s_eval.sim.world_spec``'s (the reference: ``docs/world-keys.md``);
+``load_tasks`` builds the runtime objects below from the checked spec. Start regions are boxes
+on the table top for each object's planar pose (footprint centre, see ``objects.py``), drawn by
+rejection sampling so footprints keep ``clearance_m``; a region ``relative_to`` another object is
+in that object's planar frame and the object starts on its support surface (a block in a box).
 
 The bundled world's seven tasks (``conf/world/tabletop.yaml`` states them in full):
 
@@ -62,9 +43,10 @@ import numpy as np
 import yaml
 
 from r2s_eval.paths import CONF_DIR
-from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval, read_find  # noqa: F401 (WorldError: re-exported)
-from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
-from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
+from r2s_eval.sim import world_spec as spec
+from r2s_eval.sim.reading import WorldError, fail  # noqa: F401 (WorldError: re-exported)
+from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.meshes import load_shape
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 from r2s_eval.errors import ConfigError
 
@@ -124,54 +106,24 @@ class Task:
 
 
 # ---------------------------------------------------------------- reading a world
-def _object(name: str, entry: Any) -> ObjectSpec:
+def _object(name: str, entry: spec.Object) -> ObjectSpec:
     where = f"objects.{name}"
-    entry = as_mapping(entry, where)
-    if entry.get("kind") not in KINDS:
-        raise fail(f"{where}.kind", f"must be one of {sorted(KINDS)}, got {entry.get('kind')!r}")
-    common = {"kind", "rgba", "mass_kg", "friction", "find"}
-    if entry["kind"] == "mesh":  # a scanned object: its dimensions are its mesh's
-        check_keys(entry, common | MESH_KEYS, {"kind", "rgba", "mass_kg", "mesh"}, where)
-    else:
-        check_keys(entry, common | {"dims"}, {"kind", "rgba", "dims", "mass_kg"}, where)
-    rgba = entry["rgba"]
-    if not isinstance(rgba, list) or len(rgba) != 4 or not all(0 <= finite(c, f"{where}.rgba") <= 1 for c in rgba):
-        raise fail(f"{where}.rgba", f"must be four numbers in [0, 1], got {rgba!r}")
-    shape = load_shape(entry, where) if entry["kind"] == "mesh" else None
-    dims = shape.dims() if shape is not None else as_mapping(entry["dims"], f"{where}.dims")
-    for key, value in dims.items():
-        finite(value, f"{where}.dims.{key}", positive=True)
-    hue, prompt = read_find(entry.get("find"), f"{where}.find")
-    return ObjectSpec(name=name, kind=entry["kind"], rgba=tuple(rgba), dims=dims,
-                      mass_kg=finite(entry["mass_kg"], f"{where}.mass_kg", positive=True),
-                      friction=finite(entry.get("friction", 1.0), f"{where}.friction", positive=True),
-                      hue=hue, prompt=prompt, shape=shape, symmetry=yaw_symmetry_of(entry, where))
+    mesh_keys = {k: getattr(entry, k) for k in ("mesh", "collision") if getattr(entry, k) is not None}
+    shape = load_shape(mesh_keys, where) if entry.kind == "mesh" else None
+    dims = shape.dims() if shape is not None else dict(entry.dims)
+    return ObjectSpec(name=name, kind=entry.kind, rgba=entry.rgba, dims=dims, mass_kg=entry.mass_kg,
+                      friction=entry.friction, hue=None if entry.find is None else entry.find.hsv(),
+                      prompt=None if entry.find is None else entry.find.prompt, shape=shape,
+                      symmetry=entry.yaw_symmetry)
 
 
-def _region(entry: Any, names: list[str], name: str, where: str) -> tuple[Region, str]:
-    entry = as_mapping(entry, where)
-    check_keys(entry, {"x_range_m", "y_range_m", "yaw_range_rad", "relative_to", "placement"}, {"x_range_m", "y_range_m"},
-          where)
-    placement = entry.get("placement", "upright")
-    if placement not in PLACEMENTS:
-        raise fail(f"{where}.placement", f"must be one of {list(PLACEMENTS)}, got {placement!r}")
-    parent = entry.get("relative_to")
-    if parent is not None and (parent not in names or parent == name):
-        raise fail(f"{where}.relative_to", f"must name another object of the task {names}, got {parent!r}")
-    yaw = interval(entry["yaw_range_rad"], f"{where}.yaw_range_rad") if "yaw_range_rad" in entry else (-np.pi, np.pi)
-    region = Region(x_range_m=interval(entry["x_range_m"], f"{where}.x_range_m"),
-                    y_range_m=interval(entry["y_range_m"], f"{where}.y_range_m"), yaw_range_rad=yaw,
-                    relative_to=parent)
-    return region, placement
-
-
-def _condition(spec: Any, objects: Mapping[str, ObjectSpec], where: str):
+def _condition(condition: Any, objects: Mapping[str, ObjectSpec], where: str):
     names = list(objects)
-    strangers = sorted(condition_objects(spec) - set(names))
+    strangers = sorted(condition_objects(condition) - set(names))
     if strangers:
         raise fail(where, f"names {strangers}, which are not objects of the task {names}")
     try:
-        return compile_condition(spec, where, {n: o.kind for n, o in objects.items()})
+        return compile_condition(condition, where, {n: o.kind for n, o in objects.items()})
     except ConditionError as err:
         raise fail(err.path, err.message) from None
 
@@ -192,55 +144,54 @@ def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...
     return tuple(dict(s) for s in steps)
 
 
-def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
+def _task(key: str, entry: spec.Task, objects: dict[str, ObjectSpec]) -> Task:
     where = f"tasks.{key}"
-    entry = as_mapping(entry, where)
-    check_keys(entry, {"instruction", "start", "plan", "arm", "clearance_m", "success", "progress"},
-          {"instruction", "start", "plan", "success", "progress"}, where)
-    if not isinstance(entry["instruction"], str) or not entry["instruction"].strip():
-        raise fail(f"{where}.instruction", "must be a non-empty text")
-    start = as_mapping(entry["start"], f"{where}.start")
-    names = list(start)
-    unknown = [n for n in names if n not in objects]
-    if not names or unknown:
-        raise fail(f"{where}.start", f"must name objects of the world {sorted(objects)}, got {names}")
-    regions, placements = {}, {}
-    for name in names:
-        regions[name], placement = _region(start[name], names, name, f"{where}.start.{name}")
-        if placement != "upright" and objects[name].kind == "mesh":
+    names = list(entry.start)
+    regions = {n: Region(x_range_m=s.x_range_m, y_range_m=s.y_range_m, yaw_range_rad=s.yaw_range_rad,
+                         relative_to=s.relative_to) for n, s in entry.start.items()}
+    for name, start in entry.start.items():
+        if start.placement != "upright" and objects[name].kind == "mesh":
             raise fail(f"{where}.start.{name}.placement", f"a mesh object starts upright (as its file stands), "
-                                                          f"got {placement!r}")
-        if placement != "upright":
-            placements[name] = placement
-    plan = _plan(entry["plan"], names, f"{where}.plan")
-    arm = entry.get("arm", "nearest")
-    if not isinstance(arm, str) or not arm:  # an arm of the world's robot: checked with the robot
-        raise fail(f"{where}.arm", f"must name an arm of the robot, nearest or behind_axis, got {arm!r}")
+                                                          f"got {start.placement!r}")
+    plan = _plan(entry.plan, names, f"{where}.plan")
     mine = {n: objects[n] for n in names}
-    success = _condition(entry["success"], mine, f"{where}.success")
-    stages = as_mapping(entry["progress"], f"{where}.progress")
-    check_keys(stages, {"objects", "goal", "reach_m", "lift_m"}, {"objects", "goal"}, f"{where}.progress")
-    movers = stages["objects"]
-    if not isinstance(movers, list) or not movers or any(m not in names for m in movers):
-        raise fail(f"{where}.progress.objects", f"must list objects of the task {names}, got {movers!r}")
-    goal = _condition(stages["goal"], mine, f"{where}.progress.goal")
-    thresholds = {k: finite(stages[k], f"{where}.progress.{k}", positive=True)
-                  for k in ("reach_m", "lift_m") if k in stages}
+    success = _condition(entry.success, mine, f"{where}.success")
+    stages = entry.progress
+    goal = _condition(stages.goal, mine, f"{where}.progress.goal")
+    thresholds = {k: getattr(stages, k) for k in ("reach_m", "lift_m") if getattr(stages, k) is not None}
     return Task(
-        key=key, instruction=entry["instruction"], objects=tuple(objects[n] for n in names), init_regions=regions,
-        success=success, progress=staged_progress(tuple(movers), goal, **thresholds), plan=plan, arm=arm,
-        clearance_m=finite(entry.get("clearance_m", 0.03), f"{where}.clearance_m", positive=True),
-        placements=placements, success_condition=entry["success"], progress_stages=stages,
+        key=key, instruction=entry.instruction, objects=tuple(objects[n] for n in names), init_regions=regions,
+        success=success, progress=staged_progress(stages.objects, goal, **thresholds), plan=plan, arm=entry.arm,
+        clearance_m=entry.clearance_m,
+        placements={n: s.placement for n, s in entry.start.items() if s.placement != "upright"},
+        success_condition=entry.success,
+        progress_stages={"objects": list(stages.objects), "goal": stages.goal, **thresholds},
     )
 
 
 def load_tasks(world: Mapping) -> dict[str, Task]:
-    """The tasks of a world (the ``world`` config group's ``objects`` and ``tasks``), checked: a
-    wrong entry is a ``WorldError`` naming its key."""
-    objects = {str(n): _object(str(n), e) for n, e in as_mapping(world.get("objects"), "objects").items()}
-    tasks = {str(k): _task(str(k), e, objects) for k, e in as_mapping(world.get("tasks"), "tasks").items()}
-    if not tasks:
-        raise fail("tasks", "must list at least one task")
+    """The tasks of a world (the ``world`` config group's ``objects`` and ``tasks``), checked
+    against ``r2s_eval.sim.world_spec``, then their objects' files, plans and conditions: a
+    ``WorldError`` names the wrong key, or lists every one."""
+    objects_spec, tasks_spec, problems = spec.check_tasks(world)
+    objects, tasks = {}, {}
+    for name, entry in objects_spec.items():
+        try:
+            objects[name] = _object(name, entry)
+        except WorldError as err:
+            problems += err.problems
+    for key, entry in tasks_spec.items():
+        strangers = [n for n in entry.start if n not in world["objects"]]
+        if strangers:
+            problems.append((f"world.tasks.{key}.start",
+                             f"must name objects of the world {sorted(objects_spec)}, got {list(entry.start)}"))
+        elif all(n in objects for n in entry.start):  # an object that failed is reported once, above
+            try:
+                tasks[key] = _task(key, entry, objects)
+            except WorldError as err:
+                problems += err.problems
+    if problems:
+        raise WorldError.listing(problems)
     return tasks
 
 

@@ -1,7 +1,8 @@
 """Stage: the scripted operator records the teleop dataset in the reality twin.
 
 Operators keep the demonstrations that succeed (as a lab discards botched takes); every
-attempt is logged. The twin's true initial poses go to a separate file used only to score
+attempt is logged, a failed one with the operator's phase and reason (in the truth file's
+metadata, counted per task in the world report). The twin's true initial poses go to a separate file used only to score
 the initial-pose estimates (``r2s_eval.twin.record``).
 """
 

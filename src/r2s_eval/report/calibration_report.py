@@ -1,6 +1,7 @@
 """The calibrated world's fidelity per task, from the pipeline's artefacts.
 
-Per task: scripted-teleop success in the twin, initial-pose error against the twin's truth
+Per task: scripted-teleop success in the twin (and why attempts failed: the operator's phase and
+reason, ``r2s_eval.twin.failures``, counted), initial-pose error against the twin's truth
 (median and 95th percentile, mm and degrees; yaw over objects whose yaw is observable, modulo
 their symmetry; test episodes only), replay success at the first attempt and within the attempt
 budget with Wilson intervals, the attempts used (test episodes only), and what each costs per
@@ -9,7 +10,8 @@ task (sim minus real, Newcombe's interval) and over the cells (``r2s_eval.stats.
 :func:`build_report` returns::
 
     {"targets": {...},
-     "tasks": {task: {"teleop": {"attempts", "successes", "success_rate", "s_per_attempt"},
+     "tasks": {task: {"teleop": {"attempts", "successes", "success_rate", "s_per_attempt",
+                                 "failures": {"<phase>: <reason>": count}},
                       "init_error": {"episodes", "xy_mm_median", "xy_mm_p95", "yaw_deg_median",
                                      "yaw_deg_p95", "objects": {object: {...}}},
                       "replay": {"episodes", "successes", "success_rate", "success_ci",
@@ -51,13 +53,26 @@ def _stats(values: pd.Series) -> tuple[float | None, float | None]:
 def teleop_summary(attempts: list[dict]) -> dict:
     out = {}
     for task, rows in pd.DataFrame(attempts).groupby("task", sort=False):
+        failed = rows[~rows["success"]]
+        why = (failed["phase"] + ": " + failed["reason"]).value_counts() if "reason" in rows else pd.Series(dtype=int)
         out[task] = {
             "attempts": int(len(rows)),
             "successes": int(rows["success"].sum()),
             "success_rate": float(rows["success"].mean()),
             "s_per_attempt": float(rows["wall_s"].mean()) if "wall_s" in rows else None,
+            "failures": {str(k): int(v) for k, v in why.items()},
         }
     return out
+
+
+def failure_lines(report: dict) -> list[str]:
+    """Why the operator's teleop attempts failed, per task (none: no lines)."""
+    lines = []
+    for task, row in report["tasks"].items():
+        failures = (row["teleop"] or {}).get("failures")
+        if failures:
+            lines.append(f"  {task}: " + ", ".join(f"{n} {what}" for what, n in failures.items()))
+    return ["", "failed teleop attempts (phase: reason; r2s_eval.twin.failures):", *lines] if lines else []
 
 
 def init_error_summary(errors: pd.DataFrame) -> dict:
@@ -233,6 +248,7 @@ def format_table(report: dict) -> str:
     lines.append("xy in mm, yaw in degrees (objects with observable yaw, modulo symmetry); init and replay over "
                  "test episodes, replay % with Wilson intervals; targets: teleop >= 90 %, medians <= 5 mm and "
                  "<= 5 deg, replay >= 95 %")
+    lines += failure_lines(report)
     summary = report.get("realsim_gap")
     if summary and summary.get("cells"):
         gap_header = f"{'task':16s} {'policy':16s} {'real %':>13s} {'sim %':>13s} {'sim - real (pp)':>17s}"

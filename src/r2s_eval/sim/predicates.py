@@ -430,3 +430,18 @@ def staged_progress(objects: tuple[str, ...], goal: Condition, reach_m: float = 
         return best
 
     return progress
+
+
+def false_parts(spec: Any, scene: Scene, where: str = "condition") -> list[str]:
+    """Why condition ``spec`` is false in ``scene``: its false predicates, each as its key under
+    ``where`` and its parameters (``where.all[1].on_top_of {object: cup, support: plate}``); a
+    negation that fails is named as ``where.not``. Empty when the condition holds."""
+    if compile_condition(spec, where)(scene):
+        return []
+    (name, params), = spec.items()
+    if name in ("all", "any"):  # all: the false ones; any: every one is false
+        return [part for i, p in enumerate(params) for part in false_parts(p, scene, f"{where}.{name}[{i}]")]
+    if name == "not":
+        return [f"{where}.not {params}"]
+    shown = ", ".join(f"{k}: {v}" for k, v in params.items())
+    return [f"{where}.{name} {{{shown}}}"]

@@ -47,14 +47,12 @@ from r2s_eval.sim import world_spec as spec
 from r2s_eval.sim.reading import WorldError, fail  # noqa: F401 (WorldError: re-exported)
 from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, yaw_symmetry
 from r2s_eval.sim.meshes import load_shape
+from r2s_eval.sim.plans import read_plan
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 from r2s_eval.errors import ConfigError
 
 WORLDS_DIR = CONF_DIR / "world"  # the `world` config group
 BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
-# The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
-PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")
-PLAN_PRIMITIVES = ("pick", *PLACE_PRIMITIVES, "turn_upright")
 
 
 @dataclass(frozen=True)
@@ -73,7 +71,7 @@ class Task:
     init_regions: dict[str, Region]
     success: Callable[[Scene], bool]
     progress: Callable[[Scene], float]
-    # What the scripted operator does: [{pick: X}, {<place primitive>: Y}] or [{turn_upright: X}].
+    # What the scripted operator does: [{pick: X}, {<place primitive>: Y}] or [{turn_upright: X}] (plans.py).
     plan: tuple[dict[str, str], ...] = ()
     # "left", "right", "nearest" (the arm whose base is nearest to the midpoint of the
     # objects), or "behind_axis" (on_side objects: the arm on the side the object's axis
@@ -128,22 +126,6 @@ def _condition(condition: Any, objects: Mapping[str, ObjectSpec], where: str):
         raise fail(err.path, err.message) from None
 
 
-def _plan(value: Any, names: list[str], where: str) -> tuple[dict[str, str], ...]:
-    steps = value if isinstance(value, list) else []
-    if not all(isinstance(s, Mapping) and len(s) == 1 for s in steps):
-        raise fail(where, f"must be a list of one-key steps, e.g. [{{pick: cup}}, {{place_on: plate}}], got {value!r}")
-    kinds = [next(iter(s)) for s in steps]
-    for i, step in enumerate(steps):
-        (primitive, obj), = step.items()
-        if primitive not in PLAN_PRIMITIVES:
-            raise fail(f"{where}[{i}]", f"unknown primitive {primitive!r}; primitives are {list(PLAN_PRIMITIVES)}")
-        if obj not in names:
-            raise fail(f"{where}[{i}].{primitive}", f"must name an object of the task {names}, got {obj!r}")
-    if not (kinds == ["turn_upright"] or (len(kinds) == 2 and kinds[0] == "pick" and kinds[1] in PLACE_PRIMITIVES)):
-        raise fail(where, f"must be a pick and one of {list(PLACE_PRIMITIVES)}, or a turn_upright alone; got {kinds}")
-    return tuple(dict(s) for s in steps)
-
-
 def _task(key: str, entry: spec.Task, objects: dict[str, ObjectSpec]) -> Task:
     where = f"tasks.{key}"
     names = list(entry.start)
@@ -153,7 +135,7 @@ def _task(key: str, entry: spec.Task, objects: dict[str, ObjectSpec]) -> Task:
         if start.placement != "upright" and objects[name].kind == "mesh":
             raise fail(f"{where}.start.{name}.placement", f"a mesh object starts upright (as its file stands), "
                                                           f"got {start.placement!r}")
-    plan = _plan(entry.plan, names, f"{where}.plan")
+    plan = read_plan(entry.plan, {n: objects[n].kind for n in names}, f"{where}.plan")
     mine = {n: objects[n] for n in names}
     success = _condition(entry.success, mine, f"{where}.success")
     stages = entry.progress

@@ -1,10 +1,11 @@
 """Stage: the scripted operator records the teleop dataset in the reality twin.
 
 Operators keep the demonstrations that succeed (as a lab discards botched takes); every
-attempt is logged. The twin's true initial poses go to a separate file used only to score
-the initial-pose estimates (``r2s_eval.twin.record``). The world's physical check
-(``r2s_eval.sim.world_check``) runs first: a world that fails it stops the stage before it
-records, one line per problem.
+attempt is logged, a failed one with the operator's phase and reason (in the truth file's
+metadata, counted per task in the world report). The twin's true initial poses go to a separate
+file used only to score the initial-pose estimates (``r2s_eval.twin.record``). The world's
+physical check (``r2s_eval.sim.world_check``) runs first: a world that fails it stops the stage
+before it records, one line per problem.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 operator and the truth it records.
 
 Modules: ``perturb`` (``TwinMagnitudes``, seeded perturbation of ``WorldParams``),
-``operator`` (the scripted teleoperator, differential IK with mink), ``record`` (the
+``operator`` (the scripted teleoperator, differential IK with mink), ``primitives`` (its plan
+primitives), ``failures`` (why an episode failed), ``record`` (the
 teleop dataset recorded in the twin, with the true initial poses). This package builds on
 ``r2s_eval.sim``; ``sim`` never imports it, so nothing on the simulation side can read the
 twin's parameters or truth except through the artefacts the stages pass on.

@@ -16,7 +16,10 @@ its own commanded joint configuration as the IK seed, as a teleoperation
 rig does.
 
 Plans. A task's plan is data (its ``world.tasks`` entry, ``plan``): a ``pick`` of one object followed
-by one place primitive, or a ``turn_upright``:
+by one place primitive, or a ``turn_upright``. The primitives are one list (``r2s_eval.sim.plans``,
+which the task check reads); each builds its segments in ``r2s_eval.twin.primitives`` from what
+the operator offers there (where it commands the hand, its moves and speeds, how its hand takes
+an object of a kind: ``grasp``, ``resting_centre_on`` below):
 
 ===================  ===============================================================
 primitive            the operator
@@ -27,7 +30,8 @@ place_on: Y          releases it with its bottom 6 mm above Y's top face (a plat
 place_in: Y          releases it 2 cm above Y's rim, over its centre: it drops in (a cup, a box)
 place_over: Y        releases the upside-down object with its rim 6 mm above the table,
                      centred on Y (covering it)
-put_down_beside: Y   puts it on the table beside Y (a box), towards the table's centre line
+put_down_beside: Y   puts it on the table beside Y (a box), towards the table's centre line (a
+                     box on that line: on its side away from the arm's base)
 turn_upright: X      stands the lying X (a cup) up
 ===================  ===============================================================
 
@@ -70,8 +74,15 @@ and an occasional regrasp. Episodes last 6.5-10 s (65-100 control steps at 10 Hz
 settings' step counts and per-step rates (pauses, holds, gripper rate, a segment's step limit)
 are for 0.1 s steps: at a faster control rate each lasts as many control steps as make 0.1 s.
 
+Why an episode failed: ``op.failure()`` once it is over (None when the task check holds): the phase
+the operator was in when the first thing went wrong, the reason (``target_not_reached``,
+``closed_on_nothing``, ``slipped``, ``joint_out_of_range``, ``out_of_time``, ``task_check_false``:
+``r2s_eval.twin.failures`` says what each means) and what was seen. It only reads the scene: an
+episode's actions are the same as without it.
+
 Success rate: ``python -m r2s_eval.twin.operator [--world <name>] --task <key|all> --episodes 20
-[--twin]`` (a world of ``conf/world``, default the bundled one; episodes stop after 15 s).
+[--twin]`` (a world of ``conf/world``, default the bundled one; episodes stop after 15 s) prints
+per task the rate and the failures counted by phase and reason, then one line per failed episode.
 """
 
 from __future__ import annotations
@@ -90,7 +101,10 @@ from r2s_eval.errors import ConfigError
 from r2s_eval.sim.objects import height_m, support_top_m
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import TASKS, WORLDS_DIR, Task, get_task
+from r2s_eval.twin import primitives
+from r2s_eval.twin.failures import EpisodeWatch, Failure, summary
 from r2s_eval.twin.perturb import sample_twin_params
+from r2s_eval.twin.primitives import PlanStep, Segment
 
 
 @dataclass(frozen=True)
@@ -119,19 +133,6 @@ class OperatorConfig:
     neighbour_radius_m: float = 0.15  # objects this close turn the hand so its jaws miss them
     ik_iterations: int = 4
     max_steps_per_segment: int = 60
-
-
-@dataclass
-class Segment:
-    """Move the tcp to ``pos_world_m`` and the gripper to ``gripper``, then hold ``hold_steps``."""
-
-    name: str
-    pos_world_m: np.ndarray
-    gripper: float
-    speed_m_s: float
-    hold_steps: int = 0
-    R_world: np.ndarray | None = None  # gripper orientation to reach; None keeps the current one
-    settle_m: float | None = None  # also wait until the real tcp is this close to the target
 
 
 def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
@@ -232,7 +233,7 @@ class ScriptedOperator:
         self.cfg = cfg or OperatorConfig()
         self.done = False
         self.phase = "start"
-        self._plan: list[Callable[[], list[Segment]]] = []
+        self._plan: list[PlanStep] = []
         self._queue: list[Segment] = []
         self._segment: Segment | None = None
         self._segment_steps = 0
@@ -245,7 +246,8 @@ class ScriptedOperator:
         # Each step of the settings (pauses, holds, gripper rate) lasts this many control steps.
         self._ticks = max(1, round(STEP_S / env.control_dt_s))
         self.arm = self._choose_arm()
-        self._plan = _plan(self)
+        self._watch = EpisodeWatch(env, self.arm, task.manipulated)
+        self._plan = primitives.plan(self)
 
     # ------------------------------------------------------------ scene reads (what a person sees)
     def object_height_m(self, name: str) -> float:
@@ -317,11 +319,38 @@ class ScriptedOperator:
         over every point of ``xys``."""
         return min(self._ik.highest_z(np.asarray(xy), self.env.table_top_z_m, z, self._R_grasp) for xy in xys)
 
-    def _speed(self, base_m_s: float) -> float:
+    # ------------------------------------------------------------ what the plan primitives use
+    @property
+    def cmd_pos(self) -> np.ndarray:
+        """The commanded tcp position (world)."""
+        return self._cmd_pos
+
+    @property
+    def R_cmd(self) -> np.ndarray:
+        """The commanded hand orientation (world)."""
+        return self._R_cmd
+
+    def grasp(self, name: str) -> tuple[Callable[[ScriptedOperator], float], float]:
+        """How the hand takes ``name`` from above: the tcp height when closing, and the pre-shape."""
+        return _grasp(self, name)
+
+    def resting_centre_on(self, held: str, support: str) -> Callable[[ScriptedOperator], np.ndarray]:
+        """Where the held object's centre is released onto ``support`` (a function of the scene)."""
+        return _place_on(self, held, support)
+
+    def do_next(self, steps: list[PlanStep]) -> None:
+        """Do these plan steps before the rest of the plan (a regrasp)."""
+        self._plan[:0] = steps
+
+    def aim(self) -> np.ndarray:
+        """A horizontal aiming error (m), as a person's hand misses by millimetres."""
+        return self.rng.normal(0.0, self.cfg.aim_error_m, 2)
+
+    def speed(self, base_m_s: float) -> float:
         j = self.cfg.speed_jitter_rel
         return base_m_s * self.rng.uniform(1.0 - j, 1.0 + j)
 
-    def _free_move(self, name: str, pos_world_m: np.ndarray, gripper: float) -> list[Segment]:
+    def free_move(self, name: str, pos_world_m: np.ndarray, gripper: float) -> list[Segment]:
         """A free-space move, sometimes overshooting horizontally and correcting; the hand turns to
         its grasp orientation on the way if it is not there yet."""
         turn = None if np.array_equal(self._R_cmd, self._R_grasp) else self._R_grasp
@@ -333,8 +362,8 @@ class ScriptedOperator:
             norm = np.linalg.norm(direction)
             if norm > 0.03:
                 over = pos_world_m + direction / norm * self.rng.uniform(*self.cfg.overshoot_m)
-                segments.append(Segment(f"{name}_overshoot", over, gripper, self._speed(speed), R_world=turn))
-        segments.append(Segment(name, pos_world_m, gripper, self._speed(speed), R_world=turn))
+                segments.append(Segment(f"{name}_overshoot", over, gripper, self.speed(speed), R_world=turn))
+        segments.append(Segment(name, pos_world_m, gripper, self.speed(speed), R_world=turn))
         return segments
 
     # ------------------------------------------------------------ control loop
@@ -374,6 +403,7 @@ class ScriptedOperator:
             self._queue = self._plan.pop(0)()
         self._segment = self._queue.pop(0)
         self.phase = self._segment.name
+        self._watch.segment_started(self._segment.name, self._segment.gripper)
         self._segment_steps = 0
         self._hold_left = self._segment.hold_steps * self._ticks
         if self.rng.random() < self.cfg.pause_prob:
@@ -383,6 +413,7 @@ class ScriptedOperator:
 
     def _advance(self) -> None:
         ee_before, self._ee = self._ee, self.env.ee_positions()[self.arm]
+        self._watch.step(self.phase)
         if self._segment is None and not self._next_segment():
             self.done = True
             return
@@ -420,107 +451,21 @@ class ScriptedOperator:
                 self._hold_left -= 1
             else:
                 self._segment = None
+                self._watch.segment_ended(seg.name, seg.pos_world_m, gave_up=False, check_reach=seg.settle_m is not None)
         elif self._segment_steps > self.cfg.max_steps_per_segment * self._ticks:
             self._segment = None  # give up on an unreachable target
+            self._watch.segment_ended(seg.name, seg.pos_world_m, gave_up=True, check_reach=True)
+
+    def failure(self) -> Failure | None:
+        """Why the episode failed, once it is over (None: its task check holds): the first thing
+        that went wrong and the phase it went wrong in (``r2s_eval.twin.failures``)."""
+        return self._watch.failure(self.phase, self.done, self.env.steps)
 
 
-# ---------------------------------------------------------------- task plans
-@dataclass(frozen=True)
-class PickPlace:
-    """One pick-and-place: grasp ``obj`` top-down, carry it, lower it, let go.
-
-    ``grasp_tcp_z_m(op)``: tcp height (world) when closing; ``place_centre_m(op)``: where
-    the object's centre should be when released (world, recomputed when lowering);
-    ``open_cmd``: gripper pre-shape while approaching (0 = fully open).
-    """
-
-    obj: str
-    grasp_tcp_z_m: Callable[[ScriptedOperator], float]
-    place_centre_m: Callable[[ScriptedOperator], np.ndarray]
-    open_cmd: float = 0.0
-    hover_z_m: Callable[[ScriptedOperator], float] | None = None
-
-
-def _aim(op: ScriptedOperator) -> np.ndarray:
-    return op.rng.normal(0.0, op.cfg.aim_error_m, 2)
-
-
-def _pick_and_place_plan(op: ScriptedOperator, pp: PickPlace) -> list[Callable[[], list[Segment]]]:
-    cfg, env = op.cfg, op.env
-    table_z = env.table_top_z_m
-    open_cmd = pp.open_cmd
-
-    def hover_z(xy: np.ndarray) -> float:
-        if pp.hover_z_m is not None:
-            z = pp.hover_z_m(op)
-        else:
-            z = centre_m(env, pp.obj)[2] + 0.5 * op.object_height_m(pp.obj) + cfg.hover_above_cup_m
-        return op.reachable_z([xy], z)
-
-    def pregrasp():
-        obj = centre_m(env, pp.obj)
-        xy = obj[:2] + _aim(op)
-        return op._free_move("pregrasp", np.r_[xy, hover_z(xy)], open_cmd)
-
-    def approach():
-        obj = centre_m(env, pp.obj)  # re-aim on the object as seen now
-        return [Segment("approach", np.r_[obj[:2] + _aim(op), pp.grasp_tcp_z_m(op)], open_cmd,
-                        op._speed(cfg.fine_speed_m_s), settle_m=cfg.settle_m)]
-
-    def close():
-        segs = close_only()
-        if op.rng.random() < cfg.regrasp_prob:
-            backoff = op._cmd_pos + np.array([0.0, 0.0, 0.04])
-            segs += [
-                Segment("regrasp_open", op._cmd_pos.copy(), open_cmd, cfg.fine_speed_m_s, hold_steps=1),
-                Segment("regrasp_backoff", backoff, open_cmd, op._speed(cfg.fine_speed_m_s)),
-            ]
-            op._plan[:0] = [approach, close_only]
-        return segs
-
-    def close_only():
-        return [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
-
-    def lift():  # as high as the carry over to the target allows
-        xy, target = op._cmd_pos[:2], pp.place_centre_m(op)[:2]
-        carry_z = op.reachable_z([xy, 0.5 * (xy + target), target], table_z + cfg.carry_tcp_height_m)
-        return [Segment("lift", np.r_[xy, carry_z], 1.0, op._speed(cfg.fine_speed_m_s * 1.5))]
-
-    def carry():
-        # Where the object sits in the hand, as seen: place the object, not the tcp.
-        tcp_minus_obj = env.ee_positions()[op.arm] - centre_m(env, pp.obj)
-        target_xy = pp.place_centre_m(op)[:2] + tcp_minus_obj[:2]
-        return op._free_move("carry", np.r_[target_xy, op._cmd_pos[2]], 1.0)
-
-    def lower():
-        obj, target = centre_m(env, pp.obj), pp.place_centre_m(op)
-        tcp_minus_obj = env.ee_positions()[op.arm] - obj
-        target_xy = op._cmd_pos[:2] + (target[:2] - obj[:2])  # final horizontal correction
-        return [Segment("lower", np.r_[target_xy, target[2] + tcp_minus_obj[2]], 1.0, op._speed(cfg.fine_speed_m_s))]
-
-    def release():
-        return [Segment("release", op._cmd_pos.copy(), open_cmd, cfg.fine_speed_m_s, hold_steps=2)]
-
-    def retreat():  # up; what the arm cannot rise it backs off towards its base
-        up = op._cmd_pos + np.array([0.0, 0.0, cfg.retreat_m])
-        up[2] = op.reachable_z([up[:2]], up[2])
-        segments = [Segment("retreat", up, open_cmd, op._speed(cfg.free_speed_m_s))]
-        if up[2] < op._cmd_pos[2] + cfg.retreat_m:
-            back = env.arm_base_positions()[op.arm][:2] - up[:2]
-            back *= (op._cmd_pos[2] + cfg.retreat_m - up[2]) / np.linalg.norm(back)
-            segments.append(Segment("retreat_back", up + np.r_[back, 0.0], open_cmd, op._speed(cfg.free_speed_m_s)))
-        return segments
-
-    return [pregrasp, approach, close, lift, carry, lower, release, retreat]
-
-
+# ---------------------------------------------------------------- how the hand takes an object
 def _jaw_cmd(op: ScriptedOperator, jaw_opening_m: float) -> float:
     """Gripper command that opens each jaw ``jaw_opening_m`` from the centre."""
     return float(np.clip(1.0 - jaw_opening_m / op.env.robot.arms[op.arm].gripper.jaw_open_m, 0.0, 1.0))
-
-
-def _centre_xy(op: ScriptedOperator, name: str) -> np.ndarray:
-    return centre_m(op.env, name)[:2]
 
 
 def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator], float], float]:
@@ -558,112 +503,6 @@ def _place_on(op: ScriptedOperator, held: str, support: str) -> Callable[[Script
     return place
 
 
-def _place_in(op: ScriptedOperator, held: str, container: str) -> Callable[[ScriptedOperator], np.ndarray]:
-    """The held object just above the container's rim, over its centre (it drops in)."""
-    env, cfg = op.env, op.cfg
-    rim_h, held_h = op.object_height_m(container), op.object_height_m(held)
-
-    def place(op):
-        pos = env.object_state(container)["pos_world_m"]
-        return np.r_[pos[:2], pos[2] + rim_h + held_h / 2 + cfg.drop_height_m]
-
-    return place
-
-
-def _place_over(op: ScriptedOperator, held: str, covered: str) -> Callable[[ScriptedOperator], np.ndarray]:
-    """The held (upside-down) object's rim just above the table, centred on the covered one."""
-    env, cfg = op.env, op.cfg
-    held_h = op.object_height_m(held)
-
-    def place(op):
-        return np.r_[_centre_xy(op, covered), env.table_top_z_m + cfg.place_clearance_m + held_h / 2]
-
-    return place
-
-
-def _put_down_beside(op: ScriptedOperator, held: str, other: str):
-    """On the table beside ``other`` (a box), towards the table's centre line; hovering high
-    enough that the fingertips clear its walls. Returns (place, hover)."""
-    env, cfg = op.env, op.cfg
-    box = env.object_dims(other)
-    held_half_diag = env.object_dims(held)["size_m"] / np.sqrt(2)
-    box_pos = env.object_state(other)["pos_world_m"]
-    side = -np.sign(box_pos[1]) if abs(box_pos[1]) > 0.03 else (1.0 if op.arm == "right" else -1.0)
-    box_yaw = env.object_poses()[other]["yaw_rad"]
-    c, s = np.cos(box_yaw), np.sin(box_yaw)
-    corners = np.array([[c * sx * box["length_m"] / 2 - s * sy * box["width_m"] / 2,
-                         s * sx * box["length_m"] / 2 + c * sy * box["width_m"] / 2] for sx in (-1, 1) for sy in (-1, 1)])
-    reach_y = float(np.max(corners[:, 1] * side)) + held_half_diag + cfg.put_down_margin_m
-    target_xy = box_pos[:2] + np.array([0.0, side * reach_y])
-
-    def place(op):
-        return np.r_[target_xy, env.table_top_z_m + cfg.place_clearance_m + env.object_dims(held)["size_m"] / 2]
-
-    hover = lambda op: env.table_top_z_m + box["height_m"] + cfg.hover_above_cup_m + 0.03  # noqa: E731
-    return place, hover
-
-
-PLACES = {"place_on": _place_on, "place_in": _place_in, "place_over": _place_over}
-
-
-def _plan(op: ScriptedOperator) -> list[Callable[[], list[Segment]]]:
-    """The segments of the task's plan (its world entry): pick and a place, or turn upright."""
-    steps = [next(iter(step.items())) for step in op.task.plan]
-    if steps[0][0] == "turn_upright":
-        return _turn_upright_plan(op, steps[0][1])
-    (_, held), (place_kind, target) = steps
-    grasp_z, open_cmd = _grasp(op, held)
-    if place_kind == "put_down_beside":
-        place, hover = _put_down_beside(op, held, target)
-        return _pick_and_place_plan(op, PickPlace(held, grasp_z, place, open_cmd, hover))
-    return _pick_and_place_plan(op, PickPlace(held, grasp_z, PLACES[place_kind](op, held, target), open_cmd))
-
-
-def _turn_upright_plan(op: ScriptedOperator, name: str) -> list[Callable[[], list[Segment]]]:
-    """Grasp the lying object (a cup) across its middle, lift, pitch the hand 90 deg, set it down, let go."""
-    env, cfg = op.env, op.cfg
-    table_z = env.table_top_z_m
-    dims = env.object_dims(name)
-    axis_yaw = env.object_poses()[name]["yaw_rad"]
-    axis = np.array([np.cos(axis_yaw), np.sin(axis_yaw), 0.0])
-    # Rotating about (axis x up) by +90 deg turns the cup's axis (bottom -> opening) upwards.
-    R_turn = Rotation.from_rotvec(np.cross(axis, [0.0, 0.0, 1.0]) * (np.pi / 2)).as_matrix()
-
-    def pregrasp():
-        cup = centre_m(env, name)
-        return op._free_move("pregrasp", np.r_[cup[:2] + _aim(op), table_z + 2 * dims["radius_m"] + cfg.hover_above_cup_m], 0.0)
-
-    def approach():
-        cup = centre_m(env, name)
-        return [Segment("approach", np.r_[cup[:2] + _aim(op), cup[2] + 0.004], 0.0, op._speed(cfg.fine_speed_m_s),
-                        settle_m=cfg.settle_m)]
-
-    def close():
-        return [Segment("close", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
-
-    def lift():
-        return [Segment("lift", np.r_[op._cmd_pos[:2], table_z + cfg.upright_lift_tcp_height_m], 1.0,
-                        op._speed(cfg.fine_speed_m_s * 1.5))]
-
-    def turn():
-        return [Segment("turn", op._cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, R_world=R_turn @ op._R_cmd)]
-
-    def lower():
-        bottom_z = env.object_state(name)["pos_world_m"][2]  # body origin = bottom centre
-        drop = bottom_z - (table_z + cfg.place_clearance_m)
-        return [Segment("lower", op._cmd_pos - np.array([0.0, 0.0, drop]), 1.0, op._speed(cfg.fine_speed_m_s))]
-
-    def release():
-        return [Segment("release", op._cmd_pos.copy(), 0.0, cfg.fine_speed_m_s, hold_steps=2)]
-
-    def retreat():  # back off along the hand's approach axis, then up
-        back = op._cmd_pos - op._R_cmd[:, 0] * 0.08
-        return [Segment("retreat", back, 0.0, op._speed(cfg.fine_speed_m_s)),
-                Segment("retreat_up", back + np.array([0.0, 0.0, 0.06]), 0.0, op._speed(cfg.free_speed_m_s))]
-
-    return [pregrasp, approach, close, lift, turn, lower, release, retreat]
-
-
 def make_operator(
     task: str | Task, env: TabletopEnv, rng: np.random.Generator, cfg: OperatorConfig | None = None
 ) -> ScriptedOperator:
@@ -691,12 +530,12 @@ def run_episode(env: TabletopEnv, operator: ScriptedOperator, max_steps: int = 1
 EPISODE_S = 15.0  # the success rate's episodes stop after this long (150 steps at 10 Hz)
 
 
-def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
-                 world: dict | None = None) -> float:
-    """Fraction of scripted episodes that end in success (physics only, no rendering) in ``world``
+def episode_failures(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
+                     world: dict | None = None) -> list[Failure | None]:
+    """Why each scripted episode failed (None: it succeeded; physics only, no rendering) in ``world``
     (a ``world`` config slice; default: the bundled world)."""
     robot, spec = (bundled_robot() if world is None else world_robot(world)), get_task(task, world)
-    successes = 0
+    failures = []
     for i in range(episodes):
         params = (sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=spec.object_names, robot=robot)
                   if twin else None)
@@ -704,9 +543,15 @@ def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = Fa
         obs = env.reset(seed=seed * 100_000 + i)
         operator = make_operator(spec, env, np.random.default_rng([seed, i, 2]))
         run_episode(env, operator, round(EPISODE_S * robot.control_hz), obs=obs)
-        successes += env.is_success()
+        failures.append(operator.failure())
         env.close()
-    return successes / episodes
+    return failures
+
+
+def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
+                 world: dict | None = None) -> float:
+    """Fraction of scripted episodes that end in success (``episode_failures``)."""
+    return sum(f is None for f in episode_failures(task, episodes, twin, seed, world)) / episodes
 
 
 if __name__ == "__main__":
@@ -714,7 +559,7 @@ if __name__ == "__main__":
 
     import yaml
 
-    parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator.")
+    parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator, and why episodes fail.")
     parser.add_argument("--world", help="a world of conf/world (default: the bundled one)")
     parser.add_argument("--task", default="all", help="task key, or 'all'")
     parser.add_argument("--episodes", type=int, default=20)
@@ -723,5 +568,10 @@ if __name__ == "__main__":
     args = parser.parse_args()
     world_cfg = None if args.world is None else yaml.safe_load((WORLDS_DIR / f"{args.world}.yaml").read_text())
     for key in (TASKS if world_cfg is None else world_cfg["tasks"]) if args.task == "all" else [args.task]:
-        rate = success_rate(key, args.episodes, args.twin, args.seed, world_cfg)
-        print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed", flush=True)
+        failures = episode_failures(key, args.episodes, args.twin, args.seed, world_cfg)
+        rate, why = sum(f is None for f in failures) / args.episodes, summary(failures)
+        print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed"
+              + (f"; failed: {why}" if why else ""), flush=True)
+        for i, failure in enumerate(failures):
+            if failure is not None:
+                print(f"  episode {i}: {failure}", flush=True)

@@ -1,7 +1,8 @@
 """The teleop dataset recorded in the reality twin, and the twin's true initial poses.
 
 Operators keep the demonstrations that succeed (as a lab discards botched takes); every
-attempt is logged. The true initial poses (read off the twin, as a person measuring the
+attempt is logged, a failed one with the operator's phase and reason (``r2s_eval.twin.failures``).
+The true initial poses (read off the twin, as a person measuring the
 scene would) are kept apart from the dataset: they only score the initial-pose estimates
 and fit the offsets on the held-out calibration episodes.
 """
@@ -20,6 +21,7 @@ from r2s_eval.errors import R2SError
 from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.sim.build import image_size, make_env
 from r2s_eval.sim.robot import world_robot
+from r2s_eval.twin.failures import summary
 from r2s_eval.twin.operator import OperatorConfig, make_operator, run_episode
 
 log = logging.getLogger("r2s_eval.teleop")
@@ -40,7 +42,8 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                   suite: dict, seed: int) -> tuple[pd.DataFrame, list[dict]]:
     """Record ``teleop["episodes_per_task"]`` demonstrations of every task in the twin world
     ``params`` into the LeRobot dataset at ``dataset``; returns the true initial poses (one
-    row per episode and object) and the attempt log.
+    row per episode and object) and the attempt log (per attempt: task, attempt, success, length,
+    wall_s, and for a failed one the operator's ``phase``, ``reason`` and ``detail``).
 
     ``teleop``, ``world``, ``suite``: those config groups; ``seed``: the experiment's seed.
     """
@@ -63,13 +66,17 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                 poses = env.sample_initial_poses(rng)
                 obs = env.reset(poses, seed=int(rng.integers(2**31)))
                 initial = env.object_poses()
-                steps = run_episode(env, make_operator(task, env, rng, operator_cfg), teleop["max_steps"], obs)
-                success = bool(env.is_success())
+                operator = make_operator(task, env, rng, operator_cfg)
+                steps = run_episode(env, operator, teleop["max_steps"], obs)
+                failure = operator.failure()
                 tries += 1
-                attempts.append({"task": task, "attempt": tries, "success": success, "length": len(steps),
-                                 "wall_s": time.perf_counter() - started})
-                if not success and not teleop["keep_failed"]:
-                    continue
+                attempts.append({"task": task, "attempt": tries, "success": failure is None, "length": len(steps),
+                                 "wall_s": time.perf_counter() - started,
+                                 **(failure.row() if failure is not None else {})})
+                if failure is not None:
+                    log.info("task %s attempt %d failed in %s", task, tries, failure)
+                    if not teleop["keep_failed"]:
+                        continue
                 # Encoded while the operator records the next take (when the job has two threads).
                 index = rec.submit_episode(steps, env.task.instruction)
                 kept += 1
@@ -77,6 +84,9 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                 truth += truth_rows(index, task, env, initial)
             progress.close()
             env.close()
-            rate = np.mean([a["success"] for a in attempts if a["task"] == task])
-            log.info("task %s: scripted teleop success %.1f%% over %d attempts", task, 100 * rate, tries)
+            mine = [a for a in attempts if a["task"] == task]
+            rate = np.mean([a["success"] for a in mine])
+            why = summary(a for a in mine if not a["success"])
+            log.info("task %s: scripted teleop success %.1f%% over %d attempts%s", task, 100 * rate, tries,
+                     f"; failed: {why}" if why else "")
     return pd.DataFrame(truth), attempts

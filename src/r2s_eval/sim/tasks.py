@@ -52,10 +52,10 @@ upright_cup       Upright the Fallen Cup                      cup (on its side)
 
 from __future__ import annotations
 
-import functools
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -63,13 +63,12 @@ import yaml
 
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.sim.reading import WorldError, as_mapping, check_keys, fail, finite, interval, read_find  # noqa: F401 (WorldError: re-exported)
-from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectSpec
 from r2s_eval.sim.meshes import MESH_KEYS, load_shape, yaw_symmetry_of
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 from r2s_eval.errors import ConfigError
 
 WORLDS_DIR = CONF_DIR / "world"  # the `world` config group
-BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
 # The scripted operator's plan primitives (r2s_eval.twin.operator): a pick and one place, or a turn.
 PLACE_PRIMITIVES = ("place_on", "place_in", "place_over", "put_down_beside")
 PLAN_PRIMITIVES = ("pick", *PLACE_PRIMITIVES, "turn_upright")
@@ -118,9 +117,9 @@ class Task:
         return next(o for o in self.objects if o.name == name)
 
     def yaw_symmetry(self, name: str) -> int:
-        """Yaw symmetry of the object in its start placement (``objects.yaw_symmetry``)."""
+        """Yaw symmetry of the object in its start placement (its kind's, ``ObjectKind.yaw_symmetry``)."""
         obj = self.object(name)
-        return obj.symmetry if obj.symmetry is not None else yaw_symmetry(obj.kind, self.placement(name))
+        return obj.symmetry if obj.symmetry is not None else obj.kind_object.yaw_symmetry(self.placement(name))
 
 
 # ---------------------------------------------------------------- reading a world
@@ -207,9 +206,10 @@ def _task(key: str, entry: Any, objects: dict[str, ObjectSpec]) -> Task:
     regions, placements = {}, {}
     for name in names:
         regions[name], placement = _region(start[name], names, name, f"{where}.start.{name}")
-        if placement != "upright" and objects[name].kind == "mesh":
-            raise fail(f"{where}.start.{name}.placement", f"a mesh object starts upright (as its file stands), "
-                                                          f"got {placement!r}")
+        kind = objects[name].kind_object
+        if placement not in kind.placements:
+            raise fail(f"{where}.start.{name}.placement", f"a {kind.name} object starts {' or '.join(kind.placements)}"
+                                                          f"{kind.placement_note}, got {placement!r}")
         if placement != "upright":
             placements[name] = placement
     plan = _plan(entry["plan"], names, f"{where}.plan")
@@ -255,38 +255,31 @@ def world_tasks(world: Mapping) -> dict[str, Task]:
     return _LOADED[key]
 
 
-@functools.cache
-def bundled_world() -> dict:
-    """The bundled world's config (``conf/world/tabletop.yaml``), for callers without a config."""
-    return yaml.safe_load(BUNDLED_WORLD.read_text())
+def world_names() -> list[str]:
+    """The worlds of the ``world`` config group."""
+    return sorted(p.stem for p in WORLDS_DIR.glob("*.yaml"))
 
 
-class _BundledTasks(Mapping[str, Task]):
-    """The bundled world's tasks, compiled on first use rather than on import: a wrong entry in
-    its file is reported by the config check (one line naming the key and the file), not as a
-    traceback of whatever imported this module."""
-
-    @functools.cached_property
-    def _tasks(self) -> dict[str, Task]:
-        return world_tasks(bundled_world())
-
-    def __getitem__(self, key: str) -> Task:
-        return self._tasks[key]
-
-    def __iter__(self):
-        return iter(self._tasks)
-
-    def __len__(self) -> int:
-        return len(self._tasks)
+def world_config(world: str | Path) -> dict:
+    """The config of ``world``, a world of the ``world`` config group (``conf/world/<name>.yaml``)
+    or a world file (``.yaml``), as the file states it: for callers without a composed config (a
+    command line, the Gymnasium environment, tests)."""
+    path = Path(world)
+    if path.suffix not in (".yaml", ".yml"):
+        path = WORLDS_DIR / f"{world}.yaml"
+        if not path.is_file():
+            raise ConfigError(f"unknown world {str(world)!r}: the worlds are {world_names()}, or give a world file (.yaml)")
+    elif not path.is_file():
+        raise ConfigError(f"world file {str(world)!r} does not exist")
+    config = yaml.safe_load(path.read_text())
+    if not isinstance(config, dict) or "robot" not in config:
+        raise ConfigError(f"{path}: not a world file (no 'robot' entry)")
+    return config
 
 
-# The bundled world's tasks: what a caller without a world config (a test, a benchmark) gets.
-TASKS: Mapping[str, Task] = _BundledTasks()
-
-
-def get_task(key: str, world: Mapping | None = None) -> Task:
-    """Task ``key`` of ``world`` (a ``world`` config slice; default: the bundled world)."""
-    tasks = TASKS if world is None else world_tasks(world)
+def get_task(key: str, world: Mapping) -> Task:
+    """Task ``key`` of ``world`` (a ``world`` config slice)."""
+    tasks = world_tasks(world)
     try:
         return tasks[key]
     except KeyError:
@@ -303,7 +296,7 @@ def sample_initial_poses(
     """
     size_scales = size_scales or {}
     radii = {
-        o.name: footprint_radius_m(o.kind, o.scaled_dims(size_scales.get(o.name, 1.0)), task.placement(o.name))
+        o.name: o.kind_object.footprint_radius_m(o.scaled_dims(size_scales.get(o.name, 1.0)), task.placement(o.name))
         for o in task.objects
     }
     # Objects in a parent's frame are drawn after their parent.

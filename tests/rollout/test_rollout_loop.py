@@ -7,10 +7,9 @@ import pytest
 
 import r2s_eval  # noqa: F401
 from r2s_eval.rollout import episode_id, read_video, run_episode, video_frame_every, write_video
-from r2s_eval.sim import TabletopEnv
-from tests.helpers.worlds import bundled_env
 
 from tests.helpers.policies import FrozenPolicy, OperatorPolicy
+from tests.helpers.worlds import bundled_env
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from r2s_eval.sim import TabletopEnv, WorldParams
+from r2s_eval.sim import WorldParams
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.render_params import apply_render_params, render_base
 from r2s_eval.sim.rotations import matrix_from_quat

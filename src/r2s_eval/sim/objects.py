@@ -11,8 +11,8 @@ Each kind is one class (``ObjectKind``; ``KINDS`` maps a world's ``kind`` name t
 everything the simulator, the task predicates, the scripted operator and the judges ask of its
 objects: its dimensions' keys, its geometry (height, footprint, the surface others rest on, taper,
 yaw symmetry per placement), its MuJoCo geoms, what the predicates measure on it (a top face, a
-container's interior, a cover, a footprint), how the scripted operator grips it, and how it looks
-in a frame. ``ObjectSpec.kind_object`` is an object's kind.
+container's interior, a cover, a footprint), how the scripted operator grips it, and how it reads
+in a frame (what rests on it as a stack, for the video judge). ``ObjectSpec.kind_object`` is an object's kind.
 
 cup    hollow and tapered like a real cup: a bottom disc plus a ring of wall boxes
        leaning outwards (open top), so a ball can go in it or be covered by it upside
@@ -33,8 +33,8 @@ mesh   a scanned object: its surface from a mesh file (``r2s_eval.sim.meshes``),
 Placements
 ----------
 An object starts in one of three placements (those its kind allows: a cup all three, a mesh
-upright as its file stands, the others upright or upside down), each a fixed rotation followed by the
-planar yaw. The planar pose ``(x_m, y_m, yaw_rad)`` of an object is the centre of its
+upright as its file stands, the others upright or upside down), each a fixed rotation followed
+by the planar yaw. The planar pose ``(x_m, y_m, yaw_rad)`` of an object is the centre of its
 footprint on its support and the yaw of its body x axis, except ``on_side`` whose yaw is
 the direction of the body z axis (a cup's bottom-to-opening axis), which lies flat:
 

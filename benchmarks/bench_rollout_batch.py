@@ -61,7 +61,7 @@ from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 from r2s_eval.rollout import run_episode, sample_inits, write_video
 from r2s_eval.rollout.candidate import planned_episodes, run_candidate
 from r2s_eval.rollout.episode_store import collect_episodes
-from r2s_eval.sim import bundled_robot
+from r2s_eval.sim import world_config, world_robot
 from r2s_eval.sim.build import configured_task, make_env
 from r2s_eval.utils.io import write_json, write_parquet
 from r2s_eval.paths import CONF_DIR, REPO_ROOT
@@ -71,7 +71,7 @@ sys.path.insert(0, str(REPO_ROOT))  # the tests' helper package: tests.helpers
 from tests.helpers.policies import save_random_policy  # noqa: E402
 
 
-ROBOT = bundled_robot()  # the bundled world's robot: its action layout, rig and control rate
+ROBOT = world_robot(world_config("tabletop"))  # the bundled world's robot: its action layout, rig and control rate
 ACTION_DIM, CAMERA_NAMES = ROBOT.action_dim, ROBOT.camera_names
 
 

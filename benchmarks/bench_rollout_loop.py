@@ -31,7 +31,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from r2s_eval.rollout import run_episode  # noqa: E402
-from r2s_eval.sim import TabletopEnv  # noqa: E402
+from r2s_eval.sim import TabletopEnv, get_task, world_config, world_robot  # noqa: E402
 from r2s_eval.twin.operator import make_operator  # noqa: E402
 from r2s_eval.twin.operator import run_episode as run_teleop  # noqa: E402
 
@@ -93,7 +93,9 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=128, help="image height and width")
     args = parser.parse_args()
 
-    env = TabletopEnv(args.task, image_size=(args.size, args.size))  # all four cameras of the rig
+    world = world_config("tabletop")
+    env = TabletopEnv(get_task(args.task, world), image_size=(args.size, args.size),  # all four cameras of the rig
+                      robot=world_robot(world))
     poses = env.sample_initial_poses(np.random.default_rng(0))
     obs = env.reset(poses, seed=0)
     steps = run_teleop(env, make_operator(args.task, env, np.random.default_rng(0)), 150, obs)

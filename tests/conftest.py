@@ -28,3 +28,11 @@ def annotation_set(run):
     items = write_annotation_set(items, summary, run["sim"], set_path=folder / "set.parquet",
                                  videos_dir=folder / "videos", summary_path=folder / "summary.json")
     return {"dir": folder, "items": items, "summary": summary}
+
+
+@pytest.fixture
+def bundled_world():
+    """The bundled world's config (``conf/world/tabletop.yaml``), a copy the test may change."""
+    from tests.helpers.worlds import bundled_world
+
+    return bundled_world()

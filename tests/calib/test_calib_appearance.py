@@ -9,7 +9,7 @@ import numpy as np
 from r2s_eval.calib.appearance import AppearanceModel, Frame, fit_appearance
 from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import make_env
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 
 CAMERA = "head_left"
 LOOK = WorldParams(light_intensity_scale=1.3, light_dir_offset=(0.1, -0.15, 0.05), table_rgb_offset=(-0.06, 0.04, 0.05),

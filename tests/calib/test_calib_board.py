@@ -16,7 +16,7 @@ from r2s_eval.calib.cameras import calibrate_from_board, camera_errors, camera_p
 from r2s_eval.calib.take import STATES_FILE, read_take
 from r2s_eval.errors import DataError
 from r2s_eval.sim import WorldParams
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.twin.board_take import record_board_take
 
 TASKS = ["cup_on_plate"]

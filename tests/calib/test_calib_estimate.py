@@ -9,15 +9,14 @@ import r2s_eval  # noqa: F401  (sets the headless GL backend before mujoco loads
 from r2s_eval.calib import CameraModel, InitEstimationError, ObjectGeometry, estimate_initial_poses, make_segmenter
 from r2s_eval.calib.estimate import wrap_yaw, yaw_error_rad
 from r2s_eval.calib.scene import camera_model, mask_renderer, object_geometries
-from r2s_eval.sim import TabletopEnv
-from r2s_eval.twin import sample_twin_params
+from tests.helpers.worlds import bundled_env, bundled_twin
 
 CAMERA = "head_left"
 
 
 @pytest.fixture(scope="module")
 def env():
-    env = TabletopEnv("cup_on_plate", cameras=(CAMERA,))
+    env = bundled_env("cup_on_plate", cameras=(CAMERA,))
     yield env
     env.close()
 
@@ -56,8 +55,8 @@ def test_refinement_recovers_nominal_poses(env):
 
 def test_twin_frame_is_located_within_the_calibration_gap(env):
     """The twin's camera sits a few mm/deg off the calibration: errors stay in the cm range."""
-    params = sample_twin_params(np.random.default_rng(1))
-    twin = TabletopEnv("cup_on_plate", params=params, cameras=(CAMERA,))
+    params = bundled_twin(np.random.default_rng(1))
+    twin = bundled_env("cup_on_plate", params=params, cameras=(CAMERA,))
     truth = twin.sample_initial_poses(np.random.default_rng(5))
     obs = twin.reset(truth, seed=0)
     settled = {n: (p["pos_world_m"][0], p["pos_world_m"][1], 0.0) for n, p in twin.object_poses().items()}
@@ -123,9 +122,9 @@ def test_yaw_of_observable_objects_from_a_twin_frame(task):
 
     from r2s_eval.calib.scene import image_renderer
 
-    params = sample_twin_params(np.random.default_rng(1))
-    twin = TabletopEnv(task, params=params, cameras=(CAMERA,))
-    nominal = TabletopEnv(task, cameras=())
+    params = bundled_twin(np.random.default_rng(1))
+    twin = bundled_env(task, params=params, cameras=(CAMERA,))
+    nominal = bundled_env(task, cameras=())
     segmenter = make_segmenter({"type": "hsv"}, {o.name: o.rgba for o in nominal.task.objects})
     geoms = [g for g in object_geometries(nominal)]
     rng = np.random.default_rng(4)

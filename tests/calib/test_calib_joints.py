@@ -8,13 +8,14 @@ import pytest
 from r2s_eval.calib.joints import RecordedEpisode, estimate_joint_offsets, replay_residuals
 from r2s_eval.errors import DataError
 from r2s_eval.sim import TabletopEnv, WorldParams
+from tests.helpers.worlds import bundled_env
 
 TASK = "cup_on_plate"
 POSES = {"cup": (0.05, 0.02, 0.0), "plate": (-0.08, -0.03, 0.0)}
 
 
 def make_env(task: str, params: WorldParams) -> TabletopEnv:
-    return TabletopEnv(task, params=params, cameras=())
+    return bundled_env(task, params=params, cameras=())
 
 
 def record(params: WorldParams, seed: int, steps: int = 40) -> RecordedEpisode:

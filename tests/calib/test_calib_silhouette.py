@@ -10,7 +10,7 @@ from r2s_eval.calib.cameras import camera_errors, camera_params
 from r2s_eval.calib.silhouette import calibrate_from_silhouette, pick_frames
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.sim import WorldParams
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.twin.record import record_teleop
 
 TASKS = ["cup_on_plate"]

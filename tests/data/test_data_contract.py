@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.data import DatasetRecorder, DatasetValidationError, IngestSpec, ingest_dataset, lerobot_features
 
 TASKS = ["Pick the Cup and Place it on the Plate", "Stack the Two Blocks"]

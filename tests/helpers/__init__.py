@@ -13,5 +13,6 @@ pytest looks for them. Nothing here is named ``test_*`` (pytest would collect it
 - ``people``: a small finished run, the annotation app and a headless browser;
 - ``slurm``: a single-node Slurm cluster started for the test;
 - ``task_rule_states``: the pinned task-rule states (also the script that recorded them);
+- ``worlds``: the bundled world's config, robot, tasks, environments and twins;
 - ``libero_replay_check``: a script run by LIBERO's own interpreter (not imported).
 """

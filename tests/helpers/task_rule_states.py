@@ -23,9 +23,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from r2s_eval.sim import TASKS, TabletopEnv  # noqa: E402
-from r2s_eval.twin import sample_twin_params  # noqa: E402
+from r2s_eval.sim import TabletopEnv  # noqa: E402
 from r2s_eval.twin.operator import make_operator  # noqa: E402
+from tests.helpers.worlds import bundled_env, bundled_tasks, bundled_twin  # noqa: E402
+
+TASKS = bundled_tasks()
 
 PINNED = Path(__file__).resolve().parents[1] / "sim" / "data" / "task_rule_states.npz"
 EPISODES = {"nominal": 2, "twin": 3}
@@ -37,7 +39,7 @@ def world_params(task: str, twin_seed: int):
     """The episode's world: nominal (twin_seed < 0) or a sampled twin."""
     if twin_seed < 0:
         return None
-    return sample_twin_params(np.random.default_rng([twin_seed, 1]), object_names=TASKS[task].object_names)
+    return bundled_twin(np.random.default_rng([twin_seed, 1]), object_names=TASKS[task].object_names)
 
 
 def evaluate(env: TabletopEnv, qpos: np.ndarray, qvel: np.ndarray, initial_centre_z_m: dict) -> tuple[bool, float]:
@@ -56,7 +58,7 @@ def record() -> dict[str, np.ndarray]:
         for kind, count in EPISODES.items():
             for i in range(count):
                 twin_seed = 1000 * t + i if kind == "twin" else -1
-                env = TabletopEnv(task, params=world_params(task, twin_seed), cameras=())
+                env = bundled_env(task, params=world_params(task, twin_seed), cameras=())
                 obs = env.reset(seed=100 * t + i + (50 if kind == "twin" else 0))
                 start_z = dict(env.initial_centre_z_m)
                 operator = make_operator(task, env, np.random.default_rng([t, i, kind == "twin"]))

@@ -66,11 +66,11 @@ def render_sim_episodes(root: Path, max_steps: int = 100) -> pd.DataFrame:
     must never open); file names spell out policy and outcome, as a careless writer might.
     """
     from r2s_eval.rollout import run_episode
-    from r2s_eval.sim import TabletopEnv
 
     from tests.helpers.policies import FrozenPolicy, OperatorPolicy
+    from tests.helpers.worlds import bundled_env
 
-    env = TabletopEnv(SIM_TASK, image_size=(128, 128), cameras=("head_left",))
+    env = bundled_env(SIM_TASK, image_size=(128, 128), cameras=("head_left",))
     rows = []
     try:
         poses = env.sample_initial_poses(np.random.default_rng(4))

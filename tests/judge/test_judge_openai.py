@@ -15,7 +15,7 @@ import pytest
 from r2s_eval.compare import wins_at_checkpoints
 from r2s_eval.compare.sampling import sample_pairs, sample_reserve
 from r2s_eval.judge import describe_rollouts, judge_pairs, make_judge
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stats import order_swap_consistency
 

@@ -16,8 +16,17 @@ from r2s_eval.judge.video_judge import task_from_instruction
 
 
 from tests.helpers.videos import SIM_TASK, render_sim_episodes
+from tests.helpers.worlds import bundled_tasks
 
 CFG = {"backend": "video"}
+TASKS = bundled_tasks()
+
+
+def video_judge(cfg=CFG) -> VideoJudge:
+    """The video judge of ``cfg``, knowing the bundled world's tasks (as ``world_judge`` tells it a world's)."""
+    judge = make_judge(cfg)
+    judge.know_tasks(TASKS)
+    return judge
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +58,7 @@ def test_judge_video_never_opens_trajectory_or_episode_table(sim_episodes, tmp_p
     for mod, attr in ((builtins, "open"), (io, "open"), (pd, "read_parquet"), (pq, "read_table"),
                       (pq, "ParquetFile"), (pq, "read_pandas")):
         monkeypatch.setattr(mod, attr, guard(getattr(mod, attr)))
-    judge = make_judge(CFG)
+    judge = video_judge()
     desc = describe_rollouts(df, root, judge, tmp_path / "cache")
     pairs = sample_pairs(df, ["ScriptedOperator", "FrozenPolicy"], [4], seed=0)
     judged = judge_pairs(pairs, desc, judge, tmp_path / "cache")
@@ -65,7 +74,7 @@ def test_judge_video_never_opens_trajectory_or_episode_table(sim_episodes, tmp_p
 
 def test_judge_video_operator_beats_frozen_policy_in_both_orders(sim_episodes):
     df, root = sim_episodes
-    judge = VideoJudge(CFG)
+    judge = video_judge()
     op, frozen = _describe(judge, df, root, 0), _describe(judge, df, root, 1)
     assert op.missing == () and frozen.missing == ()
     assert op.progress_label == "successful" and frozen.progress_label == "failed"
@@ -82,8 +91,8 @@ def test_judge_video_operator_beats_frozen_policy_in_both_orders(sim_episodes):
 
 def test_judge_video_descriptions_are_deterministic(sim_episodes):
     df, root = sim_episodes
-    first = _describe(VideoJudge(CFG), df, root, 0)
-    again = _describe(VideoJudge(CFG), df, root, 0)
+    first = _describe(video_judge(), df, root, 0)
+    again = _describe(video_judge(), df, root, 0)
     assert first.to_json() == again.to_json()
     assert set(first.criteria) == set(CRITERIA)
     assert "not a VLM" in first.summary
@@ -115,14 +124,14 @@ def test_judge_video_config_and_identity():
         make_judge({"backend": "video", "diff_treshold": 5})
     with pytest.raises(ValueError, match="unknown ref keys.*'idle'"):
         make_judge({"backend": "video", "ref": {"idle": 1.0}})
-    a, b = make_judge(CFG), make_judge({"backend": "video", "near_max": 0.6})
+    a, b = video_judge(), video_judge({"backend": "video", "near_max": 0.6})
     assert a.identity()["prompt_version"].startswith("video-")
     assert a.identity()["config_hash"] != b.identity()["config_hash"]
     assert a.inputs == ("video",)
-    assert task_from_instruction("Pick the Cup and Place it on the Plate") == SIM_TASK
-    assert task_from_instruction("stack the two blocks") == "stack_blocks"
+    assert task_from_instruction("Pick the Cup and Place it on the Plate", TASKS) == SIM_TASK
+    assert task_from_instruction("stack the two blocks", TASKS) == "stack_blocks"
     with pytest.raises(ValueError, match="no known task"):
-        task_from_instruction("fold the towel")
+        task_from_instruction("fold the towel", TASKS)
 
 
 def test_judge_video_smoke_and_demo_run_both_offline_judges():
@@ -139,7 +148,6 @@ def test_goal_relations_come_from_the_tasks_success_conditions():
     # The relation the judge looks for in the pixels is read from each task's definition (the
     # table it replaced, pinned).
     from r2s_eval.judge.video_judge import goal_relation
-    from r2s_eval.sim.tasks import TASKS
 
     assert {key: goal_relation(task) for key, task in TASKS.items()} == {
         "cup_on_plate": ("on", "cup", "plate"), "ball_in_box": ("in", "ball", "box"),

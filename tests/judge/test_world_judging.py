@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from r2s_eval.sim.tasks import bundled_world, world_tasks
+from r2s_eval.sim.tasks import world_tasks
+from tests.helpers.worlds import bundled_world
 from r2s_eval.utils.io import read_parquet_metadata as _read_metadata
 from r2s_eval.world_judging import gather_descriptions, world_judge, write_descriptions, write_verdicts
 

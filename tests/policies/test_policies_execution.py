@@ -13,7 +13,7 @@ from r2s_eval.rollout import sample_inits
 from r2s_eval.rollout.candidate import run_candidate
 from r2s_eval.policies.execution import _NOISE_STREAM, Execution, complete_execution
 from r2s_eval.sim import get_task, world_robot
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.utils.numerics import deterministic_torch
 from tests.helpers.policies import save_random_policy
 
@@ -106,7 +106,7 @@ SHAKY = {"type": "variant", "of": "act", "weights": {"type": "act"},
 
 def test_a_variant_runs_its_bases_weights_with_the_stated_change_and_a_judge_sees_none_of_it(tmp_path):
     inits = tmp_path / "inits.parquet"
-    sample_inits([get_task(t) for t in TASKS], ROLLOUT["inits_per_task"], SEED).to_parquet(inits)
+    sample_inits([get_task(t, WORLD) for t in TASKS], ROLLOUT["inits_per_task"], SEED).to_parquet(inits)
     act = save_random_policy(tmp_path / "weights", WORLD["cameras"], (48, 48))
 
     def run(policy, policy_cfg):

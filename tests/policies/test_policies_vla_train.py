@@ -234,7 +234,7 @@ def test_partial_loading_copies_the_pretrained_slices(offline, pretrained, datas
 def test_vla_reloads_and_rolls_out_in_sim(policy_type, trained, offline):
     from r2s_eval.rollout import run_episode
     from r2s_eval.sim.build import make_env
-    from r2s_eval.sim.tasks import bundled_world
+    from tests.helpers.worlds import bundled_world
 
     runner = load_policy(trained[policy_type], horizon=Horizon(10, 5))
     spec = runner.policy.spec

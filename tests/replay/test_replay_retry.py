@@ -7,13 +7,13 @@ import pytest
 
 import r2s_eval  # noqa: F401
 from r2s_eval.replay import perturb, replay_episode, retry_design
-from r2s_eval.sim import TabletopEnv
 from r2s_eval.twin.operator import make_operator, run_episode
+from tests.helpers.worlds import bundled_env
 
 
 @pytest.fixture(scope="module")
 def demo():
-    env = TabletopEnv("cup_on_plate", cameras=("head_left",))
+    env = bundled_env("cup_on_plate", cameras=("head_left",))
     poses = env.sample_initial_poses(np.random.default_rng(2))
     obs = env.reset(poses, seed=0)
     steps = run_episode(env, make_operator("cup_on_plate", env, np.random.default_rng(0)), 150, obs)

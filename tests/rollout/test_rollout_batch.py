@@ -20,7 +20,7 @@ from r2s_eval.rollout import run_episode, sample_inits, write_video
 from r2s_eval.rollout.candidate import planned_episodes, run_candidate
 from r2s_eval.sim import get_task
 from r2s_eval.sim.build import make_env
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.utils.io import write_parquet
 from r2s_eval.utils.numerics import deterministic_torch
 
@@ -37,7 +37,7 @@ SEED = 3
 @pytest.fixture(scope="module")
 def inits(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("inits") / "inits.parquet"
-    sample_inits([get_task(t) for t in TASKS], ROLLOUT["inits_per_task"], SEED).to_parquet(path)
+    sample_inits([get_task(t, WORLD) for t in TASKS], ROLLOUT["inits_per_task"], SEED).to_parquet(path)
     return path
 
 

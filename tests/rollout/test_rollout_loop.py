@@ -7,14 +7,14 @@ import pytest
 
 import r2s_eval  # noqa: F401
 from r2s_eval.rollout import episode_id, read_video, run_episode, video_frame_every, write_video
-from r2s_eval.sim import TabletopEnv
 
 from tests.helpers.policies import FrozenPolicy, OperatorPolicy
+from tests.helpers.worlds import bundled_env
 
 
 @pytest.fixture(scope="module")
 def env():
-    env = TabletopEnv("cup_on_plate", cameras=("head_left",))
+    env = bundled_env("cup_on_plate", cameras=("head_left",))
     yield env
     env.close()
 
@@ -82,7 +82,7 @@ class ScriptedPolicy:
 def _noisy_env(cameras):
     from r2s_eval.sim import WorldParams
 
-    return TabletopEnv("cup_on_plate", params=WorldParams(image_noise_std=4.0), cameras=cameras)
+    return bundled_env("cup_on_plate", params=WorldParams(image_noise_std=4.0), cameras=cameras)
 
 
 @pytest.mark.parametrize("cameras", [("head_left",), ("head_right",)])

@@ -105,9 +105,9 @@ def test_serving_cli_sim_episode_against_the_served_policy(served):
     # A closed-loop episode in our MuJoCo world, every chunk fetched from the subprocess server,
     # recorded exactly as the rollout stage records it.
     from r2s_eval.rollout import run_episode
-    from r2s_eval.sim import TabletopEnv
+    from tests.helpers.worlds import bundled_env
 
-    env = TabletopEnv("cup_on_plate", image_size=(32, 32), cameras=("head_left",))
+    env = bundled_env("cup_on_plate", image_size=(32, 32), cameras=("head_left",))
     policy = ServerPolicy("act", "127.0.0.1", served["open"].port)
     try:
         runner = RecedingHorizon(policy, Horizon(CHUNK, 5))

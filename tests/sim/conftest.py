@@ -7,12 +7,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported anywhere
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from r2s_eval.sim import TabletopEnv  # noqa: E402
+from tests.helpers.worlds import bundled_env  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def nominal_env():
-    env = TabletopEnv("cup_on_plate")
+    env = bundled_env("cup_on_plate")
     yield env
     env.close()
 

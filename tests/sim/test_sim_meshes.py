@@ -13,8 +13,9 @@ import trimesh
 from r2s_eval.sim import TabletopEnv, world_robot
 from r2s_eval.sim.reading import WorldError
 from r2s_eval.sim.assembly import load_world
-from r2s_eval.sim.tasks import bundled_world, load_tasks
+from r2s_eval.sim.tasks import load_tasks
 from r2s_eval.twin.operator import make_operator, run_episode
+from tests.helpers.worlds import bundled_world
 
 # CoACD settings that decompose the tray in seconds (its defaults take tens of seconds).
 FAST_COACD = {"threshold": 0.1, "preprocess_resolution": 20, "resolution": 500, "mcts_iterations": 30,

@@ -9,10 +9,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TabletopEnv, bundled_robot, world_robot
+from r2s_eval.sim import TabletopEnv, world_robot
 from r2s_eval.sim.cameras import project_points
 from r2s_eval.sim.predicates import centre_m
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_env, bundled_robot, bundled_tasks, bundled_world
+
+BALL_IN_BOX = bundled_tasks()["ball_in_box"]
 
 POSES = {"ball": (-0.02, -0.06, 0.0), "box": (-0.03, 0.1, 0.0)}
 
@@ -47,7 +49,7 @@ def test_a_camera_with_intrinsics_projects_where_it_renders(size):
     intrinsics = {"fx": 150.0, "fy": 135.0, "cx": 71.0, "cy": 57.5, "width": 128, "height": 128}
     world = _world(**{"rig.front": {"body": "world", "pos": [0.5, -0.05, 1.25], "look_at": [-0.03, 0.0, 0.75],
                                     "intrinsics": intrinsics}, "cameras": ["head_left", "front"]})
-    env = TabletopEnv("ball_in_box", cameras=("front",), robot=world_robot(world))
+    env = TabletopEnv(BALL_IN_BOX, cameras=("front",), robot=world_robot(world))
     env.reset(POSES, settle=False, observe=False)
     K = env.camera_K("front", (128, 128))
     np.testing.assert_allclose(K[[0, 1, 0, 1], [0, 1, 2, 2]], [150.0, 135.0, 71.0, 57.5])
@@ -73,7 +75,7 @@ def test_features_convert_the_datasets_units_both_ways():
     mine[6] = 60.0  # the left gripper 60 % closed
     np.testing.assert_allclose(robot.from_model(robot.to_model(mine)), mine)
 
-    envs = [TabletopEnv("ball_in_box", cameras=(), robot=r) for r in (bundled, robot)]
+    envs = [TabletopEnv(BALL_IN_BOX, cameras=(), robot=r) for r in (bundled, robot)]
     command = {id(bundled): native.copy(), id(robot): mine}
     command[id(bundled)][6] = 0.6
     for env in envs:
@@ -91,7 +93,7 @@ def test_features_convert_the_datasets_units_both_ways():
 def test_the_bundled_rig_places_the_four_cameras_as_before():
     robot = bundled_robot()
     assert robot.camera_names == ("head_left", "head_right", "wrist_left", "wrist_right")
-    env = TabletopEnv("ball_in_box", cameras=(), robot=robot)
+    env = TabletopEnv(BALL_IN_BOX, cameras=(), robot=robot)
     head = env.camera_T_world_from_cam("head_left")
     # Aimed at the workspace centre: the optical axis passes through (-0.03, 0, 0.75).
     to_target = np.array([-0.03, 0.0, 0.75]) - head[:3, 3]
@@ -101,16 +103,16 @@ def test_the_bundled_rig_places_the_four_cameras_as_before():
 
 def test_a_world_sets_the_physics_timestep():
     """`robot.timestep_s` overrides the scene's 2 ms: the control period is held for whole steps of it."""
-    env = TabletopEnv("ball_in_box", cameras=(), robot=world_robot(_world(**{"robot.timestep_s": 0.001})))
+    env = TabletopEnv(BALL_IN_BOX, cameras=(), robot=world_robot(_world(**{"robot.timestep_s": 0.001})))
     assert env.model.opt.timestep == 0.001 and env.n_substeps == 100
-    assert TabletopEnv("ball_in_box", cameras=()).n_substeps == 50
+    assert bundled_env("ball_in_box", cameras=()).n_substeps == 50
 
 
 def test_the_grasp_centre_is_offset_in_the_sites_frame():
     """`ee.pos` puts the grasp centre off the named site, along the site's own axes."""
     arm = copy.deepcopy(bundled_world()["robot"]["arms"]["left"])
     arm["ee"] = {**arm["ee"], "pos": [0.01, 0.0, 0.0]}  # 1 cm further along tcp's x, the approach
-    shifted, bundled = (TabletopEnv("ball_in_box", cameras=(), robot=r)
+    shifted, bundled = (TabletopEnv(BALL_IN_BOX, cameras=(), robot=r)
                         for r in (world_robot(_world(**{"robot.arms.left": arm})), bundled_robot()))
     moved = shifted.ee_positions()["left"] - bundled.ee_positions()["left"]
     np.testing.assert_allclose(moved, 0.01 * bundled.ee_rotations()["left"][:, 0], atol=1e-9)
@@ -124,7 +126,7 @@ def test_collision_swaps_the_jaws_shapes_for_primitives():
     arm["collision"] = {"disable": {"bodies": ["finger_a"], "geoms": ["pad_b"]},
                         "add": [{"body": "finger_a", "type": "box", "size": [0.019, 0.002, 0.011], "pos": [0.045, 0.0, 0.0],
                                  "euler_deg": [0.0, 0.0, 90.0], "friction": [1.2, 0.01, 0.001]}]}
-    m = TabletopEnv("ball_in_box", cameras=(), robot=world_robot(_world(**{"robot.arms.left": arm}))).model
+    m = TabletopEnv(BALL_IN_BOX, cameras=(), robot=world_robot(_world(**{"robot.arms.left": arm}))).model
     for name in ("left_finger_a", "left_pad_a", "left_pad_b"):
         assert m.geom(name).contype == 0 and m.geom(name).conaffinity == 0, name
     assert m.geom("right_pad_a").contype == 2 and m.geom("left_finger_b").contype == 2
@@ -133,5 +135,5 @@ def test_collision_swaps_the_jaws_shapes_for_primitives():
     assert (m.geom_contype[box], m.geom_conaffinity[box], m.geom_group[box]) == (2, 1, 3)
     np.testing.assert_allclose(m.geom_friction[box], [1.2, 0.01, 0.001])
     np.testing.assert_allclose(m.geom_quat[box], [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)], atol=1e-12)
-    bundled = TabletopEnv("ball_in_box", cameras=()).model
+    bundled = bundled_env("ball_in_box", cameras=()).model
     assert m.body("left_finger_a").mass == bundled.body("left_finger_a").mass  # the box adds no mass

@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TASKS, TabletopEnv
-from r2s_eval.sim.objects import placement_quat
+from r2s_eval.sim.objects import KINDS, placement_quat
 from r2s_eval.sim.predicates import apart
+from tests.helpers.worlds import bundled_env, bundled_tasks
+
+TASKS = bundled_tasks()
 
 TABLE_Z = 0.75
 UP = placement_quat("upright", 0.0)
@@ -21,7 +23,7 @@ def _tilted(angle_rad: float) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def envs():
-    made = {key: TabletopEnv(key, cameras=()) for key in TASKS}
+    made = {key: bundled_env(key, cameras=()) for key in TASKS}
     yield made
     for env in made.values():
         env.close()
@@ -96,7 +98,7 @@ def _block_from_box(env, variant):
 
 def _upright_cup(env, variant):
     pose = {"success": ([0.0, 0.0, TABLE_Z], UP),
-            "on_side": ([0.0, 0.0, TABLE_Z + _dims(env, "cup")["base_radius_m"]], placement_quat("on_side", 0.0, "cup", _dims(env, "cup"))),
+            "on_side": ([0.0, 0.0, TABLE_Z + _dims(env, "cup")["base_radius_m"]], KINDS["cup"].orientation("on_side", 0.0, _dims(env, "cup"))),
             "upside_down": ([0.0, 0.0, TABLE_Z + _dims(env, "cup")["height_m"]], DOWN),
             "tilted": ([0.0, 0.0, TABLE_Z + 0.01], _tilted(np.deg2rad(30))),
             "floating": ([0.0, 0.0, TABLE_Z + 0.03], UP)}[variant]

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TASKS
 from r2s_eval.twin.operator import make_operator
-from r2s_eval.sim import bundled_robot
+from tests.helpers.worlds import bundled_robot, bundled_tasks
+
+TASKS = bundled_tasks()
 
 TABLE_TOP_Z_M = bundled_robot().workspace_z_m
 

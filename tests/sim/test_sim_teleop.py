@@ -6,9 +6,10 @@ import pytest
 
 import numpy as np
 
-from r2s_eval.sim import TASKS, TabletopEnv
-from r2s_eval.twin import sample_twin_params
 from r2s_eval.twin.operator import make_operator, run_episode
+from tests.helpers.worlds import bundled_env, bundled_tasks, bundled_twin
+
+TASKS = bundled_tasks()
 
 
 def _episode(env, seed):
@@ -19,7 +20,7 @@ def _episode(env, seed):
 
 
 def test_nominal_episodes_succeed():
-    env = TabletopEnv(cameras=())
+    env = bundled_env(cameras=())
     results = []
     for seed in range(4):
         steps, op = _episode(env, seed)
@@ -32,7 +33,7 @@ def test_nominal_episodes_succeed():
 def test_twin_episodes_succeed():
     results = []
     for seed in range(3):
-        env = TabletopEnv(params=sample_twin_params(np.random.default_rng(100 + seed)), cameras=())
+        env = bundled_env(params=bundled_twin(np.random.default_rng(100 + seed)), cameras=())
         _episode(env, seed)
         results.append(env.is_success())
     assert all(results)
@@ -40,7 +41,7 @@ def test_twin_episodes_succeed():
 
 def test_episode_is_reproducible_and_recorded_with_images():
     def run():
-        env = TabletopEnv(cameras=("head_left", "wrist_left"), image_size=(64, 64))
+        env = bundled_env(cameras=("head_left", "wrist_left"), image_size=(64, 64))
         steps, _ = _episode(env, 11)
         return steps
 
@@ -52,7 +53,7 @@ def test_episode_is_reproducible_and_recorded_with_images():
 
 
 def test_step_cost_with_four_cameras():
-    env = TabletopEnv()  # 4 cameras at 128x128
+    env = bundled_env()  # 4 cameras at 128x128
     obs = env.reset(seed=0)
     action = obs["observation.state"]
     env.step(action)
@@ -66,7 +67,7 @@ def test_step_cost_with_four_cameras():
 
 @pytest.mark.parametrize("task", sorted(TASKS))
 def test_every_task_has_an_operator_that_succeeds(task):
-    env = TabletopEnv(task, cameras=())
+    env = bundled_env(task, cameras=())
     seen_progress = []
     for seed in range(2):
         obs = env.reset(seed=seed)

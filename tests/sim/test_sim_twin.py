@@ -8,34 +8,35 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TabletopEnv, WorldParams
-from r2s_eval.twin import TwinMagnitudes, sample_twin_params
+from r2s_eval.sim import WorldParams
+from r2s_eval.twin import TwinMagnitudes
 from r2s_eval.twin.perturb import PERTURBATION_FAMILIES, without_family
+from tests.helpers.worlds import bundled_env, bundled_robot, bundled_twin
 
 POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 
 
 @pytest.fixture(scope="module")
 def twin_params():
-    return sample_twin_params(np.random.default_rng(7))
+    return bundled_twin(np.random.default_rng(7))
 
 
 @pytest.fixture(scope="module")
 def twin_env(twin_params):
-    env = TabletopEnv("cup_on_plate", params=twin_params)
+    env = bundled_env("cup_on_plate", params=twin_params)
     yield env
     env.close()
 
 
 def test_sampling_is_seeded_and_bounded(twin_params):
-    again = sample_twin_params(np.random.default_rng(7))
+    again = bundled_twin(np.random.default_rng(7))
     assert again == twin_params
-    assert sample_twin_params(np.random.default_rng(8)) != twin_params
+    assert bundled_twin(np.random.default_rng(8)) != twin_params
     m = TwinMagnitudes()
     assert abs(twin_params.friction_scale - 1) <= m.friction_rel
     assert all(abs(s - 1) <= m.size_rel for s in twin_params.object_size_scale.values())
     assert all(np.abs(o).max() <= m.camera_pos_m for o in twin_params.camera_pos_offset_m.values())
-    assert sample_twin_params(np.random.default_rng(7), m.scaled(0.0)).friction_scale == 1.0
+    assert bundled_twin(np.random.default_rng(7), m.scaled(0.0)).friction_scale == 1.0
 
 
 def test_physics_perturbations_applied(nominal_env, twin_env, twin_params):
@@ -92,7 +93,7 @@ def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
     from r2s_eval.sim.predicates import centre_m
 
     params = WorldParams(object_mass_scale={"ball": 1.19, "cup": 0.94})
-    env = TabletopEnv("ball_in_cup", params=params, cameras=())
+    env = bundled_env("ball_in_cup", params=params, cameras=())
     ball = env.model.body("ball").id
     assert env.model.body_subtreemass[ball] == pytest.approx(env.model.body_mass[ball])
     env.reset({"ball": (0.0, -0.1, 0.0), "cup": (0.008, 0.1, 0.0)})
@@ -107,14 +108,13 @@ def test_mass_scaling_updates_derived_constants_and_contacts_stay_stable():
 def test_joint_offsets_hold_each_joint_off_its_command(twin_params):
     """The twin's kinematic calibration error: every arm joint settles at its command plus its
     offset, and the offsets survive the JSON round trip the twin stage writes."""
-    from r2s_eval.sim import bundled_robot
     from r2s_eval.sim.params import load_world_params
 
     m, robot = TwinMagnitudes(), bundled_robot()
     offsets = {name: twin_params.joint_offsets(name, len(arm.joints)) for name, arm in robot.arms.items()}
     assert all(0 < np.abs(o).max() <= m.joint_offset_rad for o in offsets.values())
     exact = dataclasses.replace(twin_params, encoder_noise_rad=0.0, encoder_step_rad=0.0)  # the joints as they are
-    env = TabletopEnv("cup_on_plate", params=exact, cameras=())
+    env = bundled_env("cup_on_plate", params=exact, cameras=())
     env.reset(POSES)
     command = robot.from_model(robot.home_targets())
     for _ in range(30):
@@ -134,7 +134,7 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
     angles the arm reached by the offsets, which is what replay in the nominal sim inherits."""
     from r2s_eval.twin.operator import make_operator, run_episode
 
-    env = TabletopEnv("cup_on_plate", params=twin_params, cameras=())
+    env = bundled_env("cup_on_plate", params=twin_params, cameras=())
     rng = np.random.default_rng(3)
     obs = env.reset(env.sample_initial_poses(rng), seed=3)
     operator = make_operator("cup_on_plate", env, rng)
@@ -148,7 +148,7 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
 
 
 def test_taking_a_family_away_gives_it_the_calibrated_sims_values():
-    twin = sample_twin_params(np.random.default_rng(3))
+    twin = bundled_twin(np.random.default_rng(3))
     sim = WorldParams(joint_offset_rad={arm: tuple(0.5 * np.asarray(v)) for arm, v in twin.joint_offset_rad.items()})
     every = {f.name for f in dataclasses.fields(WorldParams)} - {"noise_seed"}
     assert {f for names in PERTURBATION_FAMILIES.values() for f in names} == every  # each field in one family
@@ -163,8 +163,8 @@ def test_taking_a_family_away_gives_it_the_calibrated_sims_values():
 def test_the_twins_encoders_read_the_joints_with_noise_and_in_steps():
     step = 2 * np.pi / 4096
     params = WorldParams(encoder_noise_rad=float(np.deg2rad(0.05)), encoder_step_rad=step, noise_seed=4)
-    env = TabletopEnv("cup_on_plate", params=params, cameras=())
-    nominal = TabletopEnv("cup_on_plate", cameras=())
+    env = bundled_env("cup_on_plate", params=params, cameras=())
+    nominal = bundled_env("cup_on_plate", cameras=())
     for e in (env, nominal):
         e.reset(POSES, seed=9, observe=False)
     left, _ = env.robot.slices("left")

@@ -16,7 +16,7 @@ from r2s_eval.sim import meshes
 from r2s_eval.paths import REPO_ROOT
 from r2s_eval.sim.reading import WorldError
 from r2s_eval.sim.robot import load_robot, world_robot
-from r2s_eval.sim.tasks import bundled_world
+from tests.helpers.worlds import bundled_world
 from r2s_eval.sim.assembly import build_robot_model
 
 # Drawn-only mesh geoms (one mesh drawn twice) and a collision geom sharing the ball's mesh file,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from r2s_eval.sim import TabletopEnv, bundled_robot
+from tests.helpers.worlds import bundled_env, bundled_robot
 from r2s_eval.sim.cameras import backproject_pixels, project_points
 
 ROBOT = bundled_robot()
@@ -97,7 +97,7 @@ def test_all_objects_visible_in_first_head_frame(nominal_env, rng):
 
 def test_same_seed_same_trajectory():
     def rollout():
-        env = TabletopEnv(cameras=("head_left",))
+        env = bundled_env(cameras=("head_left",))
         obs = env.reset(seed=3)
         action = obs["observation.state"].astype(float)
         action[7:13] += np.linspace(-0.2, 0.2, 6)

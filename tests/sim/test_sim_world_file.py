@@ -13,7 +13,10 @@ import pytest
 from r2s_eval.config import compose_config
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.assembly import load_world
-from r2s_eval.sim.tasks import BUNDLED_WORLD, TASKS, WorldError, bundled_world, load_tasks
+from r2s_eval.sim.tasks import WORLDS_DIR, WorldError, load_tasks
+from tests.helpers.worlds import BUNDLED, bundled_tasks, bundled_world
+
+TASKS = bundled_tasks()
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 
@@ -42,7 +45,7 @@ def test_a_new_task_is_config_alone():
 
 
 def _broken(old: str, new: str) -> dict:
-    text = BUNDLED_WORLD.read_text()
+    text = (WORLDS_DIR / f"{BUNDLED}.yaml").read_text()
     assert old in text, old
     import yaml
 

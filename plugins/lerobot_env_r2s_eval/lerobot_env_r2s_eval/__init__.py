@@ -18,6 +18,7 @@ from lerobot.processor import ObservationProcessorStep, PolicyProcessorPipeline
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
 from r2s_eval.errors import R2SError
+from r2s_eval.sim.tasks import world_config
 from r2s_eval.world import gym_env
 
 ENV_TYPE = "r2s_eval"
@@ -75,7 +76,7 @@ class R2SEvalEnv(EnvConfig):
             self._problem = err
 
     def _describe_world(self) -> None:
-        _, config = gym_env.load_world(self.world)
+        config = world_config(self.world)
         self.fps = int(round(float(config["robot"]["control_hz"])))
         recorded = self.recorded()
         for key, shape in recorded.items():

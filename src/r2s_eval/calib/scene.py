@@ -8,20 +8,17 @@ from __future__ import annotations
 
 from r2s_eval.calib.estimate import CameraModel, ObjectGeometry
 from r2s_eval.sim import TabletopEnv
-from r2s_eval.sim.objects import height_m, support_top_m
 
 
 def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
     """Approximate silhouette-centre heights; the render-based refinement removes the rest."""
     geoms = []
     for name in env.task.object_names:
-        dims = env.object_dims(name)
-        kind = env.task.object(name).kind
-        height = dims["radius_m"] * 2 if env.task.placement(name) == "on_side" else height_m(kind, dims)
+        height = env.task.object(name).kind_object.placed_height_m(env.object_dims(name), env.task.placement(name))
         base = 0.0
         parent = env.task.init_regions[name].relative_to
         if parent is not None:  # resting inside another object (a block in a box)
-            base = support_top_m(env.task.object(parent).kind, env.object_dims(parent))
+            base = env.task.object(parent).kind_object.support_top_m(env.object_dims(parent))
         geoms.append(ObjectGeometry(name, centroid_height_m=base + 0.5 * height, yaw_symmetry=env.task.yaw_symmetry(name)))
     return geoms
 

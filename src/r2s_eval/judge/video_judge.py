@@ -126,13 +126,13 @@ def _predicates(condition) -> list[tuple[str, dict]]:
 
 def goal_relation(task) -> tuple[str, str, str | None]:
     """(relation, moved object, reference object) of a task: its success condition's first
-    relational predicate ("stack" for an object on a block), else "upright" of the object it
-    must stand up."""
+    relational predicate ("stack" for an object on a support whose kind reads as a stack, a
+    block's), else "upright" of the object it must stand up."""
     found = _predicates(task.success_condition)
     for name, params in found:
         if name in RELATION_OF_PREDICATE:
             relation, mover, reference = RELATION_OF_PREDICATE[name]
-            if name == "on_top_of" and task.object(params["support"]).kind == "block":
+            if name == "on_top_of" and task.object(params["support"]).kind_object.stacked_on:
                 relation = "stack"
             return relation, params[mover], params[reference]
     upright = [params["object"] for name, params in found if name == "upright"]
@@ -146,14 +146,12 @@ def _words(text: str) -> set[str]:
     return {w for w in re.findall(r"[a-z]+", text.lower()) if w not in {"the", "and", "it", "with", "of", "a"}}
 
 
-def task_from_instruction(instruction: str, tasks: Mapping[str, Any] | None = None) -> str:
-    """The key of the task (of ``tasks``, default the bundled world's) whose instruction shares the
-    most words with `instruction` (ValueError if none fits)."""
-    from r2s_eval.sim.tasks import TASKS
-
+def task_from_instruction(instruction: str, tasks: Mapping[str, Any]) -> str:
+    """The key of the task (of ``tasks``, the world's) whose instruction shares the most words with
+    `instruction` (ValueError if none fits)."""
     words = _words(instruction)
     best, best_score = None, 0.0
-    for key, task in sorted((tasks or TASKS).items()):
+    for key, task in sorted(tasks.items()):
         ref = _words(task.instruction)
         score = len(words & ref) / max(len(words | ref), 1)
         if score > best_score:
@@ -352,15 +350,20 @@ class VideoJudge(Judge):
         if not int(self.cfg["end_frames"]) >= 1:
             raise ConfigError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
         self._segmenters: dict[str, Any] = {}
-        from r2s_eval.sim.tasks import TASKS
-
-        self.tasks: Mapping[str, Any] = TASKS  # what the judge knows of the tasks (know_tasks)
+        self._tasks: Mapping[str, Any] | None = None  # what the judge knows of the tasks (know_tasks)
 
     def know_tasks(self, tasks: Mapping[str, Any]) -> None:
         """The world's tasks: what each instruction asks for (its goal relation) and what its
         objects look like (their colours). It is part of the judge's identity, so answers given
         with other knowledge are never reused."""
-        self.tasks, self._segmenters = tasks, {}
+        self._tasks, self._segmenters = tasks, {}
+
+    @property
+    def tasks(self) -> Mapping[str, Any]:
+        if self._tasks is None:
+            raise ConfigError("video judge: it knows no world's tasks; call know_tasks(world_tasks(world)) "
+                              "(r2s_eval.world_judging.world_judge builds a judge that knows them)")
+        return self._tasks
 
     def identity(self) -> dict[str, str]:
         def looks(obj) -> list:  # its colour, and the world's explicit colour range where it gives one

@@ -16,17 +16,16 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from r2s_eval.sim.env import TabletopEnv  # noqa: E402
 from r2s_eval.sim.params import WorldParams, load_world_params  # noqa: E402
-from r2s_eval.sim.robot import Robot, bundled_robot, world_robot  # noqa: E402
-from r2s_eval.sim.tasks import TASKS, Task, get_task  # noqa: E402
+from r2s_eval.sim.robot import Robot, world_robot  # noqa: E402
+from r2s_eval.sim.tasks import Task, get_task, world_config  # noqa: E402
 
 __all__ = [
     "Robot",
-    "TASKS",
     "Task",
     "TabletopEnv",
-    "bundled_robot",
     "WorldParams",
     "get_task",
     "load_world_params",
+    "world_config",
     "world_robot",
 ]

@@ -36,12 +36,11 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from r2s_eval.sim import cameras as cam_geom  # noqa: E402
-from r2s_eval.sim import objects as obj_geom  # noqa: E402
 from r2s_eval.sim import assembly  # noqa: E402
 from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.params import WorldParams  # noqa: E402
-from r2s_eval.sim.robot import Robot, bundled_robot  # noqa: E402
-from r2s_eval.sim.tasks import Task, get_task, sample_initial_poses  # noqa: E402
+from r2s_eval.sim.robot import Robot  # noqa: E402
+from r2s_eval.sim.tasks import Task, sample_initial_poses  # noqa: E402
 from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
@@ -66,22 +65,25 @@ class TabletopEnv:
 
     def __init__(
         self,
-        task: str | Task = "cup_on_plate",
+        task: Task,
         params: WorldParams | None = None,
         image_size: tuple[int, int] = (128, 128),
         cameras: tuple[str, ...] | list[str] | None = None,
         model: mujoco.MjModel | None = None,
         renderers: dict | None = None,
-        robot: Robot | None = None,
+        *,
+        robot: Robot,
     ):
-        """``robot``: the world's robot and rig (default: the bundled world's); ``cameras``: the
-        rig's cameras to observe (default: all). ``model``: this task's compiled model in this world, to share (MuJoCo only reads a
+        """``task`` and ``robot``: one of the world's tasks and its robot and rig (``get_task(key,
+        world)``, ``world_robot(world)``; ``r2s_eval.sim.build.make_env`` builds both from the
+        ``world`` config slice); ``cameras``: the rig's cameras to observe (default: all). ``model``: this task's compiled model in this world, to share (MuJoCo only reads a
         model while stepping, so environments stepped side by side can share one).
         ``renderers``: renderers to share with other environments of that model that render
         from the same thread (a renderer draws any MjData of its model); whoever made the dict
         closes them."""
-        self.task = get_task(task) if isinstance(task, str) else task
-        self.robot = robot or bundled_robot()
+        if not isinstance(task, Task):
+            raise ConfigError(f"TabletopEnv: task {task!r} is not a task of a world; pass get_task(key, world)")
+        self.task, self.robot = task, robot
         self.params = params or WorldParams()
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.cameras = self.robot.camera_names if cameras is None else tuple(cameras)
@@ -181,11 +183,10 @@ class TabletopEnv:
             support_z_m = self.table_top_z_m + 0.0005
             parent = self.task.init_regions[name].relative_to if name in self.task.init_regions else None
             if parent is not None:  # resting on (inside) another object that starts upright
-                parent_kind = self.task.object(parent).kind
-                support_z_m += obj_geom.support_top_m(parent_kind, self._obj_dims[parent]) + 0.0005
-            kind = self.task.object(name).kind
-            origin = obj_geom.placement_origin_m(kind, self._obj_dims[name], placement, x_m, y_m, yaw_rad, support_z_m)
-            quat = obj_geom.placement_quat(placement, yaw_rad, kind, self._obj_dims[name])
+                support_z_m += self.task.object(parent).kind_object.support_top_m(self._obj_dims[parent]) + 0.0005
+            kind = self.task.object(name).kind_object
+            origin = kind.origin_m(self._obj_dims[name], placement, x_m, y_m, yaw_rad, support_z_m)
+            quat = kind.orientation(placement, yaw_rad, self._obj_dims[name])
             self.set_object_pose(name, origin, quat, forward=False)
         mujoco.mj_forward(m, d)
         if settle:
@@ -361,9 +362,8 @@ class TabletopEnv:
         out = {}
         for name in self.task.object_names:
             s = self.object_state(name)
-            kind = self.task.object(name).kind
-            planar = obj_geom.planar_pose(kind, self._obj_dims[name], self.task.placement(name), s["pos_world_m"],
-                                          s["quat_wxyz"])
+            planar = self.task.object(name).kind_object.planar_pose(self._obj_dims[name], self.task.placement(name),
+                                                                     s["pos_world_m"], s["quat_wxyz"])
             out[name] = dict(pos_world_m=s["pos_world_m"], quat_wxyz=s["quat_wxyz"], yaw_rad=planar[2], planar=planar)
         return out
 

@@ -315,13 +315,6 @@ def world_robot(world: Mapping) -> Robot:
     return _LOADED[key]
 
 
-@functools.cache
-def bundled_robot() -> Robot:
-    from r2s_eval.sim.tasks import bundled_world
-
-    return world_robot(bundled_world())
-
-
 __all__ = ["Arm", "Collision", "CollisionGeom", "Feature", "Finger", "Gripper", "JointPhysics", "RigCamera", "Robot",
-           "WorldError", "bundled_robot", "load_robot", "model_path", "world_robot"]
+           "WorldError", "load_robot", "model_path", "world_robot"]
 

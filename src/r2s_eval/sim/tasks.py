@@ -33,10 +33,10 @@ upright_cup       Upright the Fallen Cup                      cup (on its side)
 
 from __future__ import annotations
 
-import functools
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,14 +45,13 @@ import yaml
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.sim import world_spec as spec
 from r2s_eval.sim.reading import WorldError, fail  # noqa: F401 (WorldError: re-exported)
-from r2s_eval.sim.objects import ObjectSpec, footprint_radius_m, yaw_symmetry
+from r2s_eval.sim.objects import ObjectSpec
 from r2s_eval.sim.meshes import load_shape
 from r2s_eval.sim.plans import read_plan
 from r2s_eval.sim.predicates import ConditionError, Scene, compile_condition, condition_objects, staged_progress
 from r2s_eval.errors import ConfigError
 
 WORLDS_DIR = CONF_DIR / "world"  # the `world` config group
-BUNDLED_WORLD = WORLDS_DIR / "tabletop.yaml"
 
 
 @dataclass(frozen=True)
@@ -98,9 +97,9 @@ class Task:
         return next(o for o in self.objects if o.name == name)
 
     def yaw_symmetry(self, name: str) -> int:
-        """Yaw symmetry of the object in its start placement (``objects.yaw_symmetry``)."""
+        """Yaw symmetry of the object in its start placement (its kind's, ``ObjectKind.yaw_symmetry``)."""
         obj = self.object(name)
-        return obj.symmetry if obj.symmetry is not None else yaw_symmetry(obj.kind, self.placement(name))
+        return obj.symmetry if obj.symmetry is not None else obj.kind_object.yaw_symmetry(self.placement(name))
 
 
 # ---------------------------------------------------------------- reading a world
@@ -132,9 +131,10 @@ def _task(key: str, entry: spec.Task, objects: dict[str, ObjectSpec]) -> Task:
     regions = {n: Region(x_range_m=s.x_range_m, y_range_m=s.y_range_m, yaw_range_rad=s.yaw_range_rad,
                          relative_to=s.relative_to) for n, s in entry.start.items()}
     for name, start in entry.start.items():
-        if start.placement != "upright" and objects[name].kind == "mesh":
-            raise fail(f"{where}.start.{name}.placement", f"a mesh object starts upright (as its file stands), "
-                                                          f"got {start.placement!r}")
+        kind = objects[name].kind_object
+        if start.placement not in kind.placements:
+            raise fail(f"{where}.start.{name}.placement", f"a {kind.name} object starts {' or '.join(kind.placements)}"
+                                                          f"{kind.placement_note}, got {start.placement!r}")
     plan = read_plan(entry.plan, {n: objects[n].kind for n in names}, f"{where}.plan")
     mine = {n: objects[n] for n in names}
     success = _condition(entry.success, mine, f"{where}.success")
@@ -188,38 +188,31 @@ def world_tasks(world: Mapping) -> dict[str, Task]:
     return _LOADED[key]
 
 
-@functools.cache
-def bundled_world() -> dict:
-    """The bundled world's config (``conf/world/tabletop.yaml``), for callers without a config."""
-    return yaml.safe_load(BUNDLED_WORLD.read_text())
+def world_names() -> list[str]:
+    """The worlds of the ``world`` config group."""
+    return sorted(p.stem for p in WORLDS_DIR.glob("*.yaml"))
 
 
-class _BundledTasks(Mapping[str, Task]):
-    """The bundled world's tasks, compiled on first use rather than on import: a wrong entry in
-    its file is reported by the config check (one line naming the key and the file), not as a
-    traceback of whatever imported this module."""
-
-    @functools.cached_property
-    def _tasks(self) -> dict[str, Task]:
-        return world_tasks(bundled_world())
-
-    def __getitem__(self, key: str) -> Task:
-        return self._tasks[key]
-
-    def __iter__(self):
-        return iter(self._tasks)
-
-    def __len__(self) -> int:
-        return len(self._tasks)
+def world_config(world: str | Path) -> dict:
+    """The config of ``world``, a world of the ``world`` config group (``conf/world/<name>.yaml``)
+    or a world file (``.yaml``), as the file states it: for callers without a composed config (a
+    command line, the Gymnasium environment, tests)."""
+    path = Path(world)
+    if path.suffix not in (".yaml", ".yml"):
+        path = WORLDS_DIR / f"{world}.yaml"
+        if not path.is_file():
+            raise ConfigError(f"unknown world {str(world)!r}: the worlds are {world_names()}, or give a world file (.yaml)")
+    elif not path.is_file():
+        raise ConfigError(f"world file {str(world)!r} does not exist")
+    config = yaml.safe_load(path.read_text())
+    if not isinstance(config, dict) or "robot" not in config:
+        raise ConfigError(f"{path}: not a world file (no 'robot' entry)")
+    return config
 
 
-# The bundled world's tasks: what a caller without a world config (a test, a benchmark) gets.
-TASKS: Mapping[str, Task] = _BundledTasks()
-
-
-def get_task(key: str, world: Mapping | None = None) -> Task:
-    """Task ``key`` of ``world`` (a ``world`` config slice; default: the bundled world)."""
-    tasks = TASKS if world is None else world_tasks(world)
+def get_task(key: str, world: Mapping) -> Task:
+    """Task ``key`` of ``world`` (a ``world`` config slice)."""
+    tasks = world_tasks(world)
     try:
         return tasks[key]
     except KeyError:
@@ -236,7 +229,7 @@ def sample_initial_poses(
     """
     size_scales = size_scales or {}
     radii = {
-        o.name: footprint_radius_m(o.kind, o.scaled_dims(size_scales.get(o.name, 1.0)), task.placement(o.name))
+        o.name: o.kind_object.footprint_radius_m(o.scaled_dims(size_scales.get(o.name, 1.0)), task.placement(o.name))
         for o in task.objects
     }
     # Objects in a parent's frame are drawn after their parent.

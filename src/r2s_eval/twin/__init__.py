@@ -9,6 +9,6 @@ teleop dataset recorded in the twin, with the true initial poses). This package 
 twin's parameters or truth except through the artefacts the stages pass on.
 """
 
-from r2s_eval.twin.perturb import ALL_OBJECT_NAMES, TwinMagnitudes, sample_twin_params, twin_world
+from r2s_eval.twin.perturb import TwinMagnitudes, sample_twin_params, twin_world
 
-__all__ = ["ALL_OBJECT_NAMES", "TwinMagnitudes", "sample_twin_params", "twin_world"]
+__all__ = ["TwinMagnitudes", "sample_twin_params", "twin_world"]

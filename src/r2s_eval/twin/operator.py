@@ -80,8 +80,8 @@ the operator was in when the first thing went wrong, the reason (``target_not_re
 ``r2s_eval.twin.failures`` says what each means) and what was seen. It only reads the scene: an
 episode's actions are the same as without it.
 
-Success rate: ``python -m r2s_eval.twin.operator [--world <name>] --task <key|all> --episodes 20
-[--twin]`` (a world of ``conf/world``, default the bundled one; episodes stop after 15 s) prints
+Success rate: ``python -m r2s_eval.twin.operator --world <name> --task <key|all> --episodes 20
+[--twin]`` (a world of ``conf/world`` or a world file; episodes stop after 15 s) prints
 per task the rate and the failures counted by phase and reason, then one line per failed episode.
 """
 
@@ -96,11 +96,11 @@ from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim import assembly
 from r2s_eval.sim.env import TabletopEnv
-from r2s_eval.sim.robot import Robot, bundled_robot, world_robot
+from r2s_eval.sim.robot import Robot, world_robot
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim.objects import height_m, support_top_m
+from r2s_eval.sim.objects import KINDS
 from r2s_eval.sim.predicates import centre_m
-from r2s_eval.sim.tasks import TASKS, WORLDS_DIR, Task, get_task
+from r2s_eval.sim.tasks import Task, get_task, world_config
 from r2s_eval.twin import primitives
 from r2s_eval.twin.failures import EpisodeWatch, Failure, summary
 from r2s_eval.twin.perturb import sample_twin_params
@@ -251,7 +251,7 @@ class ScriptedOperator:
 
     # ------------------------------------------------------------ scene reads (what a person sees)
     def object_height_m(self, name: str) -> float:
-        return height_m(self.task.object(name).kind, self.env.object_dims(name))
+        return self.task.object(name).kind_object.height_m(self.env.object_dims(name))
 
     def _choose_arm(self) -> str:
         arms = list(self.env.robot.arms)
@@ -288,9 +288,7 @@ class ScriptedOperator:
         if self.task.placement(name) == "on_side":
             return obj_yaw  # jaws across the lying axis; the hand's z axis along it
         natural_yaw = self._natural_yaw(centre, float(np.arctan2(reach[1], reach[0])))
-        kind = self.task.object(name).kind
-        step = np.pi / 2 if kind in ("block", "box") else np.pi / 8
-        base = obj_yaw if kind in ("block", "box") else natural_yaw
+        base, step = self.task.object(name).kind_object.grasp_yaws(obj_yaw, natural_yaw)
         candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
         others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
         near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
@@ -471,34 +469,27 @@ def _jaw_cmd(op: ScriptedOperator, jaw_opening_m: float) -> float:
 def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator], float], float]:
     """How the hand takes ``name`` from above: the tcp height when closing, and the pre-shape."""
     env, cfg = op.env, op.cfg
-    kind = env.object_kind(name)
-    if kind == "cup" and op.task.placement(name) == "upside_down":  # a little lower round its rim
-        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m - 0.005), 0.0
-    if kind == "cup":  # round its wall, near the table
-        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m), 0.0
-    if kind in ("ball", "block", "mesh"):
-        # tcp slightly above the centre keeps the fingertips off the table; jaws pre-shaped wider
-        # than the object (a mesh: than its bounding box's larger side).
-        dims = env.object_dims(name)
-        if kind == "ball":
-            half_width = dims["radius_m"]
-        elif kind == "block":
-            half_width = dims["size_m"] / 2
-        else:
-            half_width = max(dims["half_x_m"], dims["half_y_m"])
-        return (lambda op: centre_m(op.env, name)[2] + 0.006), _jaw_cmd(op, half_width + cfg.preshape_margin_m)
-    raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind} ({name}) from above; "
-                      f"it picks cups, balls, blocks and meshes")
+    kind = op.task.object(name).kind_object
+    grasp = kind.grasp(env.object_dims(name), op.task.placement(name))
+    if grasp is None:
+        pickable = [k for k, other in KINDS.items() if other.pickable]
+        raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind.name} ({name}) from above; "
+                          f"it picks {pickable}")
+    if grasp.half_width_m is None:  # round its wall near the table, the jaws fully open
+        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m + grasp.tcp_offset_m), 0.0
+    # Jaws pre-shaped wider than the object.
+    return ((lambda op: centre_m(op.env, name)[2] + grasp.tcp_offset_m),
+            _jaw_cmd(op, grasp.half_width_m + cfg.preshape_margin_m))
 
 
 def _place_on(op: ScriptedOperator, held: str, support: str) -> Callable[[ScriptedOperator], np.ndarray]:
     """The held object's bottom a little above the support's top face, over its centre."""
     env, cfg = op.env, op.cfg
-    kind, dims, held_h = env.object_kind(support), env.object_dims(support), op.object_height_m(held)
+    kind, dims, held_h = op.task.object(support).kind_object, env.object_dims(support), op.object_height_m(held)
 
     def place(op):
         pos = env.object_state(support)["pos_world_m"]
-        return np.r_[pos[:2], pos[2] + support_top_m(kind, dims) + cfg.place_clearance_m + held_h / 2]
+        return np.r_[pos[:2], pos[2] + kind.support_top_m(dims) + cfg.place_clearance_m + held_h / 2]
 
     return place
 
@@ -530,11 +521,11 @@ def run_episode(env: TabletopEnv, operator: ScriptedOperator, max_steps: int = 1
 EPISODE_S = 15.0  # the success rate's episodes stop after this long (150 steps at 10 Hz)
 
 
-def episode_failures(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
-                     world: dict | None = None) -> list[Failure | None]:
+def episode_failures(task: str, episodes: int = 20, twin: bool = False, seed: int = 0, *,
+                     world: dict) -> list[Failure | None]:
     """Why each scripted episode failed (None: it succeeded; physics only, no rendering) in ``world``
-    (a ``world`` config slice; default: the bundled world)."""
-    robot, spec = (bundled_robot() if world is None else world_robot(world)), get_task(task, world)
+    (a ``world`` config slice)."""
+    robot, spec = world_robot(world), get_task(task, world)
     failures = []
     for i in range(episodes):
         params = (sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=spec.object_names, robot=robot)
@@ -548,27 +539,24 @@ def episode_failures(task: str = "cup_on_plate", episodes: int = 20, twin: bool 
     return failures
 
 
-def success_rate(task: str = "cup_on_plate", episodes: int = 20, twin: bool = False, seed: int = 0,
-                 world: dict | None = None) -> float:
+def success_rate(task: str, episodes: int = 20, twin: bool = False, seed: int = 0, *, world: dict) -> float:
     """Fraction of scripted episodes that end in success (``episode_failures``)."""
-    return sum(f is None for f in episode_failures(task, episodes, twin, seed, world)) / episodes
+    return sum(f is None for f in episode_failures(task, episodes, twin, seed, world=world)) / episodes
 
 
 if __name__ == "__main__":
     import argparse
 
-    import yaml
-
     parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator, and why episodes fail.")
-    parser.add_argument("--world", help="a world of conf/world (default: the bundled one)")
+    parser.add_argument("--world", required=True, help="a world of conf/world (tabletop, panda, ...) or a world file")
     parser.add_argument("--task", default="all", help="task key, or 'all'")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--twin", action="store_true", help="perturbed twin worlds instead of nominal")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    world_cfg = None if args.world is None else yaml.safe_load((WORLDS_DIR / f"{args.world}.yaml").read_text())
-    for key in (TASKS if world_cfg is None else world_cfg["tasks"]) if args.task == "all" else [args.task]:
-        failures = episode_failures(key, args.episodes, args.twin, args.seed, world_cfg)
+    world_cfg = world_config(args.world)
+    for key in world_cfg["tasks"] if args.task == "all" else [args.task]:
+        failures = episode_failures(key, args.episodes, args.twin, args.seed, world=world_cfg)
         rate, why = sum(f is None for f in failures) / args.episodes, summary(failures)
         print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed"
               + (f"; failed: {why}" if why else ""), flush=True)

@@ -40,14 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim.tasks import bundled_world
 from r2s_eval.sim.params import WorldParams
-from r2s_eval.sim.robot import Robot, bundled_robot
-
-# Every object of the bundled suite (the twin perturbs each physical object once, whichever
-# task it appears in).
-# The bundled world's objects: what a caller without a world config perturbs.
-ALL_OBJECT_NAMES = tuple(sorted(bundled_world()["objects"]))
+from r2s_eval.sim.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -80,13 +74,14 @@ class TwinMagnitudes:
 def sample_twin_params(
     rng: np.random.Generator,
     magnitudes: TwinMagnitudes | None = None,
-    object_names: tuple[str, ...] = ALL_OBJECT_NAMES,
-    robot: Robot | None = None,
+    *,
+    object_names: tuple[str, ...],
+    robot: Robot,
 ) -> WorldParams:
-    """Draw one perturbed world of ``robot`` (default: the bundled world's). Same rng state -> same
+    """Draw one perturbed world of ``robot`` with the objects ``object_names`` (a world's: the twin
+    perturbs each physical object once, whichever task it appears in). Same rng state -> same
     parameters."""
     m = magnitudes or TwinMagnitudes()
-    robot = robot or bundled_robot()
     camera_names = robot.camera_names
 
     def u(half_width: float, size=None):
@@ -116,7 +111,7 @@ def sample_twin_params(
     )
 
 
-def twin_world(twin_cfg: dict, object_names, robot: Robot | None = None) -> dict:
+def twin_world(twin_cfg: dict, object_names, robot: Robot) -> dict:
     """The twin stage's record: the magnitudes and the world drawn from ``twin_cfg["seed"]``
     (``twin_cfg``: the ``real.twin`` config group).
 
@@ -125,7 +120,8 @@ def twin_world(twin_cfg: dict, object_names, robot: Robot | None = None) -> dict
     """
     magnitudes = TwinMagnitudes(**(twin_cfg.get("magnitudes") or {}))
     objects = sorted(object_names)
-    params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, tuple(objects), robot)
+    params = sample_twin_params(np.random.default_rng(int(twin_cfg["seed"])), magnitudes, object_names=tuple(objects),
+                                robot=robot)
     return {"magnitudes": dataclasses.asdict(magnitudes), "params": dataclasses.asdict(params)}
 
 

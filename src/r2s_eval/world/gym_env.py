@@ -42,38 +42,18 @@ from r2s_eval.rollout.loop import Episode
 from r2s_eval.sim import load_world_params
 from r2s_eval.sim.build import check_world_params, feature_ranges, make_env
 from r2s_eval.sim.robot import world_robot
-from r2s_eval.sim.tasks import WORLDS_DIR, world_tasks
+from r2s_eval.sim.tasks import world_config, world_tasks
 
 ENV_ID = "r2s_eval/World-v0"
 # The rollout stage's episode length, read from its config group's default (one owner).
 DEFAULT_EPISODE_STEPS = int(yaml.safe_load((CONF_DIR / "rollout" / "default.yaml").read_text())["max_steps"])
 
 
-def shipped_worlds() -> list[str]:
-    """The worlds of the ``world`` config group."""
-    return sorted(p.stem for p in WORLDS_DIR.glob("*.yaml"))
-
-
-def load_world(world: str | Path) -> tuple[str, dict]:
-    """(name, config) of ``world``: a world of the ``world`` config group or a world file."""
-    path = Path(world)
-    if path.suffix not in (".yaml", ".yml"):
-        path = WORLDS_DIR / f"{world}.yaml"
-        if not path.is_file():
-            raise ConfigError(f"unknown world {str(world)!r}: the worlds are {shipped_worlds()}, or give a world file (.yaml)")
-    elif not path.is_file():
-        raise ConfigError(f"world file {str(world)!r} does not exist")
-    config = yaml.safe_load(path.read_text())
-    if not isinstance(config, dict) or "robot" not in config:
-        raise ConfigError(f"{path}: not a world file (no 'robot' entry)")
-    return path.stem, config
-
-
 def world_features(world: str | Path, image_size: tuple[int, int] | None = None,
                    cameras: list[str] | None = None) -> dict[str, tuple]:
     """What the world records, in the dataset's keys: {key: shape} for ``observation.state``,
     ``action`` and each camera's ``observation.images.<camera>`` (H, W, 3)."""
-    _, config = load_world(world)
+    config = world_config(world)
     robot = world_robot(config)
     h, w = image_size or (int(config["image_height"]), int(config["image_width"]))
     features = {"observation.state": (robot.action_dim,), "action": (robot.action_dim,)}
@@ -100,7 +80,7 @@ def checked_arguments(world: str | Path, task: str, world_params: str | None = N
     """``WorldEnv``'s arguments checked without building the simulation: (world name, world config
     with ``image_size`` and ``cameras`` applied, world parameters or None, the task's inits or None).
     Raises one line naming the world, task, camera, file or init table at fault."""
-    name, config = load_world(world)
+    name, config = Path(world).stem, world_config(world)
     if image_size is not None:
         config = {**config, "image_height": int(image_size[0]), "image_width": int(image_size[1])}
     if cameras is not None:

@@ -74,7 +74,7 @@ def _grid(rows: list[list[np.ndarray]]) -> np.ndarray:
 
 
 def render_starts(tasks: Mapping[str, Task], cameras: Sequence[str], size_hw: tuple[int, int], seed: int,
-                  robot: Robot | None = None) -> np.ndarray:
+                  robot: Robot) -> np.ndarray:
     """One row per task, one image per camera: the task at a start sampled from its regions."""
     rows = []
     for i, (key, task) in enumerate(tasks.items()):

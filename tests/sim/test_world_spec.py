@@ -13,7 +13,8 @@ import pytest
 from r2s_eval.config import compose_config
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.robot import load_robot
-from r2s_eval.sim.tasks import WorldError, bundled_world, load_tasks
+from r2s_eval.sim.tasks import WorldError, load_tasks
+from tests.helpers.worlds import bundled_world
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 

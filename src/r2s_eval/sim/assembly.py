@@ -1,6 +1,8 @@
 """Scene assembly from a world's robot and rig (``r2s_eval.sim.robot``) plus task objects -> MjModel.
 
-The scene file holds the table, lights and fixed cameras; each arm's model is attached at its
+The scene file holds the table, lights and fixed cameras; each arm's model (read by
+``r2s_eval.sim.model_files``, its gripper's further fingers, coupled joints and servos and its stated
+joint physics applied here) is attached at its
 mount with the prefix ``<arm>_`` (its ``visual`` entry decimating its drawn meshes, its ``collision``
 entry swapping collision shapes); the rig's
 cameras are renamed, placed, aimed and given their intrinsics; the task objects are added as
@@ -19,12 +21,13 @@ import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.meshes import decimated_meshes
+from r2s_eval.sim.model_files import load_model_spec
 from r2s_eval.sim.objects import ObjectSpec, add_object
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
 from r2s_eval.sim.render_params import apply_render_params, render_base
 from r2s_eval.sim.rotations import euler_quat, matrix_from_quat, quat_from_matrix, yaw_quat
-from r2s_eval.sim.robot import Arm, Collision, RigCamera, Robot, world_robot
+from r2s_eval.sim.robot import Arm, Collision, JointPhysics, RigCamera, Robot, world_robot
 from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
 
 EE_SITE_GROUP = 5  # a site group no renderer shows by default
@@ -43,7 +46,7 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
             raise fail(f"{where}.mount.frame", f"the scene {spec.modelname!r} has no frame {arm.mount_frame!r}")
     else:
         frame = spec.worldbody.add_frame(pos=list(arm.mount_pos), quat=list(yaw_quat(np.deg2rad(arm.mount_yaw_deg))))
-    model = mujoco.MjSpec.from_file(str(arm.model))
+    model = load_model_spec(arm.model, assets=arm.model_assets, body=arm.model_body, where=f"{where}.model")
     if arm.visual_max_faces is not None:
         _decimate_visuals(model, arm)
     spec.attach(model, prefix=f"{arm.name}_", frame=frame)
@@ -51,24 +54,21 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
         if spec.joint(arm.named(local)) is None:
             raise fail(f"{where}.joints", f"{arm.model.name} has no joint {local!r}")
     if arm.servo is not None:
-        kp, kv = arm.servo
-        for actuator in list(spec.actuators):
-            if actuator.target in {arm.named(j) for j in arm.joints}:
-                spec.delete(actuator)
         for local, actuator in zip(arm.joints, arm.actuators):
-            joint = spec.joint(arm.named(local))
-            servo = spec.add_actuator(name=arm.named(actuator), target=arm.named(local),
-                                      trntype=mujoco.mjtTrn.mjTRN_JOINT)
-            servo.set_to_position(kp=kp, kv=kv)
-            servo.ctrlrange = joint.range
-            servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+            _position_servo(spec, arm, local, actuator, *arm.servo, spec.joint(arm.named(local)).range)
+    for joint in arm.gripper.joints:
+        if spec.joint(arm.named(joint)) is None:
+            raise fail(f"{where}.gripper.joint", f"{arm.model.name} has no joint {joint!r}")
+    _fit_gripper(spec, arm)
     for local in (*arm.actuators, arm.gripper.actuator):
         if spec.actuator(arm.named(local)) is None:
             raise fail(f"{where}.actuators" if local in arm.actuators else f"{where}.gripper.actuator",
                              f"{arm.model.name} has no actuator {local!r}")
-    for joint in arm.gripper.joints:
-        if spec.joint(arm.named(joint)) is None:
-            raise fail(f"{where}.gripper.joint", f"{arm.model.name} has no joint {joint!r}")
+    for i, finger in enumerate(arm.gripper.fingers):
+        if spec.actuator(arm.named(finger.actuator)) is None:
+            raise fail(f"{where}.gripper.fingers[{i}].actuator", f"{arm.model.name} has no actuator {finger.actuator!r}")
+    _set_joint_physics(spec, arm, arm.joint_physics, arm.joints)
+    _set_joint_physics(spec, arm, arm.finger_physics, arm.gripper.finger_joints)
     for pad in arm.gripper.pads:
         if spec.body(arm.named(pad)) is None:
             raise fail(f"{where}.gripper.pads", f"{arm.model.name} has no body {pad!r}")
@@ -83,6 +83,56 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
         for body in spec.bodies:
             if body.name.startswith(arm.named("")):
                 body.gravcomp = 1.0
+
+
+def _drop_actuators(spec: mujoco.MjSpec, joint: str) -> None:
+    for actuator in [a for a in spec.actuators if a.target == joint]:
+        spec.delete(actuator)
+
+
+def _position_servo(spec: mujoco.MjSpec, arm: Arm, joint: str, actuator: str, kp: float, kv: float,
+                    ctrlrange) -> None:
+    """Replace whatever drives ``joint`` with a position servo called ``actuator``."""
+    _drop_actuators(spec, arm.named(joint))
+    servo = spec.add_actuator(name=arm.named(actuator), target=arm.named(joint), trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    servo.set_to_position(kp=kp, kv=kv)
+    servo.ctrlrange = ctrlrange
+    servo.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+
+
+def _fit_gripper(spec: mujoco.MjSpec, arm: Arm) -> None:
+    """A gripper's further fingers checked, its coupled joints tied to its first joint by an equality
+    (their own actuators removed), and its servos, if the world gives their gains."""
+    where, gripper = f"robot.arms.{arm.name}.gripper", arm.gripper
+    for key, joints in (("fingers", [f.joint for f in gripper.fingers]), ("couple", [j for j, _ in gripper.couple])):
+        for i, joint in enumerate(joints):
+            if spec.joint(arm.named(joint)) is None:
+                raise fail(f"{where}.{key}[{i}].joint", f"{arm.model.name} has no joint {joint!r}")
+    for joint, ratio in gripper.couple:
+        _drop_actuators(spec, arm.named(joint))
+        # MuJoCo's joint equality: q1 = polycoef[0] + polycoef[1] * q2 + ...
+        equality = spec.add_equality(name=arm.named(f"{joint}_couple"), type=mujoco.mjtEq.mjEQ_JOINT,
+                                     name1=arm.named(joint), name2=arm.named(gripper.joints[0]))
+        equality.data = np.r_[0.0, ratio, np.zeros(len(equality.data) - 2)]
+    if gripper.servo is not None:
+        kp, kv = gripper.servo
+        for joint, actuator, ctrl in ((gripper.joints[0], gripper.actuator, (gripper.ctrl_open, gripper.ctrl_closed)),
+                                      *((f.joint, f.actuator, (f.ctrl_open, f.ctrl_closed)) for f in gripper.fingers)):
+            _position_servo(spec, arm, joint, actuator, kp, kv, sorted(ctrl))
+
+
+def _set_joint_physics(spec: mujoco.MjSpec, arm: Arm, physics: JointPhysics | None, joints) -> None:
+    """The armature, damping and friction loss the world states for these joints (the rest the model's)."""
+    if physics is None:
+        return
+    for local in joints:
+        joint = spec.joint(arm.named(local))
+        if physics.armature is not None:
+            joint.armature = physics.armature
+        if physics.damping is not None:
+            joint.damping = [physics.damping, *joint.damping[1:]]  # the linear term (MuJoCo's `damping`)
+        if physics.frictionloss is not None:
+            joint.frictionloss = physics.frictionloss
 
 
 def _textured(spec: mujoco.MjSpec, geom: mujoco.MjsGeom) -> bool:
@@ -132,7 +182,8 @@ def _decimate_visuals(model: mujoco.MjSpec, arm: Arm) -> None:
         if not any(g.meshname == mesh.name for g in model.geoms):
             model.delete(mesh)
     if derived:
-        inertials = _model_inertials(str(arm.model), arm.model.stat().st_mtime_ns)
+        inertials = _model_inertials(arm.model, arm.model.stat().st_mtime_ns, arm.model_assets, arm.model_body,
+                                     f"robot.arms.{arm.name}.model")
         for body in map(model.body, sorted(derived)):
             body.explicitinertial = True
             body.mass, body.ipos, body.iquat, body.inertia = inertials[body.name]
@@ -153,9 +204,10 @@ def _inertia_from(geom: mujoco.MjsGeom, where: str) -> bool:
 
 
 @functools.cache
-def _model_inertials(path: str, mtime_ns: int) -> dict[str, tuple]:
+def _model_inertials(path: Path, mtime_ns: int, assets: tuple[Path, ...], body: str | None,
+                     where: str) -> dict[str, tuple]:
     """Per body of the model file, (mass, ipos, iquat, diagonal inertia) as compiled (once per file)."""
-    model = mujoco.MjSpec.from_file(path).compile()
+    model = load_model_spec(path, assets=assets, body=body, where=where).compile()
     return {model.body(i).name: (float(model.body_mass[i]), model.body_ipos[i].copy(), model.body_iquat[i].copy(),
                                  model.body_inertia[i].copy()) for i in range(1, model.nbody)}
 
@@ -245,7 +297,7 @@ def _place_camera(spec: mujoco.MjSpec, robot: Robot, cam: RigCamera) -> None:
 
 def build_robot_spec(robot: Robot) -> mujoco.MjSpec:
     """Scene, arms and camera rig (no task objects)."""
-    spec = mujoco.MjSpec.from_file(str(robot.scene))
+    spec = load_model_spec(robot.scene, assets=robot.scene_assets, where="robot.scene")
     if robot.timestep_s is not None:
         spec.option.timestep = robot.timestep_s
     if spec.geom(robot.table_geom) is None:

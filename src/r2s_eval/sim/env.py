@@ -114,6 +114,11 @@ class TabletopEnv:
         self._grip_act = {a: m.actuator(arm.named(arm.gripper.actuator)).id for a, arm in arms.items()}
         self._grip_qpos_adr = {a: [int(m.joint(arm.named(j)).qposadr[0]) for j in arm.gripper.joints] for a, arm in arms.items()}
         self._grip_dof_adr = {a: int(m.joint(arm.named(arm.gripper.joints[0])).dofadr[0]) for a, arm in arms.items()}
+        # A gripper's further fingers (each its actuator and joint) and coupled joints (q = ratio * q_first).
+        self._finger_adr = {a: [(m.actuator(arm.named(f.actuator)).id, int(m.joint(arm.named(f.joint)).qposadr[0]), f)
+                                for f in arm.gripper.fingers] for a, arm in arms.items()}
+        self._coupled_adr = {a: [(int(m.joint(arm.named(j)).qposadr[0]), ratio) for j, ratio in arm.gripper.couple]
+                             for a, arm in arms.items()}
         self._ee_site = {a: m.site(assembly.ee_site(a)).id for a in arms}
         self._arm_root = {a: int(m.body_rootid[m.site_bodyid[sid]]) for a, sid in self._ee_site.items()}
         self._obj_body = {o.name: m.body(o.name).id for o in self.task.objects}
@@ -174,6 +179,10 @@ class TabletopEnv:
             d.ctrl[self._arm_act[name]] = arm.home
             d.qpos[self._grip_qpos_adr[name]] = arm.gripper.position_open
             d.ctrl[self._grip_act[name]] = arm.gripper.ctrl_open
+            for act, adr, finger in self._finger_adr[name]:
+                d.qpos[adr], d.ctrl[act] = finger.position_open, finger.ctrl_open
+            for adr, ratio in self._coupled_adr[name]:
+                d.qpos[adr] = ratio * arm.gripper.position_open
         missing = set(self.task.object_names) - set(object_poses)
         if missing:
             raise DataError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
@@ -204,6 +213,10 @@ class TabletopEnv:
         for name, (q, closing) in self.robot.to_model(state).items():
             self.data.qpos[self._arm_qpos_adr[name]] = q
             self.data.qpos[self._grip_qpos_adr[name]] = self.robot.arms[name].gripper.position(closing)
+            for _, adr, finger in self._finger_adr[name]:
+                self.data.qpos[adr] = finger.position(closing)
+            for adr, ratio in self._coupled_adr[name]:
+                self.data.qpos[adr] = ratio * self.robot.arms[name].gripper.position(closing)
         self.data.qvel[:] = 0.0
         mujoco.mj_forward(self.model, self.data)
 
@@ -226,6 +239,8 @@ class TabletopEnv:
             ctrl_range = self.model.actuator_ctrlrange[self._arm_act[name]]
             d.ctrl[self._arm_act[name]] = np.clip(q, ctrl_range[:, 0], ctrl_range[:, 1])
             d.ctrl[self._grip_act[name]] = self.robot.arms[name].gripper.ctrl(closing)
+            for act, _, finger in self._finger_adr[name]:
+                d.ctrl[act] = finger.ctrl(closing)
 
     @property
     def time_s(self) -> float:

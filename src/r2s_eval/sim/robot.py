@@ -37,9 +37,17 @@ class Finger:
     position_open: float
     position_closed: float
 
+    def ctrl(self, closing: float) -> float:
+        return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+
+    def position(self, closing: float) -> float:
+        return self.position_open + np.clip(closing, 0.0, 1.0) * (self.position_closed - self.position_open)
+
 
 @dataclass(frozen=True)
 class JointPhysics:
+    """Joint properties a world states for a model whose own do not suit position servos."""
+
     armature: float | None = None  # kg m^2 (kg for a slide joint); None: the model's
     damping: float | None = None  # N m s/rad (N s/m)
     frictionloss: float | None = None  # N m (N)
@@ -58,6 +66,11 @@ class Gripper:
     fingers: tuple[Finger, ...] = ()  # further independently driven fingers
     couple: tuple[tuple[str, float], ...] = ()  # (joint, ratio) that follow joints[0]
     servo: tuple[float, float] | None = None  # (kp, kv) for the gripper's actuators
+
+    @property
+    def finger_joints(self) -> tuple[str, ...]:
+        """Every joint of the gripper's fingers: its own, the further fingers' and the coupled ones."""
+        return (*self.joints, *(f.joint for f in self.fingers), *(joint for joint, _ in self.couple))
 
     def ctrl(self, closing: float) -> float:
         """Actuator command for a closing fraction (0 open, 1 closed)."""

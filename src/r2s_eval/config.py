@@ -102,8 +102,8 @@ def derive_camera_settings(cfg: dict[str, Any]) -> list[str]:
 
 
 def _derive_image_keys(policies: dict, fixed: list[str]) -> list[str]:
-    """Give each trained candidate that names no cameras (and whose type has none of its own)
-    the first fixed camera; the keys it could not fill (no fixed camera)."""
+    """Give each trained candidate that names no cameras (``image_keys`` left out or null; a type
+    without cameras of its own) the first fixed camera; the keys it could not fill (no fixed camera)."""
     from r2s_eval.policies.types import policy_type
     from r2s_eval.policies.types.registry import TOP_LEVEL_DEFAULTS
 
@@ -116,7 +116,8 @@ def _derive_image_keys(policies: dict, fixed: list[str]) -> list[str]:
             own = policy_type(entry.get("type")).all_defaults()["image_keys"] != TOP_LEVEL_DEFAULTS["image_keys"]
         except R2SError:
             continue  # an unknown type: the schema names it
-        if own:
+        if own:  # the type's own cameras (a null the group file wrote leaves them to it)
+            entry.pop("image_keys", None)
             continue
         if fixed:
             entry["image_keys"] = [f"observation.images.{fixed[0]}"]

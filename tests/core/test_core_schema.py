@@ -158,7 +158,7 @@ def test_cross_group_contradictions():
     with pytest.raises(ConfigError, match=r"calib\.camera .* must be one of the recorded world\.cameras"):
         compose_config(CONF, "smoke", ["calib.camera=head_right"])
     with pytest.raises(ConfigError, match=r"policies\.act\.image_keys .* \['wrist_left'\]"):
-        compose_config(CONF, "smoke", ["+policies.act.image_keys=[observation.images.wrist_left]"])
+        compose_config(CONF, "smoke", ["policies.act.image_keys=[observation.images.wrist_left]"])
     with pytest.raises(ConfigError, match=r"report\.judge_audit\.planted_order .* names \['act_subset'\]"):
         compose_config(CONF, "smoke", ["~policies.act_subset"])
     with pytest.raises(ConfigError, match=r"report\.judge_audit\.planted_order .* names \['act_short'\]"):
@@ -203,7 +203,7 @@ def test_every_bad_override_is_listed_one_line_each():
     ("+policies.act.episodes_fraction=1.5", "must be in (0, 1], got 1.5"),
     ("policies.act.image_size=[32]", "must be a list of 2 values, got [32]"),
     ("+policies.act.scheduler=linear", "must be one of ['constant', 'cosine'], got 'linear'"),
-    ("+policies.act.image_keys=[]", "must not be empty"),
+    ("policies.act.image_keys=[]", "must not be empty"),
 ])
 def test_trained_policy_entry_is_typed_like_the_groups(override, message):
     key = override.lstrip("+").split("=")[0]

@@ -119,8 +119,8 @@ def test_a_texture_is_drawn_on_the_scan(tmp_path):
 @pytest.mark.parametrize(("change", "message"), [
     ({"mesh": {"file": "/no/such/scan.obj"}}, r"world\.objects\.tray\.mesh\.file: no such mesh file: /no/such/scan\.obj"),
     ({"collision": {"vhacd": {}}}, r"world\.objects\.tray\.collision: unknown key\(s\) \['vhacd'\]"),
-    ({"yaw_symmetry": -1}, r"world\.objects\.tray\.yaw_symmetry: must be a whole number >= 0"),
-    ({"dims": {"size_m": 0.1}}, r"world\.objects\.tray: unknown key\(s\) \['dims'\]"),
+    ({"yaw_symmetry": -1}, r"world\.objects\.tray\.yaw_symmetry: must be in \[0, inf\], got -1"),
+    ({"dims": {"size_m": 0.1}}, r"world\.objects\.tray\.dims: a mesh object's dimensions are its file's"),
 ])
 def test_a_wrong_scan_entry_names_its_key(tray_file, change, message):
     world = _world(tray_file, "hull")

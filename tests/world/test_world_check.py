@@ -82,8 +82,8 @@ def test_a_world_without_a_fixed_camera_says_which_setting_to_give():
         "policies.act.image_keys, policies.act_subset.image_keys, policies.act_weak.image_keys")
     given = compose_config(CONF_DIR, "smoke", ["world.cameras=[wrist_left]", "calib.camera=wrist_left",
                                                "rollout.video_camera=wrist_left",
-                                               "+policies.act.image_keys=[observation.images.wrist_left]",
-                                               "+policies.act_subset.image_keys=[observation.images.wrist_left]",
-                                               "+policies.act_weak.image_keys=[observation.images.wrist_left]"])
+                                               "policies.act.image_keys=[observation.images.wrist_left]",
+                                               "policies.act_subset.image_keys=[observation.images.wrist_left]",
+                                               "policies.act_weak.image_keys=[observation.images.wrist_left]"])
     assert given["calib"]["camera"] == "wrist_left"
 

@@ -134,7 +134,7 @@ def test_the_gripper_holds_what_it_lifts(world):
 @pytest.mark.parametrize(("old", "new", "message"), [
     ("timestep_s: 0.0016666666666666668", "timestep_s: 0.002",
      r"world\.robot\.timestep_s: 30 Hz is not a whole number of 0\.002 s physics steps"),
-    ("pos: [-0.01, 0.0, 0.02]", "pos: [-0.01, 0.02]", r"world\.robot\.arms\.so101\.ee\.pos: must be a list of 3 numbers"),
+    ("pos: [-0.01, 0.0, 0.02]", "pos: [-0.01, 0.02]", r"world\.robot\.arms\.so101\.ee\.pos: must be a list of 3 values"),
     ("disable: {bodies: [gripper, moving_jaw_so101_v1]}", "disable: {bodies: [gripper, jaw]}",
      r"world\.robot\.arms\.so101\.collision\.disable\.bodies: so-arm100\.xml has no body 'jaw'"),
     ("disable: {bodies: [gripper, moving_jaw_so101_v1]}", "disable: {geoms: [jaw_pad]}",

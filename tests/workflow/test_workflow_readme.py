@@ -84,7 +84,7 @@ def test_the_panda_world_is_looked_at_then_pointed_at_a_lab_dataset(clone):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "wrote reports/world_preview/starts.png" in proc.stdout
     starts = cv2.imread(str(clone / "reports" / "world_preview" / "starts.png"))
-    assert starts.shape[1] == 3 * 128  # its three recorded cameras, one task
+    assert starts.shape[1] == 3 * 320  # its three recorded cameras, 320 px panels, one task
     if Path("/data/my_teleop").exists() or Path("/data/trials.csv").exists():
         pytest.skip("this machine has the example paths of docs/your-setup.md")
     proc = run_as_written(readme_command(PANDA_DATASET), clone)

@@ -86,7 +86,9 @@ def validate_policy_cfg(policy_cfg: Mapping) -> dict:
         )
     kind = policy_type(policy_cfg.get("type"))
     cfg = copy.deepcopy(kind.all_defaults())
-    cfg.update(policy_cfg)
+    # image_keys: null follows the world's first fixed camera in a composed config (r2s_eval.config);
+    # read on its own, an entry takes its type's cameras.
+    cfg.update({k: v for k, v in policy_cfg.items() if not (k == "image_keys" and v is None)})
     _validate_training_keys(cfg)
     if not cfg["image_keys"]:
         raise PolicyConfigError("policy config 'image_keys' must list at least one camera")

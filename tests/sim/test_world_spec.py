@@ -98,3 +98,16 @@ def test_a_body_subtree_needs_a_file_reference():
     world["robot"]["arms"]["left"]["model"] = {"body": "base"}
     with pytest.raises(WorldError, match=r"^world\.robot\.arms\.left\.model: must give path, or package and resource$"):
         load_robot(world)
+
+
+def test_an_objects_dimensions_are_its_kinds():
+    world = copy.deepcopy(bundled_world())
+    world["objects"]["cup"]["dims"]["radius"] = world["objects"]["cup"]["dims"].pop("radius_m")
+    world["objects"]["block_a"]["dims"]["height_m"] = 0.05
+    with pytest.raises(WorldError) as err:
+        load_tasks(world)
+    assert str(err.value).splitlines()[1:] == [
+        "  - world.objects.cup.dims.radius: is not a dimension of a cup "
+        "['radius_m', 'height_m', 'wall_m', 'bottom_m', 'n_walls', 'base_radius_m']",
+        "  - world.objects.cup.dims.radius_m: is missing",
+        "  - world.objects.block_a.dims.height_m: is not a dimension of a block ['size_m']"]

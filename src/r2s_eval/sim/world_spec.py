@@ -62,6 +62,12 @@ def _kinds() -> Sequence[str]:
     return KINDS
 
 
+def _kind(name: str):
+    from r2s_eval.sim.objects import KINDS
+
+    return KINDS[name]
+
+
 def _placements() -> Sequence[str]:
     from r2s_eval.sim.objects import PLACEMENTS
 
@@ -437,6 +443,12 @@ class Object:
         else:
             if self.dims is None:
                 problems.append(("dims", "is missing"))
+            else:  # the kind's own dimensions, no more (a key nothing reads is a mistake)
+                kind = _kind(self.kind)
+                known = (*kind.dims_keys, *kind.optional_dims_keys)
+                problems += [(f"dims.{k}", f"is not a dimension of a {self.kind} {list(known)}")
+                             for k in self.dims if k not in known]
+                problems += [(f"dims.{k}", "is missing") for k in kind.dims_keys if k not in self.dims]
             problems += [(k, f"is for kind mesh, not {self.kind}") for k in ("mesh", "collision", "yaw_symmetry")
                          if getattr(self, k) is not None]
         return problems
@@ -467,7 +479,8 @@ class Task:
     instruction: Text = key("the task's text (matched against a dataset's task strings)")
     start: Annotated[dict[str, Start], NonEmpty()] = key("the task's objects (of the world's objects), in order, "
                                                          "with their start regions")
-    plan: Any = key("what the twin's scripted operator does: [{pick: X}, {<place>: Y}] or [{turn_upright: X}]")
+    plan: Any = key("what the twin's scripted operator does: [{pick: X}, {<place>: Y}] or [{turn_upright: X}] "
+                    "(Plan primitives, below)")
     success: Any = key("the success condition (predicates)")
     progress: Progress = key("the progress stages towards a goal")
     arm: Text = key("an arm of the robot, nearest (to the objects) or behind_axis (an on_side object)", "nearest")
@@ -684,7 +697,34 @@ def markdown() -> str:
                      f.metadata["doc"])
             out.append("| " + " | ".join(c.replace("|", "\\|").replace("<", "&lt;") for c in cells) + " |")
         out.append("")
-    return "\n".join(out) + "\n" + RULES
+    return "\n".join(out + _object_kinds() + _plan_primitives()) + "\n" + RULES
+
+
+def _object_kinds() -> list[str]:
+    """The kinds an object may be and the dimensions each takes (``r2s_eval.sim.objects``)."""
+    from r2s_eval.sim.objects import KINDS
+
+    out = ["## Object kinds", "", "`world.objects.<name>.kind` and the `dims` each kind takes (metres; `n_` keys "
+           "are counts).", "", "| kind | dims | optional dims | starts |", "|---|---|---|---|"]
+    for kind in KINDS.values():
+        dims = "read off its mesh file" if kind.name == "mesh" else ", ".join(f"`{k}`" for k in kind.dims_keys)
+        optional = ", ".join(f"`{k}`" for k in kind.optional_dims_keys)
+        out.append(f"| `{kind.name}` | {dims} | {optional} | {', '.join(kind.placements)} |")
+    return [*out, ""]
+
+
+def _plan_primitives() -> list[str]:
+    """The steps a task's ``plan`` may take (``r2s_eval.sim.plans``, which the task check reads)."""
+    from r2s_eval.sim.plans import PLAN_PRIMITIVES
+
+    roles = {"pick": "first step", "place": "second step, after a pick", "alone": "the whole plan"}
+    out = ["## Plan primitives", "",
+           "`world.tasks.<key>.plan`: a `pick` then one place step, or one step that is the whole plan.", "",
+           "| primitive | step | names | the scripted operator |", "|---|---|---|---|"]
+    for p in PLAN_PRIMITIVES.values():
+        names = p.argument + (f" (a {' or '.join(p.kinds)})" if p.kinds else "")
+        out.append(f"| `{p.name}` | {roles[p.role]} | {names} | {p.doc} |")
+    return [*out, ""]
 
 
 def main(argv: Sequence[str] | None = None) -> None:

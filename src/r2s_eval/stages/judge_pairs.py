@@ -13,19 +13,20 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.compare.reserve import reserve_for
-from r2s_eval.judge import judge_pairs, make_judge
+from r2s_eval.judge import judge_pairs
 from r2s_eval.rollout.episode_store import load_episodes
 from r2s_eval.stages import _cli
-from r2s_eval.world_judging import write_verdicts
+from r2s_eval.world_judging import world_judge, write_verdicts
 
-READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
+READS = ("seed", "world.objects", "world.tasks", "world.robot")  # config paths the --cfg slice holds (see _reads.py)
 PROVIDED = ("judge", "name")  # keys the rule adds for this job
 
 
 def main(args) -> None:
     cfg = args.cfg
     # Transport keys (server address, timeouts, concurrency) come apart: they never rerun judging.
-    judge = make_judge({**cfg["judge"], **json.loads(args.transport)})
+    judge = world_judge(cfg["judge"], json.loads(args.transport), objects=cfg["world.objects"],
+                        tasks=cfg["world.tasks"], robot=cfg["world.robot"])
     pairs = pd.read_parquet(args.pairs)
     episodes = load_episodes(args.rollouts)
     out = Path(args.out)

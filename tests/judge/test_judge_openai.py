@@ -199,8 +199,8 @@ def test_openai_stage_entry_points_write_verdicts_and_costs(rollouts, tmp_path, 
         judge = {"judge": judge_cfg(server.url, reserve=30, swap_share=0.5), "name": "vlm", "seed": 3}
         desc, verdicts = tmp_path / "j" / "descriptions.parquet", tmp_path / "j" / "verdicts.parquet"
         world = bundled_world()
-        describe_cfg = {**judge, "world.objects": world["objects"], "world.tasks": world["tasks"],
-                        "world.robot": world["robot"]}
+        judge.update({"world.objects": world["objects"], "world.tasks": world["tasks"], "world.robot": world["robot"]})
+        describe_cfg = judge
         _cli.run(d_stage.main, _add(d_stage, ["--rollouts", "--cache", "--transport", "--out", "--stats"]),
                  ["--cfg", json.dumps(describe_cfg), "--rollouts", *dirs, "--cache", "cache", "--out", str(desc)])
         _cli.run(jp_stage.main, _add(jp_stage, JP_FLAGS),

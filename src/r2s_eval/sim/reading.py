@@ -59,17 +59,6 @@ def finite(value: Any, where: str, positive: bool = False) -> float:
     return value
 
 
-def interval(value: Any, where: str) -> tuple[float, float]:
-    if not isinstance(value, list | tuple) or len(value) != 2:
-        raise fail(where, f"must be [low, high], got {value!r}")
-    low, high = (finite(v, where) for v in value)
-    if low > high:
-        raise fail(where, f"must be [low, high] with low <= high, got {list(value)}")
-    return low, high
-
-
-
-
 def package_dir(name: str, where: str) -> Path:
     """The directory of an installed package, found without importing it: a package installed
     with ``--no-deps`` (to ship model files) may not import."""
@@ -97,27 +86,3 @@ def file_path(ref: Any, where: str, what: str = "file") -> Path:
     if not path.is_file():
         raise fail(where, f"no such {what}: {path}")
     return path
-
-
-HUE_KEYS = {"hue_lo", "hue_hi", "sat_min", "sat_max", "val_min", "val_max"}
-
-
-def read_find(value: Any, where: str) -> tuple[dict | None, str | None]:
-    """How a world says a thing is found in a frame (``find``): an OpenCV HSV range ``hue``
-    (``hue_lo``, ``hue_hi`` in 0..179, wrapping when lo > hi; optional ``sat_min``, ``sat_max``,
-    ``val_min``, ``val_max`` in 0..255) and the open-vocabulary segmenter's ``prompt``."""
-    find = as_mapping(value or {}, where)
-    check_keys(find, {"hue", "prompt"}, set(), where)
-    hue = None
-    if "hue" in find:
-        hue = as_mapping(find["hue"], f"{where}.hue")
-        check_keys(hue, HUE_KEYS, {"hue_lo", "hue_hi"}, f"{where}.hue")
-        for key, v in hue.items():
-            top = 179 if key.startswith("hue") else 255  # OpenCV's 8-bit HSV
-            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= top:
-                raise fail(f"{where}.hue.{key}", f"must be a whole number in [0, {top}], got {v!r}")
-    prompt = find.get("prompt")
-    if prompt is not None and (not isinstance(prompt, str) or not prompt.strip()):
-        raise fail(f"{where}.prompt", f"must be a non-empty text, got {prompt!r}")
-    return hue, prompt
-

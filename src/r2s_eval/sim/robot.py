@@ -26,6 +26,16 @@ from r2s_eval.sim.reading import WorldError, file_path
 AXES = {"+x": 0, "+y": 1, "+z": 2, "-x": 0, "-y": 1, "-z": 2}
 
 
+def ctrl_at(closing: float, opened: float, closed: float) -> float:
+    """A finger's actuator command at a closing fraction (0 open, 1 closed)."""
+    return closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (opened - closed)
+
+
+def position_at(closing: float, opened: float, closed: float) -> float:
+    """A finger joint's position at a closing fraction."""
+    return opened + np.clip(closing, 0.0, 1.0) * (closed - opened)
+
+
 @dataclass(frozen=True)
 class Finger:
     """A further finger of a gripper, driven by its own actuator to the gripper's closing fraction."""
@@ -38,10 +48,10 @@ class Finger:
     position_closed: float
 
     def ctrl(self, closing: float) -> float:
-        return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+        return ctrl_at(closing, self.ctrl_open, self.ctrl_closed)
 
     def position(self, closing: float) -> float:
-        return self.position_open + np.clip(closing, 0.0, 1.0) * (self.position_closed - self.position_open)
+        return position_at(closing, self.position_open, self.position_closed)
 
 
 @dataclass(frozen=True)
@@ -74,11 +84,11 @@ class Gripper:
 
     def ctrl(self, closing: float) -> float:
         """Actuator command for a closing fraction (0 open, 1 closed)."""
-        return self.ctrl_closed + (1.0 - np.clip(closing, 0.0, 1.0)) * (self.ctrl_open - self.ctrl_closed)
+        return ctrl_at(closing, self.ctrl_open, self.ctrl_closed)
 
     def position(self, closing: float) -> float:
         """The gripper joints' position at a closing fraction (the inverse of ``closing``)."""
-        return self.position_open + np.clip(closing, 0.0, 1.0) * (self.position_closed - self.position_open)
+        return position_at(closing, self.position_open, self.position_closed)
 
     def closing(self, position: float) -> float:
         """Closing fraction measured from the gripper joint's position."""

@@ -74,6 +74,10 @@ class _Reach:
         self.posture = mink.PostureTask(self.model, cost=1e-3)
         self.posture.set_target(home)
         self.limits = [mink.ConfigurationLimit(self.model)]
+        data = mujoco.MjData(self.model)  # where the arm's base stands (its root body, at home)
+        data.qpos[:] = home
+        mujoco.mj_kinematics(self.model, data)
+        self.base_xy = data.xpos[self.model.body_rootid[self.model.site_bodyid[self.model.site(self.site).id]], :2].copy()
 
     def joints(self, pos: np.ndarray, R: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray | None:
         """The arm's joints that put its grasp centre at ``pos`` turned ``R``; None out of reach."""
@@ -92,8 +96,7 @@ class _Reach:
     def grasp(self, centre: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
         """(hand yaw, joints at the grasp, joints lifted) for a top-down grasp at ``centre``: the
         hand turned by the quarter turn about the reach that keeps the joints nearest home."""
-        base = self.model.body(int(self.model.body_rootid[self.model.site_bodyid[self.model.site(self.site).id]]))
-        reach = centre[:2] - self.model_xpos(base.id)[:2]
+        reach = centre[:2] - self.base_xy
         best = None
         for turn in (0.0, np.pi / 2, np.pi, -np.pi / 2):
             yaw = float(np.arctan2(reach[1], reach[0]) + turn)
@@ -105,12 +108,6 @@ class _Reach:
             if lifted is not None and (best is None or cost < best[0]):
                 best = (cost, yaw, q[self.qadr], lifted[self.qadr])
         return None if best is None else best[1:]
-
-    def model_xpos(self, body: int) -> np.ndarray:
-        data = mujoco.MjData(self.model)
-        data.qpos[:] = self.home
-        mujoco.mj_kinematics(self.model, data)
-        return data.xpos[body]
 
 
 def _arm_joints(model: mujoco.MjModel, robot: Robot) -> dict[str, list[int]]:

@@ -15,6 +15,7 @@ import argparse
 import json
 import logging
 import os
+import resource
 import sys
 import time
 import traceback
@@ -95,7 +96,15 @@ def run(main: Callable[[argparse.Namespace], None], p: argparse.ArgumentParser, 
         _say(terminal, f"{stage} failed with an unexpected error (a bug in r2s-eval):\n"
                        f"{traceback.format_exc()}  (log: {log_path})\n")
         raise
-    log.info("stage done in %.1f s", time.perf_counter() - start)
+    log.info("stage done in %.1f s wall, %.1f CPU-s (user + system since the process started, "
+             "its child processes included)", time.perf_counter() - start, cpu_seconds())
+
+
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process since it started, imports included, and of its
+    finished child processes: what the job cost, whatever else shared the machine."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def _stage_name(main: Callable) -> str:

@@ -35,6 +35,9 @@ class ACT(ScratchType):
         at = next(i for i, s in enumerate(preprocessor.steps) if isinstance(s, NormalizerProcessorStep))
         preprocessor.steps.insert(at, ImageCropResizeProcessorStep(resize_size=tuple(cfg["image_size"])))
 
+    def training_speedups(self, policy):
+        return single_output_convolutions(policy.model.backbone)
+
     def prepare_for_batches(self, policy) -> None:
         # Batch norms folded into the convolutions before them: one pass over the activations
         # less per layer (ResNet18 at 32 px, 128 images on one CPU thread: 80 against 93 ms).
@@ -105,3 +108,43 @@ def batch_norms_folded(backbone):
             torch.allclose(before[k], after[k], rtol=1e-4, atol=1e-4 * float(before[k].abs().max())) for k in before):
         return backbone
     return folded
+
+
+@contextmanager
+def single_output_convolutions(module) -> Iterator[None]:
+    """Within it, every convolution of `module` whose output is one pixel (ResNet's last stage on
+    a 32 px image: 1x1 maps) is computed as the matrix product it is, over the kernel taps that
+    meet the image: the others only ever meet zero padding. oneDNN runs such a convolution over
+    all nine taps and reorders its weights at every call; in training, backward and forward of
+    ResNet18 at 32 px cost about a fifth less (batch 16, one CPU thread). Same sums up to
+    rounding; the gradients of the unused taps are zero either way."""
+    import torch
+
+    convs = [m for m in module.modules() if isinstance(m, torch.nn.Conv2d)]
+    for conv in convs:
+        conv.forward = _single_output_forward(conv)  # an instance attribute: __call__ finds it first
+    try:
+        yield
+    finally:
+        for conv in convs:
+            del conv.forward
+
+
+def _single_output_forward(conv):
+    import torch.nn.functional as F
+
+    stock = type(conv).forward.__get__(conv)
+    simple = conv.groups == 1 and conv.dilation == (1, 1) and isinstance(conv.padding, tuple) \
+        and conv.padding_mode == "zeros"
+
+    def forward(x):
+        (kh, kw), (sh, sw), (ph, pw) = conv.kernel_size, conv.stride, conv.padding
+        h, w = x.shape[-2:]
+        if not simple or (h + 2 * ph - kh) // sh != 0 or (w + 2 * pw - kw) // sw != 0:
+            return stock(x)
+        # The one output pixel sees input rows ky - ph for taps ky; those inside the image count.
+        rows, cols = min(kh, h + ph) - ph, min(kw, w + pw) - pw
+        taps = conv.weight[:, :, ph:ph + rows, pw:pw + cols]
+        return F.linear(x[:, :, :rows, :cols].flatten(1), taps.flatten(1), conv.bias)[:, :, None, None]
+
+    return forward

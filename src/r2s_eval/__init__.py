@@ -6,8 +6,11 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from r2s_eval.utils.numerics import pin_cpu_numerics  # noqa: E402
+from r2s_eval.utils.package_index import fast_package_index  # noqa: E402
 
 # Same bytes on every machine of a kind: before torch, oneDNN or MKL initialise.
 pin_cpu_numerics()
+# Before lerobot imports transformers and diffusers, which map every installed file at import.
+fast_package_index()
 
 __version__ = "0.1.0"

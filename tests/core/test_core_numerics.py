@@ -8,7 +8,7 @@ import os
 import subprocess
 import sys
 
-from r2s_eval.utils.numerics import CPU_NUMERICS_ENV
+from r2s_eval.utils.numerics import CPU_NUMERICS_ENV, OPENBLAS_ENV, _has_avx2_fma
 
 # What a stage process computes: r2s_eval is imported first, then the numeric libraries.
 PROBE = """
@@ -21,6 +21,9 @@ x = np.random.default_rng(0).uniform(-5, 5, 200_000)
 ops = {"exp64": np.exp(x), "log1p64": np.log1p(np.abs(x)), "log1p32": np.log1p(np.abs(x).astype(np.float32))}
 t = torch.from_numpy(x[:4096].reshape(64, 64).astype(np.float32))
 ops["matmul"] = (t @ t.T).numpy()
+a = x[:40000].reshape(200, 200)  # OpenBLAS: a solve and a least-squares fit, as the calibration's
+ops["solve64"] = np.linalg.solve(a @ a.T + 200 * np.eye(200), x[:200])
+ops["lstsq64"] = np.linalg.lstsq(a[:, :50], x[:200], rcond=None)[0]
 print(json.dumps({
     "hashes": {k: hashlib.sha256(v.tobytes()).hexdigest() for k, v in ops.items()},
     "numpy_avx512": sorted(k for k in ("AVX512F", "AVX512_SKX") if __cpu_features__.get(k)),
@@ -35,7 +38,7 @@ def _probe(env: dict) -> dict:
 
 
 def _clean_env() -> dict:
-    return {k: v for k, v in os.environ.items() if k not in CPU_NUMERICS_ENV}
+    return {k: v for k, v in os.environ.items() if k not in CPU_NUMERICS_ENV and k not in OPENBLAS_ENV}
 
 
 def test_importing_r2s_eval_caps_every_library_at_avx2():
@@ -47,7 +50,7 @@ def test_importing_r2s_eval_caps_every_library_at_avx2():
 def test_results_equal_an_explicitly_capped_process():
     """The pins reach every library although nobody set them: the bits equal those of a process
     started with the caps already in its environment (what an AVX2 machine computes)."""
-    capped = {**_clean_env(), **CPU_NUMERICS_ENV}
+    capped = {**_clean_env(), **CPU_NUMERICS_ENV, **(OPENBLAS_ENV if _has_avx2_fma() else {})}
     assert _probe(_clean_env())["hashes"] == _probe(capped)["hashes"]
 
 

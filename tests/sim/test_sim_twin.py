@@ -143,7 +143,9 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
     arm = operator.arm
     joints, _ = env.robot.slices(arm)
     last_command = np.asarray(steps[-1][1])[joints]
-    np.testing.assert_allclose(env.state()[joints] - last_command, twin_params.joint_offsets(arm, len(joints)), atol=5e-3)
+    # The offsets are 0.011-0.031 rad; what the arm sags besides them (holding the cup) measured
+    # 4.05e-3 rad at most with AVX-512 kernels and 4.06e-3 with AVX2 ones.
+    np.testing.assert_allclose(env.state()[joints] - last_command, twin_params.joint_offsets(arm, len(joints)), atol=6e-3)
     env.close()
 
 

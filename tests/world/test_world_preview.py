@@ -106,7 +106,10 @@ def test_a_recording_beside_the_simulation_at_its_estimated_poses(tmp_path):
         top = row * (LABEL_PX + shown + 4) + LABEL_PX
         recorded = side[top:top + shown, :shown].astype(float)
         simulated = side[top:top + shown, shown:2 * shown].astype(float)
-        assert np.mean(np.abs(recorded - simulated)) < 6.0, row
+        # Measured 5.07 and 4.47 (the same with AVX-512 and AVX2 kernels); estimates moved 1 cm give
+        # 6.45 and 5.13, 2 cm 7.97 and 5.82: the bound keeps a fifth over the first and still
+        # catches a centimetre.
+        assert np.mean(np.abs(recorded - simulated)) < 6.2, row
     assert set(truth["task"]) == set(tasks)
 
     out = preview(world, tmp_path / "look", ["head_left"], (64, 64), dataset=tmp_path / "data", calib=cfg["calib"])
@@ -141,4 +144,6 @@ def test_a_calibrated_sims_cameras_line_up_with_the_recording(tmp_path):
         simulated = side[LABEL_PX:LABEL_PX + shown, shown:].astype(float)
         return np.mean(np.abs(recorded - simulated))
 
-    assert disagreement(twin) < 0.6 * disagreement(None)
+    # Measured 4.72 against 8.85, a ratio of 0.53 (the same with AVX-512 and AVX2 kernels); a
+    # calibration that changes nothing gives 1.
+    assert disagreement(twin) < 0.75 * disagreement(None)

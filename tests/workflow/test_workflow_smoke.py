@@ -258,6 +258,7 @@ def test_shuffled_label_control_is_flat_where_the_real_ranking_is_not(smoke_run)
     assert 0.0 < control["permuted_flat_share"] <= 1.0
 
 
+@pytest.mark.by_hand
 def test_a_second_run_in_a_fresh_directory_gives_the_same_bytes(smoke_run, tmp_path):
     # Same config, same machine kind: every report and every table is the same, though the
     # first run was killed twice and resumed and the second ran straight through.

@@ -59,11 +59,18 @@ def start(tree: Path, target: str, jobs: int) -> subprocess.Popen:
                             stdout=log, stderr=subprocess.STDOUT)
 
 
-def wait(proc: subprocess.Popen) -> tuple[float, float]:
-    """(exit status, CPU-seconds of the process tree) once the run has ended."""
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return proc.returncode, usage.ru_utime + usage.ru_stime
+def wait(running: dict[str, tuple[subprocess.Popen, float]]) -> dict[str, tuple[int, float, float]]:
+    """Per run, as each ends: (exit status, CPU-seconds of its process tree, wall seconds)."""
+    ended = {}
+    by_pid = {proc.pid: (name, proc, t0) for name, (proc, t0) in running.items()}
+    while by_pid:
+        pid, status, usage = os.wait4(-1, 0)
+        if pid not in by_pid:
+            continue
+        name, proc, t0 = by_pid.pop(pid)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        ended[name] = (proc.returncode, usage.ru_utime + usage.ru_stime, time.monotonic() - t0)
+    return ended
 
 
 def stage_cpu(tree: Path) -> dict[str, tuple[int, float]]:
@@ -97,10 +104,9 @@ def main() -> None:
         for name, tree in sides.items():
             running[name] = (start(tree, args.target, args.jobs), time.monotonic())
             if args.one_after_the_other:
-                proc, t0 = running.pop(name)
-                results[name] = (*wait(proc), time.monotonic() - t0)
-        for name, (proc, t0) in running.items():
-            results[name] = (*wait(proc), time.monotonic() - t0)
+                results.update(wait(running))
+                running = {}
+        results.update(wait(running))
         for name, (status, _, _) in results.items():
             if status != 0:
                 raise SystemExit(f"the {name} run failed (exit {status}): {sides[name] / 'bench_snakemake.log'}")

@@ -115,8 +115,9 @@ def single_output_convolutions(module) -> Iterator[None]:
     """Within it, every convolution of `module` whose output is one pixel (ResNet's last stage on
     a 32 px image: 1x1 maps) is computed as the matrix product it is, over the kernel taps that
     meet the image: the others only ever meet zero padding. oneDNN runs such a convolution over
-    all nine taps and reorders its weights at every call; in training, backward and forward of
-    ResNet18 at 32 px cost about a fifth less (batch 16, one CPU thread). Same sums up to
+    all nine taps and reorders its weights at every call; in training, the demo's ACT step's
+    backward costs about half (benchmarks/bench_train_step.py: 158 against 79 CPU-ms, batch 16,
+    one CPU thread). Same sums up to
     rounding; the gradients of the unused taps are zero either way."""
     import torch
 

@@ -267,6 +267,7 @@ NEW_TASK_COMMAND = next(line for text in shown_pages().values() for line in text
 
 
 @pytest.mark.slow
+@pytest.mark.by_hand  # a whole smoke run of its own (docs/tests.md: what CI leaves to be run by hand)
 def test_a_task_added_by_config_alone_runs_through_the_smoke_chain(clone):
     # An eighth task, defined on the command line (objects already in the world, a success made
     # of predicates, an operator plan): recorded, calibrated, replayed, trained on, rolled out and

@@ -67,6 +67,9 @@ class DatasetRecorder:
         from lerobot.configs.video import RGBEncoderConfig
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+        from r2s_eval.data.image_stats import use_counted_image_stats
+
+        use_counted_image_stats()  # the video encoder's per-frame statistics, at a tenth of the CPU
         self.root = Path(root)
         self.tmp_root = self.root.with_name(f".{self.root.name}.recording")
         if self.tmp_root.exists():

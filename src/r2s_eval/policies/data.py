@@ -148,6 +148,59 @@ class _FrameCachedReader(DatasetReader):
             if key not in meta.video_keys:
                 self._columns[key] = torch.from_numpy(np.stack(self.hf_dataset.with_format("numpy")[key]))
 
+        self._cache_rows()
+
+    def _cache_rows(self) -> None:
+        """Every row of the (episode-filtered) table as tensors, with what `get_item` looks up per
+        sample (episode bounds, task names): read through Arrow once, not per sample. Only where
+        lerobot's `get_item` would do nothing else (no image transform, no depth, no camera with
+        delta timestamps); otherwise the stock path serves the samples."""
+        meta = self._meta
+        self._rows = None
+        if (self._image_transforms is not None or self._image_depth_units or meta.depth_keys
+                or any(key in meta.video_keys for key in self.delta_indices or {})):
+            return
+        columns = self.hf_dataset[:]  # lerobot's torch transform, applied to whole columns
+        n = len(self.hf_dataset)
+        self._rows = [{key: values[i] for key, values in columns.items()} for i in range(n)]
+        episodes = meta.episodes
+        self._episode_bounds = {
+            int(ep): (int(start), int(end))
+            for ep, start, end in zip(episodes["episode_index"], episodes["dataset_from_index"],
+                                      episodes["dataset_to_index"])
+        }
+        self._task_names = list(meta.tasks.index)
+
+    def get_item(self, idx) -> dict:
+        """lerobot's `get_item` (same keys, values and dtypes) from the cached rows."""
+        if self._rows is None:
+            return super().get_item(idx)
+        # Fresh tensors, as the stock path returns: nothing downstream can write into the cache.
+        item = {key: value.clone() if isinstance(value, torch.Tensor) else value
+                for key, value in self._rows[idx].items()}
+        ep_idx = int(item["episode_index"])
+        query_indices = None
+        if self.delta_indices is not None:
+            query_indices, padding = self._get_query_indices(int(item["index"]), ep_idx)
+            item = {**item, **padding, **self._query_hf_dataset(query_indices)}
+        if self._meta.video_keys:
+            current_ts = float(item["timestamp"])
+            video_frames = self._query_videos({key: [current_ts] for key in self._meta.video_keys}, ep_idx)
+            item = {**video_frames, **item}
+        item["task"] = self._task_names[int(item["task_index"])]
+        return item
+
+    def _get_query_indices(self, abs_idx: int, ep_idx: int) -> tuple[dict[str, list[int]], dict[str, torch.Tensor]]:
+        if self._rows is None:
+            return super()._get_query_indices(abs_idx, ep_idx)
+        ep_start, ep_end = self._episode_bounds[ep_idx]
+        query_indices = {key: [max(ep_start, min(ep_end - 1, abs_idx + delta)) for delta in deltas]
+                         for key, deltas in self.delta_indices.items()}
+        padding = {f"{key}_is_pad": torch.BoolTensor([(abs_idx + delta < ep_start) | (abs_idx + delta >= ep_end)
+                                                      for delta in deltas])
+                   for key, deltas in self.delta_indices.items()}
+        return query_indices, padding
+
     def column(self, key: str) -> np.ndarray:
         """A numeric column over the selected episodes' frames, (N, D)."""
         if key in self._columns:
@@ -186,7 +239,8 @@ class _FrameCachedReader(DatasetReader):
                     f"t={wanted[err.argmax()]:.4f}s in {path}"
                 )
             # Same layout as lerobot's decoders: float32 in [0, 1], channel first.
-            item[key] = (frames[idx].float() / 255.0).squeeze(0)
+            # (A tensor index: indexing with a NumPy array costs ~40x more.)
+            item[key] = (frames[torch.from_numpy(idx)].float() / 255.0).squeeze(0)
         return item
 
     def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from statsmodels.stats.inter_rater import fleiss_kappa
 
 from r2s_eval.errors import DataError
 
@@ -66,5 +65,7 @@ def fleiss(votes: pd.DataFrame) -> dict:
     raters = int(max(counts.index, key=lambda k: (counts[k], k)))  # most pairs; ties: more raters
     table = votes[["A", "B"]].to_numpy()[n == raters]
     with np.errstate(invalid="ignore", divide="ignore"):
+        from statsmodels.stats.inter_rater import fleiss_kappa  # a second's import: only where kappa is computed
+
         kappa = float(fleiss_kappa(table, method="fleiss"))
     return {"kappa": None if not np.isfinite(kappa) else kappa, "n_pairs": int(len(table)), "n_raters": raters}

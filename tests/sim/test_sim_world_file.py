@@ -44,6 +44,15 @@ def test_a_new_task_is_config_alone():
     assert task.object_names == ("ball", "plate") and task.manipulated == "ball"
 
 
+def test_the_operator_does_a_task_defined_by_config_alone():
+    # Where the README's added task starts (its whole smoke chain is run by hand, docs/tests.md):
+    # the operator's plan for it succeeds in perturbed twins.
+    from r2s_eval.twin.operator import success_rate
+
+    cfg = compose_config(CONF, "smoke", [NEW_TASK, "tasks=[ball_on_plate]"])
+    assert success_rate("ball_on_plate", episodes=2, twin=True, world=cfg["world"]) == 1.0
+
+
 def _broken(old: str, new: str) -> dict:
     text = (WORLDS_DIR / f"{BUNDLED}.yaml").read_text()
     assert old in text, old

@@ -69,7 +69,7 @@ class DatasetRecorder:
 
         from r2s_eval.data.image_stats import use_counted_image_stats
 
-        use_counted_image_stats()  # the video encoder's per-frame statistics, at a tenth of the CPU
+        use_counted_image_stats()  # the video encoder's per-frame statistics, at about a fifth of the CPU
         self.root = Path(root)
         self.tmp_root = self.root.with_name(f".{self.root.name}.recording")
         if self.tmp_root.exists():

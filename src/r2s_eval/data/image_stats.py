@@ -5,9 +5,10 @@ While a dataset records, LeRobot's streaming video encoder feeds every frame's p
 pixel axis, and a 5000-bin histogram per channel for the quantiles: 2 to 3 CPU-ms for a 128 px
 frame, four cameras a step while the demo records. Through the counts below a frame costs 0.55
 ms (3.05 stock, in one process); the demo's teleop stage took 86 CPU-s against 115. Pixels take
-only 256 values, so the same numbers follow from `np.bincount`: the same minimum, maximum, mean (a float32
-sum of integers under 2**24 is exact in any order) and histogram counts; the mean of squares is
-summed exactly rather than in float32, so the standard deviation can differ in its last bits.
+only 256 values, so the same numbers follow from `np.bincount`: the same minimum, maximum, mean
+(a float32 sum of integers under 2**24 is exact in any order) and histogram counts; the mean of
+squares is summed exactly rather than in float32, so the standard deviation can differ in its
+last bits.
 Anything other than uint8 (joint states, actions, depth) goes through LeRobot's own update.
 """
 
@@ -16,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 _VALUES = np.arange(256)
+_VALUES_F32 = _VALUES.astype(np.float32)  # as LeRobot histograms them (its batch is float32)
 # Exact integer sums of n pixels in float32: n * 255 below 2**24.
 _MAX_EXACT_PIXELS = (1 << 24) // 255
 
@@ -60,7 +62,7 @@ def counted_update(self, batch: np.ndarray) -> None:
     self._mean_of_squares += (batch_mean_of_squares - self._mean_of_squares) * (num_elements / self._count)
     for i in range(vector_length):
         # Each pixel value lands in the bin np.histogram gives it; weighted by how often it occurs.
-        hist, _ = np.histogram(_VALUES.astype(np.float32), bins=self._bin_edges[i], weights=counts[i])
+        hist, _ = np.histogram(_VALUES_F32, bins=self._bin_edges[i], weights=counts[i])
         self._histograms[i] += hist
 
 

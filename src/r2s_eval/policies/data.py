@@ -179,26 +179,26 @@ class _FrameCachedReader(DatasetReader):
         item = {key: value.clone() if isinstance(value, torch.Tensor) else value
                 for key, value in self._rows[idx].items()}
         ep_idx = int(item["episode_index"])
-        query_indices = None
         if self.delta_indices is not None:
             query_indices, padding = self._get_query_indices(int(item["index"]), ep_idx)
             item = {**item, **padding, **self._query_hf_dataset(query_indices)}
         if self._meta.video_keys:
             current_ts = float(item["timestamp"])
-            video_frames = self._query_videos({key: [current_ts] for key in self._meta.video_keys}, ep_idx)
-            item = {**video_frames, **item}
+            now = {key: [current_ts] for key in self._meta.video_keys}
+            item = {**self._query_videos(now, ep_idx), **item}
         item["task"] = self._task_names[int(item["task_index"])]
         return item
 
     def _get_query_indices(self, abs_idx: int, ep_idx: int) -> tuple[dict[str, list[int]], dict[str, torch.Tensor]]:
+        """lerobot's, with the episode's bounds from the cache (its own reads the episodes table)."""
         if self._rows is None:
             return super()._get_query_indices(abs_idx, ep_idx)
         ep_start, ep_end = self._episode_bounds[ep_idx]
-        query_indices = {key: [max(ep_start, min(ep_end - 1, abs_idx + delta)) for delta in deltas]
-                         for key, deltas in self.delta_indices.items()}
-        padding = {f"{key}_is_pad": torch.BoolTensor([(abs_idx + delta < ep_start) | (abs_idx + delta >= ep_end)
-                                                      for delta in deltas])
-                   for key, deltas in self.delta_indices.items()}
+        deltas = self.delta_indices.items()
+        query_indices = {key: [max(ep_start, min(ep_end - 1, abs_idx + d)) for d in steps]
+                         for key, steps in deltas}
+        padding = {f"{key}_is_pad": torch.BoolTensor([not ep_start <= abs_idx + d < ep_end for d in steps])
+                   for key, steps in deltas}
         return query_indices, padding
 
     def column(self, key: str) -> np.ndarray:
@@ -239,8 +239,7 @@ class _FrameCachedReader(DatasetReader):
                     f"t={wanted[err.argmax()]:.4f}s in {path}"
                 )
             # Same layout as lerobot's decoders: float32 in [0, 1], channel first.
-            # (A tensor index: indexing with a NumPy array costs ~40x more.)
-            item[key] = (frames[torch.from_numpy(idx)].float() / 255.0).squeeze(0)
+            item[key] = (frames[idx].float() / 255.0).squeeze(0)
         return item
 
     def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:

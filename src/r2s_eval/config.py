@@ -25,7 +25,14 @@ from omegaconf.errors import OmegaConfBaseException
 
 from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.paths import CONF_DIR
-from r2s_eval.schema import composition_sources, config_problems, problems_error, unknown_override_problem, where
+from r2s_eval.schema import (
+    WITHOUT_TRAINING,
+    composition_sources,
+    config_problems,
+    problems_error,
+    unknown_override_problem,
+    where,
+)
 
 
 def compose_config(
@@ -109,8 +116,7 @@ def _derive_image_keys(policies: dict, fixed: list[str]) -> list[str]:
 
     unset = []
     for name, entry in policies.items():
-        if not isinstance(entry, dict) or entry.get("image_keys") is not None or entry.get("type") in (
-                "checkpoint", "server", "variant"):
+        if not isinstance(entry, dict) or entry.get("image_keys") is not None or entry.get("type") in WITHOUT_TRAINING:
             continue
         try:
             own = policy_type(entry.get("type")).all_defaults()["image_keys"] != TOP_LEVEL_DEFAULTS["image_keys"]

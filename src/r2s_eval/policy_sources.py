@@ -16,12 +16,15 @@ Trained candidates (`type: act | diffusion | pi0 | ...`) are configured in
 
 Both take `action_map` (robot index per policy action dimension; default: identity).
 
-A third kind has no weights of its own:
+Two more kinds have no weights of their own:
 
     type: variant           another candidate's checkpoint run with an execution change
-      of                    that candidate (trained here, a checkpoint or a server; not a variant)
+      of                    that candidate (trained here, a checkpoint, a server or a snapshot;
+                            not a variant)
       execution             the change: r2s_eval.policies.execution (jitter, hesitation, a late
                             gripper, a low-pass); planted quality at equal weights
+    type: snapshot          a candidate trained here, as its weights were after `step` of its
+      of, step              optimisation steps (saved by that training: one run gives both)
 
 This module sits above both `r2s_eval.policies` (the in-process models) and `r2s_eval.serving`
 (the client of a policy server): it picks between them, and neither imports it.
@@ -44,6 +47,7 @@ from r2s_eval.serving.keymap import resolve_key_map
 __all__ = [
     "ARMS",
     "SOURCE_TYPES",
+    "SNAPSHOT",
     "VARIANT",
     "action_map",
     "check_checkpoint",
@@ -51,11 +55,13 @@ __all__ = [
     "checkpoint_hash",
     "for_arm",
     "is_external",
+    "is_snapshot",
     "is_variant",
     "open_policy",
     "result_identity",
     "unwrap_variant",
     "validate_candidate_cfg",
+    "validate_snapshot_cfg",
     "validate_source_cfg",
     "validate_variant_cfg",
 ]
@@ -75,6 +81,8 @@ TRANSPORT_KEYS = frozenset({"path", "host", "port", "api_key_env", "connect_time
 
 VARIANT = "variant"
 VARIANT_KEYS = ("type", "name", "of", "execution")
+SNAPSHOT = "snapshot"
+SNAPSHOT_KEYS = ("type", "name", "of", "step")
 
 
 def is_external(cfg: Mapping) -> bool:
@@ -83,6 +91,10 @@ def is_external(cfg: Mapping) -> bool:
 
 def is_variant(cfg: Mapping) -> bool:
     return cfg.get("type") == VARIANT
+
+
+def is_snapshot(cfg: Mapping) -> bool:
+    return cfg.get("type") == SNAPSHOT
 
 
 def validate_variant_cfg(cfg: Mapping, name: str | None = None) -> dict:
@@ -98,25 +110,46 @@ def validate_variant_cfg(cfg: Mapping, name: str | None = None) -> dict:
             "execution": complete_execution(cfg.get("execution"), who)}
 
 
+def validate_snapshot_cfg(cfg: Mapping, name: str | None = None) -> dict:
+    """Completed copy of a snapshot entry: `of` names a candidate, `step` a step of its training.
+    That `of` is trained here and `step` falls inside its training is the configuration check's."""
+    who = f"policies.{name or cfg.get('name') or '?'}"
+    unknown = sorted(set(cfg) - set(SNAPSHOT_KEYS))
+    if unknown:
+        raise PolicyConfigError(f"{who} (snapshot): unknown key(s) {unknown}; allowed: {list(SNAPSHOT_KEYS)}")
+    if not isinstance(cfg.get("of"), str) or not cfg["of"]:
+        raise PolicyConfigError(f"{who}.of: name the candidate whose training the snapshot is taken from, "
+                                f"got {cfg.get('of')!r}")
+    step = cfg.get("step")
+    if isinstance(step, bool) or not isinstance(step, int) or step < 1:
+        raise PolicyConfigError(f"{who}.step: the optimisation step whose weights it runs, a whole number "
+                                f">= 1, got {step!r}")
+    return {"type": SNAPSHOT, "name": cfg.get("name"), "of": cfg["of"], "step": step}
+
+
 def validate_candidate_cfg(cfg: Mapping, name: str) -> dict:
-    """Completed copy of any candidate entry, by its kind: trained here, a checkpoint, a server or
-    a variant (the one dispatch the config check and the line-up readers share)."""
+    """Completed copy of any candidate entry, by its kind: trained here, a checkpoint, a server, a
+    variant or a snapshot (the one dispatch the config check and the line-up readers share)."""
     from r2s_eval.policies.trained_config import validate_policy_cfg
 
     if is_external(cfg):
         return validate_source_cfg(cfg, name)
     if is_variant(cfg):
         return validate_variant_cfg(cfg, name)
+    if is_snapshot(cfg):
+        return validate_snapshot_cfg(cfg, name)
     return validate_policy_cfg(dict(cfg, name=name))
 
 
 def unwrap_variant(policy_cfg: Mapping) -> tuple[dict, dict | None]:
     """A rollout's policy config as (what opens the weights, the execution change or None): a
-    variant's rollout config holds its base's under `weights` (the workflow's candidate identity,
-    ``{"type": "variant", "of": name, "weights": <the base's>, "execution": ...}``)."""
-    if is_variant(policy_cfg):
-        return dict(policy_cfg["weights"]), dict(policy_cfg["execution"])
-    return dict(policy_cfg), None
+    variant's or a snapshot's rollout config holds its base's under `weights` (the workflow's
+    candidate identity, ``{"type": "variant", "of": name, "weights": <the base's>, "execution":
+    ...}``, ``{"type": "snapshot", "of": name, "step": n, "weights": <the training's>}``)."""
+    execution = dict(policy_cfg["execution"]) if is_variant(policy_cfg) else None
+    while is_variant(policy_cfg) or is_snapshot(policy_cfg):
+        policy_cfg = policy_cfg["weights"]
+    return dict(policy_cfg), execution
 
 
 def validate_source_cfg(cfg: Mapping, name: str | None = None) -> dict:

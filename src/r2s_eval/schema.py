@@ -66,7 +66,8 @@ def _policy_schema(entry: dict) -> type | None:
     from r2s_eval.policies.types import SUPPORTED_TYPES
 
     kind = entry.get("type")
-    return {"checkpoint": CheckpointPolicy, "server": ServerPolicy, "variant": VariantPolicy}.get(kind) or (
+    return {"checkpoint": CheckpointPolicy, "server": ServerPolicy, "variant": VariantPolicy,
+            "snapshot": SnapshotPolicy}.get(kind) or (
         TrainedPolicy if kind in SUPPORTED_TYPES else None)
 
 
@@ -82,6 +83,8 @@ def _world_spec() -> type:
     return WorldSpec
 
 
+# Candidate kinds that are not trained here (r2s_eval.policy_sources).
+WITHOUT_TRAINING = ("checkpoint", "server", "variant", "snapshot")
 Camera = str  # a camera of the world's rig (checked with the world, in _cross_problems)
 
 # ----------------------------------------------------------------------------- groups
@@ -627,6 +630,17 @@ class VariantPolicy:
 
 
 @dataclass
+class SnapshotPolicy:
+    """A candidate trained here, as its weights were after `step` optimisation steps (its
+    training saves them on the way: no training of its own)."""
+
+    type: Literal["snapshot"]
+    of: str  # a candidate of the line-up trained here (checked with the line-up)
+    step: PositiveInt  # below that candidate's `steps` (checked with the line-up)
+    name: str | None = optional("r2s_eval.policy_sources")
+
+
+@dataclass
 class Config:
     """The whole composed configuration (the experiment group is `_global_`: it adds no key)."""
 
@@ -760,8 +774,9 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("rollout.video_fps", f"must divide the control rate ({control_hz} Hz): the video "
                                                      f"keeps every k-th control step, got {rollout['video_fps']}"))
     trained = {name: p for name, entry in cfg["policies"].items()
-               if (p := _check_policy(name, entry))["type"] not in ("checkpoint", "server", "variant")}
+               if (p := _check_policy(name, entry))["type"] not in WITHOUT_TRAINING}
     problems += _variant_problems(cfg["policies"])
+    problems += _snapshot_problems(cfg["policies"], trained)
     problems += _stability_problems(cfg)
     for i, name in enumerate(cfg["fidelity"]["ablation"]["policies"]):
         if name not in trained:
@@ -825,6 +840,22 @@ def _variant_problems(policies: dict) -> list[Problem]:
             others = sorted(p for p, e in policies.items() if e.get("type") != "variant")
             problems.append(Problem(f"policies.{name}.of", f"must name a candidate of this line-up that is not a "
                                                            f"variant {others}, got {base!r}"))
+    return problems
+
+
+def _snapshot_problems(policies: dict, trained: dict[str, dict]) -> list[Problem]:
+    """A snapshot is taken from a training of the same line-up, before its last step."""
+    problems = []
+    for name, entry in policies.items():
+        if entry.get("type") != "snapshot":
+            continue
+        base = entry.get("of")
+        if base not in trained:
+            problems.append(Problem(f"policies.{name}.of", f"must name a candidate of this line-up trained here "
+                                                           f"{sorted(trained)}, got {base!r}"))
+        elif not entry["step"] < int(trained[base]["steps"]):
+            problems.append(Problem(f"policies.{name}.step", f"must be below {base}'s steps ({trained[base]['steps']}): "
+                                                             f"{base} itself is its last step, got {entry['step']}"))
     return problems
 
 

@@ -86,7 +86,7 @@ def test_policies_candidates_build_lerobot_configs():
     for candidates in line_ups.values():
         assert "act_weak" in candidates and len(candidates) >= 3
         for name, cfg in candidates.items():
-            if cfg["type"] == "variant":  # another candidate's weights: nothing to build
+            if cfg["type"] in ("variant", "snapshot"):  # another candidate's weights: nothing to build
                 continue
             lr_cfg = make_lerobot_config(cfg)
             assert lr_cfg.pretrained_backbone_weights is None
@@ -96,8 +96,10 @@ def test_policies_candidates_build_lerobot_configs():
                 assert lr_cfg.noise_scheduler_type == "DDIM"
             else:
                 assert lr_cfg.chunk_size == cfg["chunk_size"] == 25
-        # The weak baseline is the same architecture with far fewer optimisation steps.
-        assert candidates["act_weak"]["steps"] * 4 <= candidates["act"]["steps"]
+        # The weak baseline is the same architecture with far fewer optimisation steps (its own
+        # training's, or act's own weights that early).
+        weak = candidates["act_weak"]
+        assert weak.get("steps", weak.get("step")) * 4 <= candidates["act"]["steps"]
 
 
 def test_policies_paper_line_up_is_the_vla_recipe():
@@ -169,6 +171,27 @@ def test_policies_training_is_deterministic(dataset_root, tmp_path):
     assert a["final_loss"] == b["final_loss"]
     weights = [tmp_path / run / "pretrained_model" / "model.safetensors" for run in ("a", "b")]
     assert file_sha256(weights[0]) == file_sha256(weights[1])
+
+
+def test_a_snapshot_holds_the_weights_a_training_that_short_ends_with(dataset_root, tmp_path):
+    # A constant learning rate: a 2-step training draws the same batches as the first 2 steps of
+    # a 5-step one, so the snapshot must be its weights bit for bit; saving it changes nothing
+    # in the run that goes on.
+    cfg = _tiny("act", steps=5)
+    assert cfg["scheduler"] == "constant"
+    summary = train_policy(dataset_root, REPO_ID, cfg, tmp_path / "with", seed=3, snapshot_steps=[2])
+    train_policy(dataset_root, REPO_ID, {**cfg, "steps": 2}, tmp_path / "short", seed=3)
+    train_policy(dataset_root, REPO_ID, cfg, tmp_path / "without", seed=3)
+    weights = {run: file_sha256(folder / "pretrained_model" / "model.safetensors") for run, folder in {
+        "snapshot": tmp_path / "with" / "snapshots" / "2", "short": tmp_path / "short",
+        "with": tmp_path / "with", "without": tmp_path / "without"}.items()}
+    assert weights["snapshot"] == weights["short"] != weights["with"] == weights["without"]
+    assert summary["snapshot_steps"] == [2]
+    runner = load_policy(tmp_path / "with" / "snapshots" / "2", horizon=Horizon(25, 5))
+    assert runner.horizon == Horizon(25, 5)  # a checkpoint folder like the training's own
+    with pytest.raises(ValueError, match=r"snapshot steps \[5\].*\[1, 5\)"):
+        train_policy(dataset_root, REPO_ID, cfg, tmp_path / "late", seed=3, snapshot_steps=[5])
+    assert not (tmp_path / "late").exists()
 
 
 # -- inference --------------------------------------------------------------------------------

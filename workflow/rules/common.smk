@@ -16,11 +16,14 @@ from r2s_eval.policy_sources import (
     checkpoint_hash,
     for_arm,
     is_external,
+    is_snapshot,
     is_variant,
     result_identity,
+    validate_snapshot_cfg,
     validate_source_cfg,
     validate_variant_cfg,
 )
+from r2s_eval.policies.checkpoint_files import snapshot_folder
 from r2s_eval.judge.base import stage_defaults, transport_keys
 from r2s_eval.libero import ACTION_DIM as LIBERO_ACTION_DIM
 from r2s_eval.sim.robot import world_robot
@@ -73,14 +76,33 @@ POLICIES = sorted(CFG["policies"])
 # A variant runs another candidate's weights with an execution change (planted quality): never trained.
 VARIANT_CFG = {p: validate_variant_cfg(CFG["policies"][p], p) for p in POLICIES if is_variant(CFG["policies"][p])}
 VARIANTS = {p: cfg["of"] for p, cfg in VARIANT_CFG.items()}
+# A snapshot runs the weights a training here saved on the way ({name: (its training, step)}).
+SNAPSHOTS = {p: (cfg["of"], cfg["step"]) for p in POLICIES
+             if is_snapshot(CFG["policies"][p]) for cfg in [validate_snapshot_cfg(CFG["policies"][p], p)]}
 # Candidates trained here; checkpoint and server candidates skip training.
-TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p]) and p not in VARIANTS]
+TRAINED = [p for p in POLICIES if not is_external(CFG["policies"][p]) and p not in VARIANTS and p not in SNAPSHOTS]
 EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if is_external(CFG["policies"][p])}
 
 
 def weights_of(policy):
-    """The candidate whose weights `policy` runs: its own, or a variant's base's."""
-    return VARIANTS.get(policy, policy)
+    """The candidate whose training or source holds the weights `policy` runs: its own, a
+    variant's base's, a snapshot's training's."""
+    policy = VARIANTS.get(policy, policy)
+    return SNAPSHOTS[policy][0] if policy in SNAPSHOTS else policy
+
+
+def weights_dir(policy, arm):
+    """The checkpoint folder `policy` runs on `arm` when its weights are trained here: the
+    training's folder, or the snapshot's in it."""
+    policy = VARIANTS.get(policy, policy)
+    if policy in SNAPSHOTS:
+        return str(snapshot_folder(f"results/train/{arm}/{SNAPSHOTS[policy][0]}", SNAPSHOTS[policy][1]))
+    return f"results/train/{arm}/{policy}"
+
+
+def snapshot_steps_of(policy):
+    """The steps of `policy`'s training that the line-up's snapshots run."""
+    return sorted(step for of, step in SNAPSHOTS.values() if of == policy)
 ARMS = ["sim"] if LIBERO else ["real", "sim"]
 
 
@@ -139,7 +161,10 @@ def policy_params(wildcards):
     replicate = int(getattr(wildcards, "replicate", 0))
     # How many seeds are trained changes no single training.
     policy = {k: v for k, v in CFG["policies"][wildcards.policy].items() if k != "seeds"}
-    return stage_params("train", policy=policy, name=wildcards.policy, **({"replicate": replicate} if replicate else {}))
+    provided = {"replicate": replicate} if replicate else {}
+    if not replicate and snapshot_steps_of(wildcards.policy):  # a further seed runs no snapshot
+        provided["snapshot_steps"] = snapshot_steps_of(wildcards.policy)
+    return stage_params("train", policy=policy, name=wildcards.policy, **provided)
 
 
 def seeds_of(policy):
@@ -167,6 +192,9 @@ def candidate_identity(policy, arm):
     if policy in VARIANTS:
         return {"type": "variant", "of": VARIANTS[policy], "weights": candidate_identity(VARIANTS[policy], arm),
                 "execution": VARIANT_CFG[policy]["execution"]}
+    if policy in SNAPSHOTS:
+        of, step = SNAPSHOTS[policy]
+        return {"type": "snapshot", "of": of, "step": step, "weights": candidate_identity(of, arm)}
     if policy in TRAINED:
         return {"type": CFG["policies"][policy]["type"]}
     source = for_arm(EXTERNAL[policy], arm)

@@ -17,9 +17,13 @@ WORLD_PARAMS = {"sim": "results/calib/world_params.json", "real": "results/real/
 
 def rollout_inputs(wildcards):
     inputs = {"inits": "results/rollout/inits.parquet", "world": WORLD_PARAMS[wildcards.arm]}
-    if weights_of(wildcards.policy) in TRAINED:  # a variant runs its base's weights
+    if weights_of(wildcards.policy) in TRAINED:  # a variant runs its base's weights, a snapshot its training's
         inputs["policy"] = f"results/train/{wildcards.arm}/{weights_of(wildcards.policy)}"
     return inputs
+
+
+def rollout_trained_arg(wildcards, input):
+    return f"--policy {weights_dir(wildcards.policy, wildcards.arm)}" if "policy" in input.keys() else ""
 
 
 # How many episodes run side by side changes no result: passed apart from --cfg, so a change
@@ -52,7 +56,7 @@ rule rollout:
         directory("results/rollout/{arm}/{policy}"),
     params:
         cfg=rollout_params,
-        trained=lambda w, input: f"--policy {input.policy}" if "policy" in input.keys() else "",
+        trained=rollout_trained_arg,
         transport=rollout_transport,
         batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
     # Model calls on one thread (the stage pins torch's); physics, rendering (llvmpipe

@@ -17,6 +17,13 @@ from r2s_eval.policies.interface import PolicyError
 CHECKPOINT_SUBDIR = "pretrained_model"
 RUNNER_CONFIG = "runner_config.json"  # our settings next to lerobot's files (cameras used)
 WEIGHTS_FILE = "model.safetensors"
+SNAPSHOTS_SUBDIR = "snapshots"
+
+
+def snapshot_folder(train_dir: str | Path, step: int) -> Path:
+    """Where a training's folder keeps its weights after `step` optimisation steps (a `snapshot`
+    candidate, r2s_eval.policy_sources): a checkpoint folder like the training's own."""
+    return Path(train_dir) / SNAPSHOTS_SUBDIR / str(int(step))
 
 
 def resolve_checkpoint(checkpoint_dir: str | Path) -> Path:

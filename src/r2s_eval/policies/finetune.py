@@ -185,3 +185,16 @@ class EMA:
     def copy_to(self) -> None:
         for avg, p in zip(self.shadow, self.params, strict=True):
             p.copy_(avg.to(p.dtype))
+
+    @contextlib.contextmanager
+    def applied(self):
+        """The average in the model's weights inside the block (a snapshot saves it); the
+        optimiser's weights back after it."""
+        kept = [p.detach().clone() for p in self.params]
+        self.copy_to()
+        try:
+            yield
+        finally:
+            with torch.no_grad():
+                for saved, p in zip(kept, self.params, strict=True):
+                    p.copy_(saved)

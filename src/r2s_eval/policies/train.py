@@ -10,12 +10,14 @@ an optional cosine schedule and an EMA of the weights (the checkpoint then holds
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import math
 import platform
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +25,7 @@ import numpy as np
 import torch
 
 from r2s_eval.data import open_metadata
-from r2s_eval.policies.checkpoint_files import CHECKPOINT_SUBDIR, RUNNER_CONFIG
+from r2s_eval.policies.checkpoint_files import CHECKPOINT_SUBDIR, RUNNER_CONFIG, snapshot_folder
 from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
 from r2s_eval.policies.trained_config import (
     cosine_floor_lr,
@@ -174,13 +176,15 @@ def train_policy(
     seed: int,
     episodes: list[int] | None = None,
     replicate: int = 0,
+    snapshot_steps: Sequence[int] = (),
 ) -> dict[str, Any]:
     """Train one policy on one dataset; write `out_dir/pretrained_model/` and `out_dir/train_log.json`.
 
     `seed` is the experiment's; replicate k > 0 (the policy's `seeds`) trains the candidate again
     from a seed drawn from both (`training_seed`). Training runs on the policy's `device`.
     `episodes` restricts training to those episode indices (ingest's index: the episodes that
-    passed its checks); None uses every episode of the dataset.
+    passed its checks); None uses every episode of the dataset. `snapshot_steps`: steps after
+    which the weights are saved as well (`snapshot_folder`), each below the last.
 
     The whole `out_dir` is written in a temporary sibling and renamed at the end, so an interrupted
     run never leaves a checkpoint that looks complete. Returns the summary stored in the log.
@@ -189,6 +193,11 @@ def train_policy(
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     cfg = validate_policy_cfg(policy_cfg)
+    snapshot_steps = {int(s) for s in snapshot_steps}
+    late = sorted(s for s in snapshot_steps if not 1 <= s < int(cfg["steps"]))
+    if late:
+        raise ValueError(f"snapshot steps {late} of {cfg['name'] or cfg['type']!r}: each must be in [1, "
+                         f"{cfg['steps']}) (the last step's weights are the training's own)")
     seed, device = training_seed(seed, replicate), cfg["device"]
     deterministic_torch(int(cfg["threads"]))
     set_seed(seed)
@@ -224,100 +233,104 @@ def train_policy(
     grad_clip = float(clip if clip is not None else lr_cfg.get_optimizer_preset().grad_clip_norm)
     ema = EMA(policy, cfg["ema_decay"]) if cfg["ema_decay"] is not None else None
 
-    losses: list[dict[str, float]] = []
-    window: list[float] = []
-    batches = _cycle(loader)
-    policy.train()
-    t_loop, cpu_loop = time.perf_counter(), time.process_time()
-    with policy_type(cfg["type"]).training_speedups(policy):
-        for step in range(1, int(cfg["steps"]) + 1):
-            batch = preprocessor(next(batches))
-            loss, _ = policy.forward(batch)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(
-                    f"non-finite loss {loss.item()} at step {step} ({cfg['type']}, seed {seed}, data {repo_id})"
-                )
-            loss.backward()
-            grad_norm = clip_gradients(policy, grad_clip)
-            optimizer.step()
-            optimizer.zero_grad(set_to_none=True)
-            if scheduler is not None:
-                scheduler.step()
-            if ema is not None:
-                ema.update()
-            window.append(loss.item())
-            if step % cfg["log_every"] == 0 or step == cfg["steps"] or step == 1:
-                losses.append(
-                    {
-                        "step": step,
-                        "loss": sum(window) / len(window),  # mean over the steps since the last entry
-                        "grad_norm": float(grad_norm),
-                        # X-VLA's first group is its VLM at lr / 10: log the base rate.
-                        "lr": max(g["lr"] for g in optimizer.param_groups) if vla else optimizer.param_groups[0]["lr"],
-                        "elapsed_s": time.perf_counter() - t_loop,
-                    }
-                )
-                window = []
-    loop_s = time.perf_counter() - t_loop
-    loop_cpu_s = time.process_time() - cpu_loop
-    policy.eval()
-    if ema is not None:
-        ema.copy_to()
-        log.info("the checkpoint holds the EMA weights (decay %s), not the last optimiser step's", cfg["ema_decay"])
-
-    n_params = sum(p.numel() for p in policy.parameters())
-    summary = {
-        "policy_type": cfg["type"],
-        "name": cfg["name"],
-        "repo_id": repo_id,
-        "dataset_root": str(dataset_root),
-        "num_frames": dataset.num_frames,
-        "num_episodes": dataset.num_episodes,
-        "seed": seed,
-        "device": device,
-        "threads": int(cfg["threads"]),
-        "steps": int(cfg["steps"]),
-        "batch_size": int(cfg["batch_size"]),
-        "num_params": n_params,
-        "first_loss": losses[0]["loss"] if losses else None,
-        "final_loss": losses[-1]["loss"] if losses else None,
-        "data_prep_s": data_prep_s,
-        "train_loop_s": loop_s,
-        "train_loop_cpu_s": loop_cpu_s,  # wall time is inflated on a shared machine; CPU time is not
-        "s_per_step": loop_s / max(1, int(cfg["steps"])),
-        "torch_version": torch.__version__,
-        "python": platform.python_version(),
-        "cpu_capability": torch.backends.cpu.get_cpu_capability(),  # kernels used (pinned on import)
-        "std_floored": floored,  # features normalised with the spread floor (std_floor), per key
-    }
+    runner_cfg = {"chunk_size": cfg["chunk_size"], "image_keys": cfg["image_keys"], "policy_type": cfg["type"]}
     if vla:
-        summary["weights"] = "ema" if ema is not None else "last"
-        summary["ema_decay"] = cfg["ema_decay"]
-        summary["grad_clip_norm"] = grad_clip
-        summary["pretrained"] = {
-            "path": load_report["pretrained_path"],
-            "tokenizer_path": load_report["tokenizer_path"],
-            **load_report["counts"],
-        }
-    out_dir = Path(out_dir)
-    with atomic_dir(out_dir) as tmp:
-        ckpt = tmp / CHECKPOINT_SUBDIR
+        # Saved pipelines name the hub id; reloads read the tokenizer from this folder.
+        runner_cfg.update(tokenizer_path=load_report["tokenizer_path"], pretrained_path=load_report["pretrained_path"],
+                          weights="ema" if ema is not None else "last")
+
+    def save_checkpoint(folder: Path) -> None:
+        ckpt = folder / CHECKPOINT_SUBDIR
         policy.save_pretrained(ckpt)
         preprocessor.save_pretrained(ckpt)
         postprocessor.save_pretrained(ckpt)
-        runner_cfg = {
-            "chunk_size": cfg["chunk_size"],
-            "image_keys": cfg["image_keys"],
+        (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
+
+    losses: list[dict[str, float]] = []
+    window: list[float] = []
+    batches = _cycle(loader)
+    out_dir = Path(out_dir)
+    # Snapshots are written into the same temporary folder as the last weights: an interrupted
+    # training leaves neither.
+    with atomic_dir(out_dir) as tmp:
+        policy.train()
+        t_loop, cpu_loop = time.perf_counter(), time.process_time()
+        with policy_type(cfg["type"]).training_speedups(policy):
+            for step in range(1, int(cfg["steps"]) + 1):
+                batch = preprocessor(next(batches))
+                loss, _ = policy.forward(batch)
+                if not torch.isfinite(loss):
+                    raise FloatingPointError(
+                        f"non-finite loss {loss.item()} at step {step} ({cfg['type']}, seed {seed}, data {repo_id})"
+                    )
+                loss.backward()
+                grad_norm = clip_gradients(policy, grad_clip)
+                optimizer.step()
+                optimizer.zero_grad(set_to_none=True)
+                if scheduler is not None:
+                    scheduler.step()
+                if ema is not None:
+                    ema.update()
+                window.append(loss.item())
+                if step % cfg["log_every"] == 0 or step == cfg["steps"] or step == 1:
+                    losses.append(
+                        {
+                            "step": step,
+                            "loss": sum(window) / len(window),  # mean over the steps since the last entry
+                            "grad_norm": float(grad_norm),
+                            # X-VLA's first group is its VLM at lr / 10: log the base rate.
+                            "lr": max(g["lr"] for g in optimizer.param_groups) if vla else optimizer.param_groups[0]["lr"],
+                            "elapsed_s": time.perf_counter() - t_loop,
+                        }
+                    )
+                    window = []
+                if step in snapshot_steps:
+                    # Saving reads the weights and draws no random number: the run goes on as without.
+                    with ema.applied() if ema is not None else contextlib.nullcontext():
+                        save_checkpoint(snapshot_folder(tmp, step))
+        loop_s = time.perf_counter() - t_loop
+        loop_cpu_s = time.process_time() - cpu_loop
+        policy.eval()
+        if ema is not None:
+            ema.copy_to()
+            log.info("the checkpoint holds the EMA weights (decay %s), not the last optimiser step's", cfg["ema_decay"])
+
+        n_params = sum(p.numel() for p in policy.parameters())
+        summary = {
             "policy_type": cfg["type"],
+            "name": cfg["name"],
+            "repo_id": repo_id,
+            "dataset_root": str(dataset_root),
+            "num_frames": dataset.num_frames,
+            "num_episodes": dataset.num_episodes,
+            "seed": seed,
+            "device": device,
+            "threads": int(cfg["threads"]),
+            "steps": int(cfg["steps"]),
+            "snapshot_steps": sorted(snapshot_steps),
+            "batch_size": int(cfg["batch_size"]),
+            "num_params": n_params,
+            "first_loss": losses[0]["loss"] if losses else None,
+            "final_loss": losses[-1]["loss"] if losses else None,
+            "data_prep_s": data_prep_s,
+            "train_loop_s": loop_s,
+            "train_loop_cpu_s": loop_cpu_s,  # wall time is inflated on a shared machine; CPU time is not
+            "s_per_step": loop_s / max(1, int(cfg["steps"])),
+            "torch_version": torch.__version__,
+            "python": platform.python_version(),
+            "cpu_capability": torch.backends.cpu.get_cpu_capability(),  # kernels used (pinned on import)
+            "std_floored": floored,  # features normalised with the spread floor (std_floor), per key
         }
         if vla:
-            # Saved pipelines name the hub id; reloads read the tokenizer from this folder.
-            runner_cfg.update(
-                tokenizer_path=load_report["tokenizer_path"],
-                pretrained_path=load_report["pretrained_path"],
-                weights=summary["weights"],
-            )
-        (ckpt / RUNNER_CONFIG).write_text(json.dumps(runner_cfg, indent=2) + "\n")
+            summary["weights"] = runner_cfg["weights"]
+            summary["ema_decay"] = cfg["ema_decay"]
+            summary["grad_clip_norm"] = grad_clip
+            summary["pretrained"] = {
+                "path": load_report["pretrained_path"],
+                "tokenizer_path": load_report["tokenizer_path"],
+                **load_report["counts"],
+            }
+        save_checkpoint(tmp)
         summary["wall_s"] = time.perf_counter() - t_start
         summary["cpu_s"] = time.process_time() - cpu_start
         train_log = {"summary": summary, "config": cfg, "losses": losses, "provenance": current_provenance()}

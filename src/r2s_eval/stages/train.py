@@ -1,7 +1,8 @@
 """Stage: fine-tune one candidate policy on one dataset (real -> pi^R, replayed sim -> pi^S).
 
 ``replicate`` k > 0 (the policy's ``seeds``) trains the same candidate again from a seed of its
-own, to measure what training alone moves."""
+own, to measure what training alone moves. ``snapshot_steps``: the steps whose weights the line-up's
+snapshot candidates of this one run, saved on the way (``snapshots/<step>/``)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
 READS = ("seed",)  # config paths the --cfg slice holds (see _reads.py)
-PROVIDED = ("policy", "name", "replicate")  # keys the rule adds for this job
+PROVIDED = ("policy", "name", "replicate", "snapshot_steps")  # keys the rule adds for this job
 
 
 def main(args) -> None:
@@ -23,7 +24,7 @@ def main(args) -> None:
     if args.episodes_index:
         episodes = [int(e) for e in pd.read_parquet(args.episodes_index, columns=["episode_index"])["episode_index"]]
     train_policy(args.dataset, "local/train", policy_cfg, args.out, seed=int(args.cfg["seed"]), episodes=episodes,
-                 replicate=int(args.cfg.get("replicate", 0)))
+                 replicate=int(args.cfg.get("replicate", 0)), snapshot_steps=args.cfg.get("snapshot_steps", ()))
 
 
 if __name__ == "__main__":

@@ -212,12 +212,16 @@ def candidate_configs(experiment: str = "demo") -> dict[str, dict]:
 
 
 def candidate_config(name: str, experiment: str = "demo", **changes: Any) -> dict:
-    """The config of candidate `name` under `experiment`, with optional top-level changes."""
+    """The training config of candidate `name` (trained here) under `experiment`, with optional
+    top-level changes."""
     from r2s_eval.policies.trained_config import validate_policy_cfg
 
     candidates = candidate_configs(experiment)
     if name not in candidates:
         raise ConfigError(f"unknown candidate policy {name!r} of experiment {experiment!r}; known: {sorted(candidates)}")
+    if candidates[name]["type"] in WITHOUT_TRAINING:
+        raise ConfigError(f"candidate policy {name!r} of experiment {experiment!r} is a {candidates[name]['type']}: "
+                          f"it has no training config of its own")
     cfg = copy.deepcopy(candidates[name])
     cfg.update(copy.deepcopy(changes))
     return validate_policy_cfg(cfg)

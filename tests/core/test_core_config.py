@@ -22,16 +22,34 @@ def test_experiments_compose():
     # The smoke's line-up adds a planted-quality variant of act (act's weights, stops and restarts).
     assert set(smoke["policies"]) == {"act", "act_subset", "act_weak", "act_hesitant"}
     assert smoke["policies"]["act_hesitant"]["of"] == "act" and smoke["stability"]["repetitions"] == 2
-    # The demo's middle policy has a cut step budget; each line-up's planted order names its own.
+    # The demo's weaker policies are act's own weights earlier in its training; each line-up's
+    # planted order names its own.
     assert set(demo["policies"]) == {"act", "act_short", "act_weak"}
     assert demo["report"]["judge_audit"]["planted_order"] == ["act", "act_short", "act_weak"]
-    assert demo["policies"]["act_weak"]["steps"] < demo["policies"]["act_short"]["steps"] < demo["policies"]["act"]["steps"]
+    assert {demo["policies"][p]["of"] for p in ("act_short", "act_weak")} == {"act"}
+    assert demo["policies"]["act_weak"]["step"] < demo["policies"]["act_short"]["step"] < demo["policies"]["act"]["steps"]
+    # The seven-task demo keeps its three trainings, as they were measured.
+    seven = compose_config(CONF, "demo_seven")["policies"]
+    assert {p["type"] for p in seven.values()} == {"act"}
+    assert seven["act_weak"]["steps"] < seven["act_short"]["steps"] < seven["act"]["steps"]
     assert set(compose_config(CONF, "paper")["policies"]) == {"pi0", "pi05", "smolvla", "xvla"}
     assert smoke["policies"]["act_weak"]["steps"] < smoke["policies"]["act"]["steps"]
     assert "experiment" not in smoke
     # Both offline judges in smoke and demo; the demo audits order swaps on a share of pairs.
     assert set(smoke["judges"]) == set(demo["judges"]) == {"kinematic", "video"}
     assert all(0 < j["swap_share"] < 1 for j in demo["judges"].values())
+
+
+@pytest.mark.parametrize("entry, where, says", [
+    ("{type:snapshot,of:act,step:700}", "policies.late.step", "must be below act's steps (700)"),
+    ("{type:snapshot,of:act_short,step:10}", "policies.late.of", "must name a candidate of this line-up trained here ['act']"),
+    ("{type:snapshot,of:act,step:0}", "policies.late.step", "must be in [1, inf], got 0"),
+    ("{type:snapshot,of:act,step:10,steps:20}", "policies.late", "unknown key(s) ['steps']"),
+])
+def test_a_snapshot_outside_its_training_is_refused_naming_the_key(entry, where, says):
+    with pytest.raises(ConfigError) as err:
+        compose_config(CONF, "demo", [f"+policies.late={entry}"])
+    assert where in str(err.value) and says in str(err.value), str(err.value)
 
 
 def test_overrides_and_slices():
@@ -71,10 +89,12 @@ def test_mtimes_round_trip(tmp_path):
 def test_candidates_take_their_types_defaults_and_name_unknown_ones():
     # conf/policies writes only what differs from a type's defaults; validation fills in the rest.
     demo = candidate_configs("demo")
-    assert {cfg["chunk_size"] for cfg in demo.values()} == {25}
+    assert {cfg["chunk_size"] for cfg in demo.values() if cfg["type"] != "snapshot"} == {25}
     assert candidate_config("act", "demo", batch_size=8)["batch_size"] == 8
     paper = candidate_configs("paper")
     assert {cfg["scheduler"] for cfg in paper.values()} == {"cosine"}
     with pytest.raises(ConfigError, match="unknown candidate policy 'nope'"):
         candidate_config("nope", "demo")
+    with pytest.raises(ConfigError, match="'act_short' of experiment 'demo' is a snapshot"):
+        candidate_config("act_short", "demo")
 

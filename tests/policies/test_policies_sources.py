@@ -18,6 +18,8 @@ from r2s_eval.policy_sources import (
     checkpoint_hash,
     for_arm,
     result_identity,
+    unwrap_variant,
+    validate_candidate_cfg,
     validate_source_cfg,
 )
 
@@ -44,6 +46,19 @@ def test_source_configs_are_validated_with_names():
     assert (for_arm(cfg, "real")["port"], for_arm(cfg, "sim")["port"]) == (8000, 8001)
     # Where it runs is not what it is.
     assert {"host", "port", "api_key_env"}.isdisjoint(result_identity(for_arm(cfg, "sim")))
+
+
+def test_a_snapshot_and_a_variant_of_one_open_the_trainings_weights():
+    assert validate_candidate_cfg({"type": "snapshot", "of": "act", "step": 400}, "act_short") == {
+        "type": "snapshot", "name": None, "of": "act", "step": 400}
+    with pytest.raises(PolicyConfigError, match=r"policies\.act_short\.step.*got 2\.5"):
+        validate_candidate_cfg({"type": "snapshot", "of": "act", "step": 2.5}, "act_short")
+    # The workflow's candidate identities (workflow/rules/common.smk).
+    snapshot = {"type": "snapshot", "of": "act", "step": 400, "weights": {"type": "act"}}
+    execution = {"action_noise_std": 0.01}
+    assert unwrap_variant(snapshot) == ({"type": "act"}, None)
+    assert unwrap_variant({"type": "variant", "of": "act_short", "weights": snapshot, "execution": execution}) == (
+        {"type": "act"}, execution)
 
 
 def test_checkpoint_hash_follows_content_not_place(tmp_path):

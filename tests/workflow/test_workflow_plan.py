@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from .conftest import planned_jobs, snakemake
+from .conftest import planned_job_blocks, planned_jobs, snakemake
 
 
 def test_sim_chain_is_scheduled_before_any_training(tmp_path):
@@ -126,3 +126,20 @@ def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
     assert (jobs["rollout"], jobs["train"], jobs["stability"], jobs["describe"]) == ("14", "8", "1", "14"), jobs
     trained = {wc["policy"] for rule, wc in planned_jobs(proc.stdout) if rule == "train"}
     assert trained == {"act", "act_close", "act_short", "act_weak"}
+
+
+def test_a_snapshot_is_saved_by_its_trainings_and_trains_nothing_of_its_own(tmp_path):
+    # act's weights after 100 of its steps, and a planted-quality variant of those: act's two
+    # trainings save step 100 on the way; both candidates' rollouts read that folder.
+    overrides = ["+policies.act_early={type:snapshot,of:act,step:100}",
+                 "+policies.act_early_jitter={type:variant,of:act_early,execution:{action_noise_std:0.01}}"]
+    out = snakemake(tmp_path, "-n", "-p", "results/rollout/real/act_early", "results/rollout/sim/act_early_jitter",
+                    overrides=overrides).stdout
+    blocks = planned_job_blocks(out)
+    trainings = [(w["arm"], w["policy"], text) for rule, w, text in blocks if rule == "train"]
+    assert sorted(t[:2] for t in trainings) == [("real", "act"), ("sim", "act")]
+    assert all('"snapshot_steps":[100]' in text for *_, text in trainings)
+    rollouts = {(w["arm"], w["policy"]): text for rule, w, text in blocks if rule == "rollout"}
+    assert set(rollouts) == {("real", "act_early"), ("sim", "act_early_jitter")}
+    assert "--policy results/train/real/act/snapshots/100 " in rollouts["real", "act_early"]
+    assert "--policy results/train/sim/act/snapshots/100 " in rollouts["sim", "act_early_jitter"]

@@ -135,6 +135,7 @@ class BoardTake:
     frames: Annotated[int, Range(min=2)]
     image_size: Annotated[list[PositiveInt], NonEmpty()]
     joint_spread_rad: NonNegative
+    lens_frames: PositiveInt  # per fixed camera, when the calibration fits the lenses
     video: DatasetVideo
 
 
@@ -196,6 +197,8 @@ class Calibration:
 class Joints:
     estimate: bool
     iterations: PositiveInt
+    latency: bool
+    max_latency_steps: Count
 
 
 @dataclass
@@ -223,6 +226,7 @@ class CalibBoard:
     min_corners: Annotated[int, Range(min=4)]
     min_frames: PositiveInt
     max_reprojection_px: Positive
+    intrinsics: bool  # fit each camera's lens from the take too (r2s_eval.calib.board.fit_lens)
 
 
 @dataclass

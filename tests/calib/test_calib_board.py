@@ -22,7 +22,7 @@ from r2s_eval.twin.board_take import record_board_take
 TASKS = ["cup_on_plate"]
 BOARD = {"squares": [9, 7], "square_m": 0.04, "marker_m": 0.03, "dictionary": "DICT_5X5_100", "thickness_m": 0.003,
          "mount": "table", "pose": {"x_m": -0.03, "y_m": 0.0, "yaw_rad": 0.0}, "min_corners": 8, "min_frames": 4,
-         "max_reprojection_px": 2.0}
+         "max_reprojection_px": 2.0, "intrinsics": False}
 TAKE = {"frames": 12, "image_size": [480, 640], "joint_spread_rad": 0.5,
         "video": {"vcodec": "h264", "preset": "ultrafast", "crf": 12}}
 # A camera placed from a tape measure: centimetres and degrees off the model's pose.

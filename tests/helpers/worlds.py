@@ -12,7 +12,8 @@ import numpy as np
 from r2s_eval.sim import TabletopEnv, WorldParams, get_task, world_config, world_robot
 from r2s_eval.sim.robot import Robot
 from r2s_eval.sim.tasks import Task, world_tasks
-from r2s_eval.twin.perturb import TwinMagnitudes, sample_twin_params
+from r2s_eval.twin.perturb import TwinMagnitudes, sample_reality_effects, sample_twin_params
+from r2s_eval.twin.reality import RealityEffects, RealityEnv
 
 BUNDLED = "tabletop"
 
@@ -38,6 +39,18 @@ def bundled_tasks() -> dict[str, Task]:
 def bundled_env(task: str = "cup_on_plate", params: WorldParams | None = None, **kwargs) -> TabletopEnv:
     """``TabletopEnv`` of the bundled world's task ``task`` (``kwargs``: its other arguments)."""
     return TabletopEnv(get_task(task, _bundled_world()), params, robot=bundled_robot(), **kwargs)
+
+
+def bundled_twin_env(task: str = "cup_on_plate", params: WorldParams | None = None,
+                     reality: RealityEffects | None = None, **kwargs) -> RealityEnv:
+    """The twin's environment (``RealityEnv``) of the bundled world's task ``task``: world
+    parameters ``params`` with the ``reality`` effects around them (``kwargs``: the rest)."""
+    return RealityEnv(get_task(task, _bundled_world()), params, reality, robot=bundled_robot(), **kwargs)
+
+
+def bundled_reality(rng: np.random.Generator, magnitudes: TwinMagnitudes | None = None) -> RealityEffects:
+    """A twin's reality effects for the bundled world (``sample_reality_effects``)."""
+    return sample_reality_effects(rng, magnitudes, robot=bundled_robot())
 
 
 def bundled_twin(rng: np.random.Generator, magnitudes: TwinMagnitudes | None = None,

@@ -71,3 +71,22 @@ def test_ablation_figure_draws_a_policy_that_never_succeeds(tmp_path):
     rows = ablation_rows({"joints": episodes("act", 0, 6), "all": episodes("act", 6, 6)}, episodes("act", 0, 6), 0.95)
     save_figure(ablation_figure(rows, {"act": 0.0}, OPTS), tmp_path / "z.pdf", tmp_path / "z.png", dpi=60)
     assert (tmp_path / "z.png").stat().st_size > 0
+
+
+def test_the_estimated_latency_is_reported_against_the_twins():
+    from r2s_eval.report.fidelity_report import build_report
+
+    reference = counts([("act", "cup_on_plate", 10, 18)])
+    sim = pd.DataFrame({"policy": "act", "task": "cup_on_plate", "success": [k < 7 for k in range(18)]})
+    calibrated = {"joints": {"estimated": True, "offsets_rad": {"left": [0.01]}, "latency_steps": 1}}
+    built = build_report(reference, sim, sim, None, {}, {}, calibrated, {"left": [0.011]}, 0.95, 50, 0,
+                         latency_truth=2)
+    assert built["joints"]["latency"] == {"estimated_steps": 1, "truth_steps": 2}
+    assert "commands' latency (control steps): estimated 1, twin 2" in format_report(built)
+    # The twin's latency is in seconds (its reality effects): a fraction of a step where it falls mid-period.
+    between = build_report(reference, sim, sim, None, {}, {}, calibrated, {"left": [0.011]}, 0.95, 50, 0,
+                           latency_truth=0.15 * 10)
+    assert between["joints"]["latency"] == {"estimated_steps": 1, "truth_steps": 1.5}
+    assert "commands' latency (control steps): estimated 1, twin 1.5" in format_report(between)
+    without = build_report(reference, sim, sim, None, {}, {}, {"joints": {"estimated": False}}, None, 0.95, 50, 0)
+    assert "latency" not in without["joints"]

@@ -234,3 +234,37 @@ def test_a_policy_server_drives_the_batched_loop(tmp_path, inits, act):
         assert tables[1] == tables[3]
     finally:
         server.stop()
+
+
+def test_the_real_arm_runs_in_the_twins_environment_where_its_world_file_holds_reality(tmp_path, monkeypatch, inits):
+    """A world file with a reality record (the twin's, a twin ablation's) builds the twin's
+    environment around the simulation: one control step of latency in seconds steps what the
+    calibrated sim's answer of one step steps, and not what the same parameters without it step;
+    the calibrated sim's file builds a plain environment."""
+    from r2s_eval.sim import TabletopEnv
+    from r2s_eval.twin.reality import RealityEnv
+
+    files = {"twin": {"params": {"noise_seed": 7}, "reality": {"latency_s": 0.1}},
+             "answer": {"params": {"noise_seed": 7, "command_latency_steps": 1}},
+             "plain": {"params": {"noise_seed": 7}}}
+    built: dict[str, set] = {}
+    make_world_env = candidate.make_world_env
+    trajectories = {}
+    for name, record in files.items():
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(record))
+
+        def spy(*args, name=name, **kwargs):
+            env = make_world_env(*args, **kwargs)
+            built.setdefault(name, set()).add(type(env))
+            return env
+
+        monkeypatch.setattr(candidate, "make_world_env", spy)
+        episodes = _run_image_policy(monkeypatch, tmp_path / name, inits, ImagePolicy(), arm="real", twin=path,
+                                     batch_episodes=3)
+        trajectories[name] = [pd.read_parquet(tmp_path / name / p) for p in episodes["trajectory_path"]]
+    assert built == {"twin": {RealityEnv}, "answer": {TabletopEnv}, "plain": {TabletopEnv}}
+    for late, answer, plain in zip(trajectories["twin"], trajectories["answer"], trajectories["plain"]):
+        states = {k: np.stack(t["state"]) for k, t in (("late", late), ("answer", answer), ("plain", plain))}
+        assert np.array_equal(states["late"], states["answer"])
+        assert not np.array_equal(states["late"], states["plain"])

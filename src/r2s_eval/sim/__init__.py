@@ -4,8 +4,8 @@ Modules: ``robot`` (a world's robot and camera rig, read from its config), ``wor
 assembly from them), ``objects`` (parametric
 objects), ``cameras`` (intrinsics/extrinsics/projection), ``tasks`` (registry,
 success and progress), ``env`` (``TabletopEnv``), ``params`` (``WorldParams``, the
-physics and rendering knobs of one world), ``build`` (environments from the config
-slices). The reality twin and the scripted operator live in ``r2s_eval.twin``, which
+physics and rendering knobs of one world), ``sensor`` (what its camera records: the world's lens,
+its pixel noise), ``build`` (environments from the config slices). The reality twin and the scripted operator live in ``r2s_eval.twin``, which
 builds on this package (never the reverse).
 Rendering is headless: ``MUJOCO_GL`` defaults to ``egl`` unless already set.
 """

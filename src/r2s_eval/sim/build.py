@@ -81,11 +81,19 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
         if len(offsets) != len(robot.arms[arm].joints):
             raise ConfigError(f"{source}: world parameters of another world: {len(offsets)} joint offsets for arm "
                               f"{arm!r}, which has {len(robot.arms[arm].joints)} joints in {world_name}")
-    for key in ("camera_pos_offset_m", "camera_rot_offset_rad"):
+    for key in ("camera_pos_offset_m", "camera_rot_offset_rad", "lens_distortion"):
         for camera in getattr(params, key):
             if camera not in robot.rig:
                 raise ConfigError(f"{source}: world parameters of another world: {key} of camera {camera!r}, "
                                   f"{world_name} has cameras {sorted(robot.rig)}")
+    for camera, coefficients in params.lens_distortion.items():
+        if len(coefficients) != 5:
+            raise ConfigError(f"{source}: lens_distortion of camera {camera!r} has {len(coefficients)} coefficients, "
+                              "OpenCV's model has five (k1, k2, p1, p2, k3)")
+    latency = params.command_latency_steps
+    if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
+        raise ConfigError(f"{source}: command_latency_steps must be a whole number of control steps >= 0, "
+                          f"got {latency!r}")
     for key in ("object_mass_scale", "object_size_scale", "object_rgb_offset"):
         for name in getattr(params, key):
             if name not in objects:

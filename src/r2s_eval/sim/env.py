@@ -10,13 +10,24 @@ jaw 0.05 m from the centre) .. 1 = fully closed, mapped linearly to the jaw targ
 Timing: ``step(action)`` holds the action (servo targets) for one control period
 (``robot.control_hz``; the bundled world: 10 Hz = 50 physics steps of 2 ms).
 
+Servos (``apply_action``; nominal: every command acts at once and exactly): a world's
+``command_latency_steps`` (the calibrated sim's answer to a robot's latency) delays each command
+by whole control steps; the servos hold their reset targets until the first one arrives, and
+``reset`` drops the commands under way.
+
 Observation: ``{"observation.state": float32[action_dim],
 "observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera of the rig
 (the bundled world: ``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
-H = W = 128. Images carry the world's additive noise (twin), ``render()``
-returns clean images unless asked. A camera's noise at a control step is drawn from a generator
-keyed by (world noise seed, episode seed, step, camera), so an image is the same whether or
-not the steps before it were rendered: a loop renders only the steps a policy consumes.
+H = W = 128. Images are what the world's camera records (``recorded_image``,
+``r2s_eval.sim.sensor``: the world's lens distortion, then its pixel noise; a nominal world's is a
+pinhole without noise), ``render()`` returns clean pinhole images unless asked. A camera's noise
+at a control step is drawn from a generator keyed by (world noise seed, episode seed, step,
+camera), so an image is the same whether or not the steps before it were rendered: a loop renders
+only the steps a policy consumes.
+
+The reality twin (``r2s_eval.twin.reality``) subclasses this environment around its own effects
+(a real lens, exposure, a late and loose actuation): ``_control_period`` and ``recorded_image``
+are where it steps and records differently.
 
 Frames: world x away from the robot across the table, y to the robot's
 left, z up; the table top at ``robot.workspace.z_m`` (the bundled world: 0.75 m). Object body poses refer to the centre of
@@ -27,9 +38,9 @@ placement of each object (``objects.py``: upright, upside down, on its side).
 
 from __future__ import annotations
 
-import functools
 import os
 import threading
+from collections import deque
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering unless the user chose otherwise
 
@@ -41,35 +52,13 @@ from r2s_eval.sim import assembly  # noqa: E402
 from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.params import WorldParams  # noqa: E402
 from r2s_eval.sim.robot import Robot  # noqa: E402
+from r2s_eval.sim.sensor import add_image_noise, is_pinhole, through_lens  # noqa: E402
 from r2s_eval.sim.tasks import Task, sample_initial_poses  # noqa: E402
 from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _ENCODER_STREAM = 2**31 - 1  # the encoders' noise stream; the cameras' are their rig indices
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
-
-
-def add_image_noise(rgb: np.ndarray, rng: np.random.Generator, std: float) -> np.ndarray:
-    """``rgb`` plus Gaussian noise of ``std`` drawn from ``rng``, clipped to [0, 255] and truncated
-    to uint8 (``np.clip(rgb + noise, 0, 255).astype(np.uint8)``).
-
-    The noise is drawn by inverse transform: a uniform 16-bit integer per value looked up in the
-    standard normal's quantiles at the 65,536 midpoints (exactly Gaussian up to that resolution,
-    tails cut at 4.3 sigma). Drawing them costs a fraction of ``rng.normal``'s ziggurat in
-    float64: a 128 px image 0.5 against 1.15 CPU-ms, and the twin noises every image it records.
-    """
-    noisy = _normal_quantiles()[rng.integers(0, 65536, rgb.shape, dtype=np.uint16)]
-    noisy *= std
-    noisy += rgb
-    np.clip(noisy, 0, 255, out=noisy)
-    return noisy.astype(np.uint8)
-
-
-@functools.cache
-def _normal_quantiles() -> np.ndarray:
-    from scipy.special import ndtri
-
-    return ndtri((np.arange(65536) + 0.5) / 65536).astype(np.float32)
 
 
 class TabletopEnv:
@@ -111,6 +100,7 @@ class TabletopEnv:
         self._renderers: dict[tuple[int, int], mujoco.Renderer] = {} if renderers is None else renderers
         self._noise_key = (int(self.params.noise_seed), 0)
         self.steps = 0  # control steps since reset
+        self._pending_commands: deque[np.ndarray] = deque()  # sent, not yet at the servos (latency)
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
@@ -195,6 +185,7 @@ class TabletopEnv:
                 d.qpos[adr], d.ctrl[act] = finger.position_open, finger.ctrl_open
             for adr, ratio in self._coupled_adr[name]:
                 d.qpos[adr] = ratio * arm.gripper.position_open
+        self._pending_commands.clear()  # a command of the last episode never arrives in this one
         missing = set(self.task.object_names) - set(object_poses)
         if missing:
             raise DataError(f"task {self.task.key}: no initial pose for {sorted(missing)}")
@@ -236,16 +227,34 @@ class TabletopEnv:
         """Hold ``action`` (14-D, see module table) for one control period; the observation
         after it, without the camera images when ``images`` is false (``images()`` renders them
         later in the same step, with the same pixels)."""
-        self.apply_action(action)
-        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
+        self._control_period(action)
         self.steps += 1
         self.max_task_progress = max(self.max_task_progress, self.task_progress())
         return self.observation(images=images)
 
-    def apply_action(self, action: np.ndarray) -> None:
+    def _control_period(self, action: np.ndarray) -> None:
+        """One control period's physics under ``action``: the servos take it, then the period's
+        physics steps run (the twin splits them: a command arriving mid-period, an exposure)."""
+        self.apply_action(action)
+        mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
+
+    def checked_action(self, action: np.ndarray) -> np.ndarray:
+        """``action`` as a float vector of the action's width; a PolicyError if any entry is not finite."""
         action = np.asarray(action, dtype=float).reshape(self.action_dim)
         if not np.all(np.isfinite(action)):
             raise PolicyError(f"task {self.task.key}: the action contains non-finite values")
+        return action
+
+    def apply_action(self, action: np.ndarray) -> None:
+        """Send ``action`` (one control step's command) to the servos: it reaches them
+        ``params.command_latency_steps`` calls later (until then they keep what they hold)."""
+        action = self.checked_action(action)
+        latency = int(self.params.command_latency_steps)
+        if latency > 0:
+            self._pending_commands.append(action)
+            if len(self._pending_commands) <= latency:
+                return  # nothing has arrived yet: the servos keep their reset targets
+            action = self._pending_commands.popleft()
         d = self.data
         for name, (q, closing) in self.robot.to_model(action).items():
             ctrl_range = self.model.actuator_ctrlrange[self._arm_act[name]]
@@ -295,7 +304,7 @@ class TabletopEnv:
         return obs
 
     def images(self) -> dict:
-        """The cameras' images now, with the world's image noise."""
+        """The cameras' images now, as the world's camera records them (``render(add_noise=True)``)."""
         return {f"observation.images.{cam}": self.render(cam, add_noise=True) for cam in self.cameras}
 
     def renderer(self, size_hw: tuple[int, int]) -> mujoco.Renderer:
@@ -320,9 +329,14 @@ class TabletopEnv:
         return self._renderers[size_hw]
 
     def render(
-        self, camera: str, size: tuple[int, int] | None = None, segmentation: bool = False, add_noise: bool = False
+        self, camera: str, size: tuple[int, int] | None = None, segmentation: bool = False, add_noise: bool = False,
+        noise_rng: np.random.Generator | None = None,
     ):
         """RGB uint8[H, W, 3], or with ``segmentation`` (labels int32[H, W], {label: name}).
+
+        ``add_noise``: the image as the world's camera records it (``recorded_image``: its lens,
+        its pixel noise), else the clean pinhole image (a hypothesis render). ``noise_rng``: the
+        pixel noise's generator (default: the world's, keyed by episode, step and camera).
 
         Labels: 0 background, 1 table, one per arm (``robot_<arm>``), then the task objects in
         task order (see ``segmentation_names``).
@@ -332,13 +346,39 @@ class TabletopEnv:
             labels = np.where(geom_ids >= 0, self._geom_label[np.clip(geom_ids, 0, None)], 0).astype(np.int32)
             return labels, dict(enumerate(self.segmentation_names))
         size_hw = tuple(int(s) for s in (size or self.image_size))
+        if add_noise:
+            return self.recorded_image(camera, size_hw, noise_rng)
+        return self.pinhole_image(camera, size_hw)
+
+    def pinhole_image(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+        """The scene now through ``camera``'s pinhole, RGB uint8[H, W, 3] at ``size_hw``."""
         renderer = self.renderer(size_hw)
         renderer.update_scene(self.data, camera=camera)
-        rgb = renderer.render()
-        if add_noise and self.params.image_noise_std > 0:
-            rng = np.random.default_rng([*self._noise_key, self.steps, self.robot.camera_names.index(camera)])
-            rgb = add_image_noise(rgb, rng, float(self.params.image_noise_std))
-        return rgb
+        return renderer.render()
+
+    def recorded_image(self, camera: str, size_hw: tuple[int, int],
+                       noise_rng: np.random.Generator | None = None) -> np.ndarray:
+        """What the world's camera records now: the pinhole image through the world's lens
+        (``lens_image``), then its pixel noise (``params.image_noise_std``) from ``noise_rng``
+        (default: ``noise_rng(camera)``)."""
+        rgb = self.lens_image(self.pinhole_image(camera, size_hw), camera)
+        std = float(self.params.image_noise_std)
+        if std <= 0:
+            return rgb
+        return add_image_noise(rgb, self.noise_rng(camera) if noise_rng is None else noise_rng, std)
+
+    def lens_image(self, rgb: np.ndarray, camera: str) -> np.ndarray:
+        """``rgb`` (a pinhole image of ``camera``) through the world's lens of that camera
+        (``params.lens_distortion``: OpenCV's five coefficients through the camera's own K at the
+        image's size); unchanged where the world has none."""
+        coefficients = self.params.lens_distortion.get(camera)
+        if is_pinhole(coefficients):
+            return rgb
+        return through_lens(rgb, self.camera_K(camera, rgb.shape[:2]), coefficients)
+
+    def noise_rng(self, camera: str) -> np.random.Generator:
+        """The generator of ``camera``'s pixel noise at this step of this episode."""
+        return np.random.default_rng([*self._noise_key, self.steps, self.robot.camera_names.index(camera)])
 
     def render_geoms(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:
         """The geom drawn at each pixel (int32[H, W] geom ids; -1 where no geom is)."""

@@ -2,7 +2,9 @@
 
 ``WorldParams()`` is the nominal world (no perturbation); the reality twin
 (``r2s_eval.twin``) samples perturbed ones. ``load_world_params`` reads them back from the
-JSON the twin stage writes (``{"params": {...}}``).
+JSON the twin and calibration stages write (``{"params": {...}}``); a twin's file also holds
+its reality effects (``"reality"``, ``r2s_eval.twin.reality``), which no world parameter
+expresses and this never reads.
 """
 
 from __future__ import annotations
@@ -32,12 +34,22 @@ class WorldParams:
     object_rgb_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     table_rgb_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     image_noise_std: float = 0.0  # in 0-255 intensity units
-    noise_seed: int = 0  # seeds the image-noise and encoder-noise generators
+    noise_seed: int = 0  # seeds the image-noise and encoder-noise generators (and the twin's camera drifts)
     # The joint encoders: each measured arm joint angle in observation.state carries Gaussian
     # noise of this standard deviation (rad) and is rounded to whole steps of the encoder's
     # resolution (rad; 0: not quantised), as a robot's encoders report it.
     encoder_noise_rad: float = 0.0
     encoder_step_rad: float = 0.0
+
+    # The calibrated sim's answers to what its model leaves out (the twin's side has the effects
+    # themselves, r2s_eval.twin.reality): nominal, none of them.
+    # Per camera, OpenCV's lens distortion (k1, k2, p1, p2, k3) on normalised coordinates, as a
+    # board calibration fits it; the camera records through it (env.render(add_noise=True),
+    # r2s_eval.sim.sensor). Missing -> a pinhole.
+    lens_distortion: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
+    # Each command reaches the servos this many whole control steps after it was given (the
+    # latency the recordings show); until the first one arrives they hold their reset targets.
+    command_latency_steps: int = 0
 
     def mass_scale(self, obj: str) -> float:
         return float(self.object_mass_scale.get(obj, 1.0))

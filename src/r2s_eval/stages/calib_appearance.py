@@ -1,8 +1,8 @@
 """Stage: the calibrated sim's light and colours from first frames; writes the calibrated sim's
 world parameters, which replay and every sim rollout build their simulation with.
 
-Combines what calibration found (the cameras of ``calib.cameras.use``, the joint offsets of
-``calib_joints``), fits the light and colours (``r2s_eval.calib.appearance``) and writes::
+Combines what calibration found (the cameras of ``calib.cameras.use``, the joint offsets and the
+commands' latency of ``calib_joints``), fits the light and colours (``r2s_eval.calib.appearance``) and writes::
 
     {"params": {...WorldParams...}, "cameras": {...the cameras record used, or {"method": "none"}},
      "joints": {...calib_joints' report...}, "appearance": {"fitted": bool, "residual_before": ...,
@@ -28,7 +28,8 @@ def main(args) -> None:
     cfg = args.cfg
     cameras = read_json(args.cameras) if args.cameras else {"method": "none", "cameras": {}}
     joints = load_world_params(args.joints)
-    params = WorldParams(joint_offset_rad=joints.joint_offset_rad, **camera_params(cameras))
+    params = WorldParams(joint_offset_rad=joints.joint_offset_rad, command_latency_steps=joints.command_latency_steps,
+                         **camera_params(cameras))
     fitted, appearance = calibrate_appearance(pd.read_parquet(args.index), args.frames, pd.read_parquet(args.estimates),
                                               args.dataset, cfg["world"], params, cfg["calib.appearance"],
                                               cfg["calib.camera"])

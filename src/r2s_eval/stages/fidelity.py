@@ -16,9 +16,11 @@ from r2s_eval.report.fidelity_report import (ablation_figure, ablation_table, bu
                                       sim_rates)
 from r2s_eval.stages import _cli
 from r2s_eval.rollout.episode_store import load_episodes
+from r2s_eval.twin.reality import load_reality_effects
 from r2s_eval.utils.io import read_json, write_json, write_text
 
-READS = ("stats.n_boot", "stats.ci_level", "seed", "report.fidelity")  # config paths the --cfg slice holds
+READS = ("stats.n_boot", "stats.ci_level", "seed", "report.fidelity",
+         "world.robot.control_hz")  # config paths the --cfg slice holds
 
 
 def folders(values: list[str], what: str) -> dict[str, list[str]]:
@@ -36,12 +38,17 @@ def main(args) -> None:
     cfg, opts = args.cfg, args.cfg["report.fidelity"]
     seeds = {(key.partition(":")[0], int(key.partition(":")[2])): load_episodes(dirs)
              for key, dirs in folders(args.seed_rollouts, "seed-rollouts").items()}
+    twin = read_json(args.twin)["params"] if args.twin else None
+    # The twin's true latency (seconds, its reality effects) in control steps, as the estimate counts.
+    reality = load_reality_effects(args.twin) if args.twin else None
+    latency_truth = None if reality is None else reality.latency_s * float(cfg["world.robot.control_hz"])
     report = build_report(
         pd.read_parquet(args.reference), load_episodes(args.sim), load_episodes(args.cross_sim),
         load_episodes(args.cross_real) if args.cross_real else None,
         {family: load_episodes(dirs) for family, dirs in folders(args.ablation, "ablation").items()}, seeds,
-        read_json(args.world_params), read_json(args.twin)["params"]["joint_offset_rad"] if args.twin else None,
-        float(cfg["stats.ci_level"]), int(cfg["stats.n_boot"]), int(cfg["seed"]))
+        read_json(args.world_params), twin["joint_offset_rad"] if twin is not None else None,
+        float(cfg["stats.ci_level"]), int(cfg["stats.n_boot"]), int(cfg["seed"]),
+        latency_truth=latency_truth)
     print(format_report(report))
     write_json(args.out, report, provenance=True)
     write_text(args.table, fidelity_table(report, decimals=int(opts["decimals"])), comment="%")
@@ -59,7 +66,8 @@ if __name__ == "__main__":
     p.add_argument("--ablation", nargs="*", default=[], help="FAMILY=FOLDER: pi^S in the twin without FAMILY")
     p.add_argument("--seed-rollouts", nargs="*", default=[], help="WORLD:SEED=FOLDER: a further seed's rollouts")
     p.add_argument("--world-params", required=True, help="the calibrated sim's world parameters (calib_joints)")
-    p.add_argument("--twin", help="the twin's world parameters (its true joint offsets)")
+    p.add_argument("--twin", help="the twin's world parameters and reality effects (its true joint offsets and "
+                                  "commands' latency)")
     p.add_argument("--out", required=True)
     p.add_argument("--table", required=True)
     p.add_argument("--ablation-table", help="the ablation's table (with --ablation; its figure: --pdf, --png)")

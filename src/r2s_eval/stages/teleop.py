@@ -13,6 +13,7 @@ from __future__ import annotations
 from r2s_eval.sim import load_world_params
 from r2s_eval.sim.world_check import check_world
 from r2s_eval.stages import _cli
+from r2s_eval.twin.reality import load_reality_effects
 from r2s_eval.twin.record import record_teleop
 from r2s_eval.utils.io import write_parquet
 
@@ -24,7 +25,8 @@ def main(args) -> None:
     # Fingers flung past their limits or a grasp that drops its object would record only failures.
     check_world(cfg["world"], cfg["tasks"])
     truth, attempts = record_teleop(args.dataset, load_world_params(args.twin), teleop=cfg["teleop"], world=cfg["world"],
-                                    tasks=cfg["tasks"], suite=cfg["suite"], seed=cfg["seed"])
+                                    tasks=cfg["tasks"], suite=cfg["suite"], seed=cfg["seed"],
+                                    reality=load_reality_effects(args.twin))
     write_parquet(args.truth, truth, metadata={"stage": "teleop", "attempts": attempts})
 
 

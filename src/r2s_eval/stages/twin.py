@@ -1,4 +1,4 @@
-"""Stage: sample the reality twin's perturbed physics, cameras and lighting (seeded)."""
+"""Stage: sample the reality twin's perturbed physics, cameras and lighting, and its reality effects (seeded)."""
 
 from __future__ import annotations
 

@@ -65,7 +65,8 @@ the table, lets go and backs off along the hand's axis. Blocks are grasped
 with the jaws square to their faces; the hand turns (for round objects in
 22.5 deg steps, for blocks among their face pairs) to stay close to its natural
 yaw while keeping its jaws and long palm from sweeping into an
-object within 15 cm. Before closing, the operator waits until the arm has
+object within 15 cm or into a part of its object that stands out of its kind's footprint (the
+twin's mug handle, ``r2s_eval.twin.scene``). Before closing, the operator waits until the arm has
 caught up with its command (the servos lag) or has stopped short of it (a compliant arm sags).
 
 Human-like variability (seeded by ``rng``): per-segment speed factor, short
@@ -81,7 +82,8 @@ the operator was in when the first thing went wrong, the reason (``target_not_re
 episode's actions are the same as without it.
 
 Success rate: ``python -m r2s_eval.twin.operator --world <name> --task <key|all> --episodes 20
-[--twin]`` (a world of ``conf/world`` or a world file; episodes stop after 15 s) prints
+[--twin] [--reality JSON]`` (a world of ``conf/world`` or a world file; episodes stop after 15 s;
+``--reality``: the twin's reality effects around it, e.g. its mug and rounded blocks) prints
 per task the rate and the failures counted by phase and reason, then one line per failed episode.
 """
 
@@ -104,6 +106,7 @@ from r2s_eval.sim.tasks import Task, get_task, world_config
 from r2s_eval.twin import primitives
 from r2s_eval.twin.failures import EpisodeWatch, Failure, summary
 from r2s_eval.twin.perturb import sample_twin_params
+from r2s_eval.twin.reality import RealityEffects, RealityEnv
 from r2s_eval.twin.primitives import PlanStep, Segment
 
 
@@ -278,7 +281,8 @@ class ScriptedOperator:
         """Approach yaw of the top-down hand (its jaws close across it).
 
         At the arm's natural yaw for round objects, square to a block's or box's faces; and, like a
-        person, turned so the jaws and the long palm do not sweep into a close neighbour.
+        person, turned so the jaws and the long palm do not sweep into a close neighbour or a part
+        of the object that stands out (a mug's handle).
         """
         name = self.task.manipulated
         centre = centre_m(self.env, name)
@@ -292,6 +296,7 @@ class ScriptedOperator:
         candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
         others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
         near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
+        near += self._protrusion(name, xy)
 
         def cost(yaw: float) -> float:
             turn = abs(np.angle(np.exp(1j * (yaw - natural_yaw))))
@@ -299,6 +304,20 @@ class ScriptedOperator:
             return turn + sum(2.0 * abs(float(jaw_axis @ d)) for d in near)
 
         return float(min(candidates, key=cost))
+
+    def _protrusion(self, name: str, xy: np.ndarray) -> list[np.ndarray]:
+        """The direction on the table in which parts of ``name`` stand out beyond its kind's
+        footprint (a mug's handle, which the twin's cup may have and the world's cup has not),
+        kept out of the jaws' way as a close neighbour is; [] for an object within its footprint."""
+        model, data = self.env.model, self.env.data
+        radius = self.task.object(name).kind_object.footprint_radius_m(self.env.object_dims(name),
+                                                                        self.task.placement(name))
+        offsets = data.geom_xpos[model.geom_bodyid == model.body(name).id][:, :2] - xy
+        outside = offsets[np.linalg.norm(offsets, axis=1) > radius]
+        if not len(outside):
+            return []
+        direction = outside.sum(axis=0)
+        return [direction / np.linalg.norm(direction)] if np.linalg.norm(direction) > 0 else []
 
     def _natural_yaw(self, centre: np.ndarray, reach_yaw: float) -> float:
         """The yaw of the top-down hand the arm holds over ``centre`` with its joints nearest home:
@@ -522,15 +541,17 @@ EPISODE_S = 15.0  # the success rate's episodes stop after this long (150 steps 
 
 
 def episode_failures(task: str, episodes: int = 20, twin: bool = False, seed: int = 0, *,
-                     world: dict) -> list[Failure | None]:
+                     world: dict, reality: RealityEffects | None = None) -> list[Failure | None]:
     """Why each scripted episode failed (None: it succeeded; physics only, no rendering) in ``world``
-    (a ``world`` config slice)."""
+    (a ``world`` config slice); ``reality``: the twin's reality effects around it (its servos, its
+    objects' true shapes), None: none."""
     robot, spec = world_robot(world), get_task(task, world)
     failures = []
     for i in range(episodes):
         params = (sample_twin_params(np.random.default_rng([seed, i, 1]), object_names=spec.object_names, robot=robot)
                   if twin else None)
-        env = TabletopEnv(spec, params=params, cameras=(), robot=robot)
+        env = (TabletopEnv(spec, params=params, cameras=(), robot=robot) if reality is None
+               else RealityEnv(spec, params, reality, cameras=(), robot=robot))
         obs = env.reset(seed=seed * 100_000 + i)
         operator = make_operator(spec, env, np.random.default_rng([seed, i, 2]))
         run_episode(env, operator, round(EPISODE_S * robot.control_hz), obs=obs)
@@ -546,6 +567,7 @@ def success_rate(task: str, episodes: int = 20, twin: bool = False, seed: int = 
 
 if __name__ == "__main__":
     import argparse
+    import json
 
     parser = argparse.ArgumentParser(description="Success rate of the scripted teleoperator, and why episodes fail.")
     parser.add_argument("--world", required=True, help="a world of conf/world (tabletop, panda, ...) or a world file")
@@ -553,10 +575,13 @@ if __name__ == "__main__":
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--twin", action="store_true", help="perturbed twin worlds instead of nominal")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--reality", help="the twin's reality effects as JSON (RealityEffects' fields), e.g. "
+                                          "'{\"cup_handle\": true, \"block_edge_radius_m\": 0.004}'")
     args = parser.parse_args()
     world_cfg = world_config(args.world)
+    reality = None if args.reality is None else RealityEffects.from_dict(json.loads(args.reality))
     for key in world_cfg["tasks"] if args.task == "all" else [args.task]:
-        failures = episode_failures(key, args.episodes, args.twin, args.seed, world=world_cfg)
+        failures = episode_failures(key, args.episodes, args.twin, args.seed, world=world_cfg, reality=reality)
         rate, why = sum(f is None for f in failures) / args.episodes, summary(failures)
         print(f"{key} {'twin' if args.twin else 'nominal'}: {rate:.0%} of {args.episodes} episodes succeed"
               + (f"; failed: {why}" if why else ""), flush=True)

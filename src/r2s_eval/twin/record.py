@@ -19,10 +19,11 @@ from tqdm import tqdm
 from r2s_eval.data import DatasetRecorder, lerobot_features
 from r2s_eval.errors import R2SError
 from r2s_eval.sim import TabletopEnv, WorldParams
-from r2s_eval.sim.build import image_size, make_env
+from r2s_eval.sim.build import image_size
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.twin.failures import summary
 from r2s_eval.twin.operator import OperatorConfig, make_operator, run_episode
+from r2s_eval.twin.reality import RealityEffects, make_reality_env
 
 log = logging.getLogger("r2s_eval.teleop")
 
@@ -39,11 +40,13 @@ def truth_rows(episode_index: int, task: str, env: TabletopEnv, initial: dict) -
 
 
 def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dict, tasks: list[str],
-                  suite: dict, seed: int) -> tuple[pd.DataFrame, list[dict]]:
+                  suite: dict, seed: int, reality: RealityEffects | None = None) -> tuple[pd.DataFrame, list[dict]]:
     """Record ``teleop["episodes_per_task"]`` demonstrations of every task in the twin world
-    ``params`` into the LeRobot dataset at ``dataset``; returns the true initial poses (one
-    row per episode and object) and the attempt log (per attempt: task, attempt, success, length,
-    wall_s, and for a failed one the operator's ``phase``, ``reason`` and ``detail``).
+    ``params``, with its ``reality`` effects around it (a lab camera's lens and exposure, late
+    and loose servos; None: none), into the LeRobot dataset at ``dataset``; returns the true
+    initial poses (one row per episode and object) and the attempt log (per attempt: task,
+    attempt, success, length, wall_s, and for a failed one the operator's ``phase``, ``reason``
+    and ``detail``).
 
     ``teleop``, ``world``, ``suite``: those config groups; ``seed``: the experiment's seed.
     """
@@ -55,7 +58,7 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
     with DatasetRecorder(dataset, "local/teleop", round(robot.control_hz), features, robot.type,
                          video=teleop["video"]) as rec:
         for task_index, task in enumerate(tasks):
-            env = make_env(task, world, params, suite_cfg=suite)
+            env = make_reality_env(task, world, params, reality, suite_cfg=suite)
             rng = np.random.default_rng([seed, task_index, 11])
             kept = tries = 0
             progress = tqdm(total=teleop["episodes_per_task"], desc=f"teleop {task}", mininterval=5)

@@ -1,6 +1,6 @@
 """A world's task as a Gymnasium environment: ``gymnasium.make("r2s_eval/World-v0", world=..., task=...)``.
 
-The environment is the simulation r2s-eval's rollout stage runs (``r2s_eval.sim.build.make_env``)
+The environment is the simulation r2s-eval's rollout stage runs (``r2s_eval.twin.reality.make_world_env``)
 driven through the same episode (``r2s_eval.rollout.loop.Episode``: reset, observation, step,
 success, video frame), so an episode stepped here with the same actions is the rollout stage's.
 
@@ -9,7 +9,8 @@ Arguments (``gymnasium.make`` keywords):
 - ``world``: a world of the ``world`` config group (``tabletop``, ``panda``, ``so101``, ...) or a
   world file (``.yaml``, a lab's setup); ``task``: one of its tasks.
 - ``world_params``: a world-parameter JSON (the calibrated sim's ``results/calib/world_params.json``,
-  the twin's ``results/real/twin_params.json``); None: the nominal world.
+  the twin's ``results/real/twin_params.json``, whose reality effects then act around the
+  simulation as on the rollout stage's real arm); None: the nominal world.
 - ``inits``: the rollout stage's initial configurations (``results/rollout/inits.parquet``) and
   ``experiment_seed`` (the experiment's ``seed``): ``reset(seed=k)`` then starts from init ``k``
   of the task with the episode seed the rollout stage gives it. Without ``inits``, ``reset(seed=k)``
@@ -40,9 +41,10 @@ from r2s_eval.paths import CONF_DIR
 from r2s_eval.rollout.inits import episode_seed, poses_of
 from r2s_eval.rollout.loop import Episode
 from r2s_eval.sim import load_world_params
-from r2s_eval.sim.build import check_world_params, feature_ranges, make_env
+from r2s_eval.sim.build import check_world_params, feature_ranges
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import world_config, world_tasks
+from r2s_eval.twin.reality import load_reality_effects, make_world_env
 
 ENV_ID = "r2s_eval/World-v0"
 # The rollout stage's episode length, read from its config group's default (one owner).
@@ -120,7 +122,7 @@ class WorldEnv(gym.Env):
         self._inits_file = inits
         self.experiment_seed = int(experiment_seed)
         self.world_name, self.task = name, task
-        self.sim = make_env(task, config, params)
+        self.sim = make_world_env(task, config, params, load_reality_effects(world_params) if world_params else None)
         self.cameras = list(self.sim.cameras)
         self.task_description = self.sim.task.instruction  # what lerobot-eval hands a policy as its task
         self.video_camera = video_camera or self.cameras[0]

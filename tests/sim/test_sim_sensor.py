@@ -14,9 +14,10 @@ from r2s_eval.errors import ConfigError
 from r2s_eval.sim import WorldParams, load_world_params
 from r2s_eval.sim.build import check_world_params
 from r2s_eval.sim.sensor import add_image_noise, checked_coefficients, distort, distortion_maps
+from tests.helpers.commands import POSES
+from tests.helpers.lens import LINE_X, line_through_lens
 from tests.helpers.worlds import bundled_env, bundled_world
 
-POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 # A Logitech C920's OpenCV calibration at 640x480: (k1, k2, p1, p2, k3), as a board calibration
 # of a lab's camera gives the calibrated sim its lens.
 C920_DISTORTION = (0.121, -0.262, 0.0, 0.0, 0.103)
@@ -58,29 +59,12 @@ def test_a_camera_without_effects_records_todays_bytes(params):
 
 
 def test_a_straight_line_bows_as_the_c920_coefficients_predict():
-    env = bundled_env("cup_on_plate", cameras=())
-    size = (480, 640)
-    K = env.camera_K("wrist_left", size)  # 75 deg: the line runs out to x / z = +-0.9
-    env.close()
-    rows = np.arange(size[0], dtype=float)[:, None]
-    y_line = -0.6  # normalised: a horizontal line in the image's upper part
-    v_line = K[1, 2] + y_line * K[1, 1]
-    profile = 255 * np.exp(-((rows - v_line) ** 2) / (2 * 1.5**2))  # a smooth line: its centroid is exact
-    pinhole = np.repeat(np.round(np.broadcast_to(profile, size)).astype(np.uint8)[:, :, None], 3, axis=2)
-    distorted = distort(pinhole, distortion_maps(K, C920_DISTORTION, size))
-
-    x = np.linspace(-0.9, 0.9, 19)
-    points = np.stack([x, np.full_like(x, y_line), np.ones_like(x)], axis=-1)
-    predicted, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, np.asarray(C920_DISTORTION))
-    measured = []
-    for u, v in predicted.reshape(-1, 2):
-        column = distorted[:, int(round(u)), 0].astype(float)
-        near = slice(int(v) - 8, int(v) + 9)
-        measured.append((column[near] * rows[near, 0]).sum() / column[near].sum())
-    np.testing.assert_allclose(measured, predicted[:, 0, 1], atol=0.2)
+    _, predicted, measured = line_through_lens(C920_DISTORTION)
+    np.testing.assert_allclose(measured, predicted[:, 1], atol=0.2)
     # It bows: its ends lie 12 px nearer the centre row than its middle (a pinhole keeps it straight).
-    bow_px = measured[0] - measured[len(x) // 2]
-    assert 11 < bow_px < 14 and measured[-1] - measured[len(x) // 2] == pytest.approx(bow_px, abs=0.1)
+    middle = len(LINE_X) // 2
+    bow_px = measured[0] - measured[middle]
+    assert 11 < bow_px < 14 and measured[-1] - measured[middle] == pytest.approx(bow_px, abs=0.1)
 
 
 def test_undistorting_gives_back_the_pinhole_image():

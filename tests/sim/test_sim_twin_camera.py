@@ -13,18 +13,12 @@ from r2s_eval.sim.sensor import add_image_noise, distort, distortion_maps
 from r2s_eval.twin.camera import (C920_RATIONAL, DRIFT_KNOT_S, TwinCamera, add_sensor_noise, drift_gains,
                                   exposure_substeps)
 from r2s_eval.twin.reality import RealityEffects
+from tests.helpers.commands import POSES
+from tests.helpers.lens import LINE_X, LINE_Y, line_through_lens, project
 from tests.helpers.worlds import bundled_env, bundled_twin_env
 
-POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 C920_FIVE = C920_RATIONAL[:5]  # the C920's published five-coefficient calibration
 SIZE = (480, 640)
-
-
-def project(K: np.ndarray, coefficients, rays: np.ndarray) -> np.ndarray:
-    """Pixels (N, 2) of rays at normalised coordinates through OpenCV's lens model."""
-    pixels, _ = cv2.projectPoints(np.c_[rays, np.ones(len(rays))], np.zeros(3), np.zeros(3), K,
-                                  np.asarray(coefficients, float))
-    return pixels.reshape(-1, 2)
 
 
 # ----------------------------------------------------------------------------- nominal: the sim's bytes
@@ -60,27 +54,11 @@ def test_a_twin_camera_without_effects_records_the_simulated_cameras_bytes(param
 
 
 def test_a_straight_line_bows_as_the_rational_lens_predicts():
-    env = bundled_env("cup_on_plate", cameras=())
-    K = env.camera_K("wrist_left", SIZE)  # 75 deg: the line runs out to x / z = +-0.9
-    env.close()
-    rows = np.arange(SIZE[0], dtype=float)[:, None]
-    y_line = -0.6  # normalised: a horizontal line in the image's upper part
-    v_line = K[1, 2] + y_line * K[1, 1]
-    profile = 255 * np.exp(-((rows - v_line) ** 2) / (2 * 1.5**2))  # a smooth line: its centroid is exact
-    pinhole = np.repeat(np.round(np.broadcast_to(profile, SIZE)).astype(np.uint8)[:, :, None], 3, axis=2)
-    distorted = distort(pinhole, distortion_maps(K, C920_RATIONAL, SIZE))
-
-    x = np.linspace(-0.9, 0.9, 19)
-    predicted = project(K, C920_RATIONAL, np.c_[x, np.full_like(x, y_line)])
-    measured = []
-    for u, v in predicted:
-        column = distorted[:, int(round(u)), 0].astype(float)
-        near = slice(int(v) - 8, int(v) + 9)
-        measured.append((column[near] * rows[near, 0]).sum() / column[near].sum())
+    K, predicted, measured = line_through_lens(C920_RATIONAL, SIZE)
     np.testing.assert_allclose(measured, predicted[:, 1], atol=0.2)
     # The rational terms bow it less than the five-coefficient C920 model does (the denominator
     # grows with the radius): its ends lie a pixel and more from where that model puts them.
-    five = project(K, C920_FIVE, np.c_[x, np.full_like(x, y_line)])
+    five = project(K, C920_FIVE, np.c_[LINE_X, np.full_like(LINE_X, LINE_Y)])
     assert np.abs(five[[0, -1], 1] - predicted[[0, -1], 1]).min() > 1.0
 
 

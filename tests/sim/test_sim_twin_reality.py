@@ -21,10 +21,10 @@ from r2s_eval.twin.camera import C920_RATIONAL
 from r2s_eval.twin.perturb import (ALL_FAMILIES, PERTURBATION_FAMILIES, REALITY_FAMILIES, reality_rng,
                                    reality_without_family, without_family)
 from r2s_eval.twin.reality import RealityEffects, RealityEnv, load_reality_effects, make_world_env
+from tests.helpers.commands import POSES
 from tests.helpers.worlds import bundled_reality, bundled_robot, bundled_twin, bundled_world
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
-POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 # A lab's hardware at the reference magnitudes (r2s_eval.twin.perturb's module docstring).
 LAB = TwinMagnitudes(lens_distortion=C920_RATIONAL, lens_spread_rel=0.1, exposure_drift_rel_max=0.05,
                      white_balance_drift_rel_max=0.03, exposure_time_s_max=0.02, shot_noise_var_per_level_max=0.05,

@@ -20,10 +20,10 @@ from r2s_eval.twin.perturb import (PERTURBATION_FAMILIES, REALITY_FAMILIES, real
                                    sample_twin_params)
 from r2s_eval.twin.reality import RealityEffects, RealityEnv, load_reality_effects, make_world_env
 from r2s_eval.twin.scene import DISTRACTORS, scene_adder
+from tests.helpers.commands import POSES
 from tests.helpers.worlds import bundled_env, bundled_reality, bundled_robot, bundled_twin_env, bundled_world
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
-POSES = {"cup": (0.0, 0.1, 0.0), "plate": (-0.03, -0.08, 0.0)}
 CAMERAS = ("head_left", "wrist_right")
 IN_VIEW = (("marker", 0.26, 0.02, 0.5),)  # in the table's far strip, in the head cameras' view
 ROOM = RealityEffects(table_texture=True, walls=True, shadows=True, distractors=IN_VIEW, cup_handle=True,

@@ -167,6 +167,7 @@ class HsvSegmenter:
     val_min: Annotated[int, Range(0, 255)] = optional("r2s_eval.calib.segment.make_segmenter")
     blur_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
     min_area_px: Count = optional("r2s_eval.calib.segment.make_segmenter")
+    max_area_factor: NonNegative = optional("r2s_eval.calib.episodes.frame_segmenter")
 
 
 @dataclass
@@ -185,6 +186,8 @@ class Refine:
     tolerance_px: Positive
     supersample: PositiveInt
     appearance: bool
+    match: Literal["centroid", "overlap"]
+    appearance_window: Literal["box", "object"]
 
 
 @dataclass
@@ -249,6 +252,16 @@ class CalibCameras:
 
 
 @dataclass
+class CalibBackground:
+    fit: bool
+    frames: PositiveInt
+    stride: PositiveInt
+    margin_px: Count
+    min_free_frames: PositiveInt
+    max_unseen: Share
+
+
+@dataclass
 class CalibAppearance:
     fit: bool
     frames_per_task: PositiveInt
@@ -263,6 +276,7 @@ class Calib:
     calibration: Calibration
     joints: Joints
     cameras: CalibCameras
+    background: CalibBackground
     appearance: CalibAppearance
 
 

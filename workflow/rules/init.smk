@@ -31,19 +31,26 @@ rule calib_board:
         "{PY} -m r2s_eval.stages.calib_board --cfg {params.cfg:q} --take {input.take} --out {output} --log {log}"
 
 
+# The board's lenses, where it fits them, let the silhouette fit compare undistorted frames.
+BOARD_LENSES = ({"lenses": CAMERA_ESTIMATES["board"]}
+                if "board" in CAMERA_ESTIMATES and CAMERAS["board"]["intrinsics"] else {})
+
+
 rule calib_silhouette:
     priority: SIM_CHAIN_PRIORITY
     input:
+        **BOARD_LENSES,
         dataset=REAL_DATASET,
         index="results/ingest/episodes.parquet",
     output:
         "results/calib/cameras_silhouette.json",
     params:
         cfg=stage_params("calib_silhouette"),
+        lenses=lambda w, input: f"--lenses {input.lenses}" if "lenses" in input.keys() else "",
     log:
         "logs/calib_silhouette.log",
     shell:
-        "{PY} -m r2s_eval.stages.calib_silhouette --cfg {params.cfg:q} --dataset {input.dataset}"
+        "{PY} -m r2s_eval.stages.calib_silhouette --cfg {params.cfg:q} {params.lenses} --dataset {input.dataset}"
         " --index {input.index} --out {output} --log {log}"
 
 
@@ -113,12 +120,37 @@ rule calib_joints:
         " --index {input.index} --estimates {input.estimates} --out {output} --log {log}"
 
 
+# The room behind the robot: a background plate per fixed camera from the recordings, seen through
+# the calibrated cameras (calib.background.fit).
+BACKGROUND = {"background": "results/calib/background"} if CFG["calib"]["background"]["fit"] else {}
+
+
+rule calib_background:
+    priority: SIM_CHAIN_PRIORITY
+    input:
+        **USED_CAMERAS,
+        dataset=REAL_DATASET,
+        index="results/ingest/episodes.parquet",
+        estimates="results/init/estimates.parquet",
+    output:
+        directory("results/calib/background"),
+    params:
+        cfg=stage_params("calib_background"),
+        cameras=cameras_arg,
+    log:
+        "logs/calib_background.log",
+    shell:
+        "{PY} -m r2s_eval.stages.calib_background --cfg {params.cfg:q} {params.cameras} --dataset {input.dataset}"
+        " --index {input.index} --estimates {input.estimates} --out {output} --log {log}"
+
+
 # Light and colours from first frames, and the calibrated sim's world parameters (cameras, joints,
-# appearance), which replay and every sim rollout build their simulation with.
+# background plates, appearance), which replay and every sim rollout build their simulation with.
 rule calib_appearance:
     priority: SIM_CHAIN_PRIORITY
     input:
         **USED_CAMERAS,
+        **BACKGROUND,
         joints="results/calib/joints.json",
         dataset=REAL_DATASET,
         index="results/ingest/episodes.parquet",
@@ -129,10 +161,12 @@ rule calib_appearance:
     params:
         cfg=stage_params("calib_appearance"),
         cameras=cameras_arg,
+        background=lambda w, input: f"--background {input.background}" if "background" in input.keys() else "",
     log:
         "logs/calib_appearance.log",
     shell:
-        "{PY} -m r2s_eval.stages.calib_appearance --cfg {params.cfg:q} {params.cameras} --joints {input.joints}"
+        "{PY} -m r2s_eval.stages.calib_appearance --cfg {params.cfg:q} {params.cameras} {params.background}"
+        " --joints {input.joints}"
         " --dataset {input.dataset} --index {input.index} --frames {input.frames} --estimates {input.estimates}"
         " --out {output} --log {log}"
 

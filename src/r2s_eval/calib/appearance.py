@@ -2,10 +2,13 @@
 
 Once the camera and the objects' initial poses are calibrated, an episode's first frame and the
 simulation rendered at that episode's first state line up pixel for pixel, so what still differs
-is how things look. The fit changes what the twin's appearance family perturbs and what a room
-changes: the scene lights' intensity and direction, the table's colour and each object's colour
-(``WorldParams`` fields, applied through ``r2s_eval.sim.render_params``), so every camera of the
-calibrated sim (the wrist cameras too, which no first frame shows) looks like the room.
+is how things look. (The renders are pinhole images: where the calibration fitted the camera's
+lens, each first frame is undistorted through it first, ``r2s_eval.calib.scene.pinhole_frame``, and
+the pixels it then does not cover are left out.) The fit changes what the twin's appearance family
+perturbs and what a room changes: the scene lights' intensity and direction, the table's colour
+and each object's colour (``WorldParams`` fields, applied through ``r2s_eval.sim.render_params``),
+so every camera of the calibrated sim (the wrist cameras too, which no first frame shows) looks like
+the room.
 
 Why these rather than a per-camera colour transform: a global transform cannot give one object
 a colour shift another does not have, and it would leave the cameras that were not fitted as
@@ -31,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.calib import fitting
+from r2s_eval.calib.scene import pinhole_coverage, pinhole_frame
 from r2s_eval.data import STATE_KEY
 from r2s_eval.data.contract import read_metadata
 from r2s_eval.data.frames import episode_rows
@@ -92,10 +96,15 @@ class AppearanceModel:
             self.bases[task] = render_base(env.model, env.robot.table_geom, env.task.objects)
         self.objects = sorted({o for env in self.envs.values() for o in env.task.object_names})
         self.params = params
+        # The renders are pinhole images: each frame is compared as the calibrated camera's pinhole
+        # would show it (undistorted through its lens; the same frame without one).
+        self.frames = [dataclasses.replace(f, image=pinhole_frame(self.envs[f.task], camera, f.image))
+                       for f in self.frames]
         self.masks = [self._regions(f) for f in self.frames]
 
     def _regions(self, frame: Frame) -> np.ndarray:
-        """The pixels that count: labelled robot, table or object, each region shrunk by a pixel."""
+        """The pixels that count: labelled robot, table or object, each region shrunk by a pixel,
+        where the recorded frame covers them."""
         env = self.envs[frame.task]
         self._pose(frame)
         labels, _ = env.render(self.camera, size=frame.image.shape[:2], segmentation=True)
@@ -105,7 +114,8 @@ class AppearanceModel:
                 continue  # background: the room beyond the table, which the world does not model
             region = cv2.erode((labels == label).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
             keep |= region
-        return keep
+        # Pixels the undistorted frame does not cover (a lens's corners) repeat its edge: left out.
+        return keep & pinhole_coverage(env, self.camera, labels.shape)
 
     def _pose(self, frame: Frame) -> None:
         env = self.envs[frame.task]

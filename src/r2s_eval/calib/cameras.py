@@ -38,10 +38,12 @@ from r2s_eval.utils.io import read_json
 log = logging.getLogger("r2s_eval.calib_cameras")
 
 
-def nominal_env(world: Mapping, tasks: Sequence[str]) -> TabletopEnv:
+def nominal_env(world: Mapping, tasks: Sequence[str],
+                lens_distortion: Mapping[str, Sequence[float]] | None = None) -> TabletopEnv:
     """The calibrated sim before its cameras are calibrated (the first task's scene, objects
-    aside): its kinematics and its cameras' nominal mounts."""
-    return make_env(tasks[0], world, WorldParams(), cameras=())
+    aside): its kinematics and its cameras' nominal mounts; ``lens_distortion``: the lenses
+    already fitted (per camera, five coefficients), which its cameras record through."""
+    return make_env(tasks[0], world, WorldParams(lens_distortion=dict(lens_distortion or {})), cameras=())
 
 
 def body_pose(env: TabletopEnv, body: int) -> np.ndarray:
@@ -243,7 +245,8 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
     """Each camera estimate (``{method: cameras record}``) and the model's own poses against the
     twin's true cameras (``truth``: its world parameters), which estimate the calibrated sim
     (``calibrated``: its world parameters file) used, and its appearance fit's colour error before
-    and after; with an estimate that fitted the cameras' lenses, each lens against the twin's true
+    and after (with background plates, each plated camera's first-frame colour error with its plate
+    and without, ``background``); with an estimate that fitted the cameras' lenses, each lens against the twin's true
     one (``true_lenses``: its reality record's ``lens_distortion``; None: pinholes) (``lens``:
     ``lens_errors``)."""
     cameras = sorted({c for record in estimates.values() for c in record["cameras"]}) or list(world["cameras"])
@@ -257,5 +260,8 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
               if any("intrinsics" in fit for fit in record["cameras"].values())}
     if lenses:  # only where a lens was fitted: without one the report is what it was
         report["lens"] = lenses
+    plates = (calibrated.get("background") or {}).get("errors")
+    if plates:  # the background plates' first-frame colour errors (r2s_eval.calib.background.plate_errors)
+        report["background"] = plates
     return report
 

@@ -11,10 +11,10 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from r2s_eval.calib.estimate import InitEstimationError, estimate_initial_poses
+from r2s_eval.calib.estimate import InitEstimationError, PoseEstimate, estimate_initial_poses
 from r2s_eval.calib.offsets import calibration_subset, fit_offsets, median_error_mm, read_measured_poses
-from r2s_eval.calib.scene import camera_model, image_renderer, mask_renderer, object_geometries
-from r2s_eval.calib.segment import finders, make_segmenter
+from r2s_eval.calib.scene import camera_model, image_renderer, mask_renderer, object_geometries, pinhole_frame
+from r2s_eval.calib.segment import Segmenter, finders, make_segmenter
 from r2s_eval.errors import DataError
 from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import make_env
@@ -26,15 +26,16 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
                       offsets: dict | None = None, desc: str = "init", cameras: WorldParams | None = None
                       ) -> pd.DataFrame:
     """One row per (episode, object): the planar pose estimate (offsets of its task added), seen
-    through the calibrated cameras (``cameras``: world parameters holding their poses; None: the
-    model's)."""
+    through the calibrated cameras (``cameras``: world parameters holding their poses and, where
+    the calibration fitted them, their lenses; None: the model's). Each first frame is undistorted
+    through its camera's lens before it is compared with the pinhole renders
+    (``r2s_eval.calib.scene.pinhole_frame``)."""
     envs, rows = {}, []
     for ep in tqdm(index.itertuples(), total=len(index), desc=desc, mininterval=5):
         if ep.task not in envs:
             env = make_env(ep.task, world, cameras, cameras=())
-            rgba = {o.name: o.rgba for o in env.task.objects}
-            envs[ep.task] = (env, make_segmenter(calib["segmenter"], rgba, finders(env.task.objects)), camera_model(env, calib["camera"]))
-        env, segmenter, camera = envs[ep.task]
+            envs[ep.task] = (env, frame_segmenter(env, calib))
+        env, segmenter = envs[ep.task]
         frame_path = Path(frames_dir) / ep.first_frame
         raw = cv2.imread(str(frame_path))
         if raw is None:
@@ -44,18 +45,7 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
             raise DataError(f"episode {ep.episode_index}: first frame {frame_path} is {image.shape[:2]}, calibration expects {env.image_size}")
         geometries = object_geometries(env)
         try:
-            estimates = estimate_initial_poses(
-                image,
-                segmenter,
-                camera,
-                env.table_top_z_m,
-                geometries,
-                render_masks=mask_renderer(env, calib["camera"], int(calib["refine"].get("supersample", 1))),
-                max_iterations=calib["refine"]["max_iterations"],
-                tolerance_px=calib["refine"]["tolerance_px"],
-                offsets=(offsets or {}).get(ep.task),
-                render_image=image_renderer(env, calib["camera"]) if calib["refine"].get("appearance", True) else None,
-            )
+            estimates = estimate_frame(image, env, segmenter, calib, (offsets or {}).get(ep.task))
         except InitEstimationError as exc:
             raise InitEstimationError(f"episode {ep.episode_index} ({frame_path}): {exc}") from exc
         for geom in geometries:
@@ -74,9 +64,68 @@ def estimate_episodes(index: pd.DataFrame, frames_dir: str | Path, calib: dict, 
                     "mask_area_px": est.mask_area_px,
                 }
             )
-    for env, _, _ in envs.values():
+    for env, _ in envs.values():
         env.close()
     return pd.DataFrame(rows)
+
+
+AREA_SAMPLES = 8  # start states drawn to bound each object's silhouette area (a fixed draw)
+MAX_AREA_FACTOR = 3.0  # the hsv segmenter's max_area_factor where the config leaves it out
+
+
+def frame_segmenter(env, calib: dict) -> Segmenter:
+    """The configured segmenter (``calib["segmenter"]``) of ``env``'s task objects. The hsv
+    segmenter's ``max_area_factor`` (default ``MAX_AREA_FACTOR``; 0: off) bounds each object's
+    blob (``HSVSegmenter``): that many times the most pixels its silhouette covers from
+    ``calib["camera"]`` in its task's start states (``silhouette_areas``)."""
+    cfg = calib["segmenter"]
+    factor = 0.0
+    if cfg.get("type", "hsv") == "hsv":
+        factor = float(MAX_AREA_FACTOR if cfg.get("max_area_factor") is None else cfg["max_area_factor"])
+    max_area = None
+    if factor > 0:
+        max_area = {name: factor * area for name, area in silhouette_areas(env, calib["camera"]).items()}
+    return make_segmenter(cfg, {o.name: o.rgba for o in env.task.objects}, finders(env.task.objects), max_area)
+
+
+def silhouette_areas(env, camera: str, samples: int = AREA_SAMPLES) -> dict[str, int]:
+    """Per task object of ``env``, the most pixels it covers from ``camera`` (at ``env``'s image
+    size) over ``samples`` start states drawn from its task's start regions (kinematics only; the
+    same draw every time)."""
+    rng = np.random.default_rng(0)
+    areas = dict.fromkeys(env.task.object_names, 0)
+    for _ in range(samples):
+        env.reset(env.sample_initial_poses(rng), settle=False, observe=False)
+        labels, names = env.render(camera, segmentation=True)
+        for label, name in names.items():
+            if name in areas:
+                areas[name] = max(areas[name], int(np.sum(labels == label)))
+    return areas
+
+
+def estimate_frame(image: np.ndarray, env, segmenter: Segmenter, calib: dict,
+                   offsets: dict | None = None) -> dict[str, PoseEstimate]:
+    """The planar poses of ``env``'s task objects in ``image`` (RGB, a first frame of
+    ``calib["camera"]`` as recorded), ``env`` being the calibrated sim of its task: the frame
+    undistorted through the camera's calibrated lens (``pinhole_frame``), then
+    ``estimate_initial_poses`` against that camera's pinhole renders (``calib["refine"]``);
+    ``offsets``: the task's per-object offsets."""
+    camera = calib["camera"]
+    refine = calib["refine"]
+    return estimate_initial_poses(
+        pinhole_frame(env, camera, image),  # as the pinhole renders it is matched with show it
+        segmenter,
+        camera_model(env, camera),
+        env.table_top_z_m,
+        object_geometries(env),
+        render_masks=mask_renderer(env, camera, int(refine.get("supersample", 1))),
+        max_iterations=refine["max_iterations"],
+        tolerance_px=refine["tolerance_px"],
+        offsets=offsets,
+        render_image=image_renderer(env, camera) if refine.get("appearance", True) else None,
+        match=refine.get("match", "centroid"),
+        appearance_window=refine.get("appearance_window", "box"),
+    )
 
 
 def calibrate_offsets(index: pd.DataFrame, frames_dir: str | Path, calib: dict, world: dict,

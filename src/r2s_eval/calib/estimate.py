@@ -5,12 +5,15 @@
    (calibrated intrinsics K and extrinsics T_world_from_cam);
 3. refine: render the simulator at the estimate from the same calibrated camera and move each
    object until its rendered centroid lands on the observed one (Gauss-Newton on the pixel
-   reprojection error). This removes the perspective bias of step 2 (a silhouette centroid is
-   not the projection of the 3-D centre) and absorbs the object's shape. For objects whose
-   yaw is observable (``yaw_symmetry`` > 0) the yaw is then searched over one symmetry period
-   (a coarse grid, then a finer one around the best) for the rendering that best matches the
-   frame: with ``render_image``, the normalised cross-correlation of the luminance around the
-   object (maximised over sub-pixel shifts); otherwise the overlap (IoU) of the silhouettes.
+   reprojection error; with ``match="overlap"`` until the rendered silhouette needs no shift to
+   lie over the observed one with the largest overlap, which a part of the object the model
+   lacks, a mug's handle, pulls far less). This removes the perspective bias of step 2 (a
+   silhouette centroid is not the projection of the 3-D centre) and absorbs the object's shape.
+   For objects whose yaw is observable (``yaw_symmetry`` > 0) the yaw is then searched over one
+   symmetry period (a coarse grid, then a finer one around the best) for the rendering that best
+   matches the frame: with ``render_image``, the normalised cross-correlation of the luminance
+   around the object (maximised over sub-pixel shifts; with ``appearance_window="object"`` over
+   the object's own pixels only); otherwise the overlap (IoU) of the silhouettes.
    Luminance is what survives video compression at full resolution (4:2:0 chroma is halved,
    which blurs colour masks of small objects), and it shows inner edges such as a block's
    top face. Then the position is refined again;
@@ -36,6 +39,11 @@ RenderImage = Callable[[dict[str, tuple[float, float, float]]], np.ndarray]
 
 APPEARANCE_PAD_PX = 3  # window margin around the object, and the largest shift searched
 APPEARANCE_UPSAMPLE = 4  # sub-pixel shifts: both windows are upsampled before matching
+OVERLAP_SHIFT_PX = 4  # match="overlap": the largest shift searched per iteration (px)
+OVERLAP_BLUR_PX = 1.0  # and the Gaussian both masks are blurred by before they are correlated
+OVERLAP_UPSAMPLE = 4
+MATCHES = ("centroid", "overlap")
+APPEARANCE_WINDOWS = ("box", "object")
 
 
 class InitEstimationError(EstimationError):
@@ -138,9 +146,49 @@ def _pixel_jacobian(camera: CameraModel, point_world_m: np.ndarray, step_m: floa
     return J
 
 
+def overlap_shift(rendered: np.ndarray, observed: np.ndarray, max_shift_px: int = OVERLAP_SHIFT_PX) -> np.ndarray:
+    """The sub-pixel shift (u right, v down; within +-``max_shift_px``) that lays the ``rendered``
+    mask (soft or binary) over the ``observed`` one with the largest overlap, both blurred by
+    ``OVERLAP_BLUR_PX`` (so a mask a pixel wider than the other all round peaks at its centre).
+
+    Unlike the difference of the centroids, a part of the observed mask the rendering lacks (a
+    mug's handle, a strip of shadow the colour rule takes in) pulls the shift only where it joins
+    the body: moving the rendering onto it loses more of the body's overlap than it gains."""
+    both = (np.asarray(rendered, np.float32) > 0) | np.asarray(observed, bool)
+    rows, cols = np.nonzero(both)
+    pad, up = int(max_shift_px), OVERLAP_UPSAMPLE
+    margin = pad + 2 * int(np.ceil(OVERLAP_BLUR_PX))  # room for the blur and the shifts around both masks
+    r0, r1, c0, c1 = rows.min() - margin, rows.max() + 1 + margin, cols.min() - margin, cols.max() + 1 + margin
+
+    def window(mask, extra):  # the masks' box grown by ``extra``, zeros beyond the image
+        padded = cv2.copyMakeBorder(np.asarray(mask, np.float32), margin + pad, margin + pad, margin + pad,
+                                    margin + pad, cv2.BORDER_CONSTANT, value=0.0)
+        off = margin + pad
+        cut = padded[r0 - extra + off:r1 + extra + off, c0 - extra + off:c1 + extra + off]
+        blurred = cv2.GaussianBlur(cut, (0, 0), OVERLAP_BLUR_PX)
+        return cv2.resize(blurred, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
+
+    score = cv2.matchTemplate(window(observed, pad), window(rendered, 0), cv2.TM_CCORR)
+    peak = np.array(np.unravel_index(int(np.argmax(score)), score.shape), float)  # (row, col)
+    for axis in range(2):  # a parabola through the peak and its neighbours: the sub-sample maximum
+        k = int(peak[axis])
+        if 0 < k < score.shape[axis] - 1:
+            at = [int(peak[0]), int(peak[1])]
+            values = []
+            for d in (-1, 0, 1):
+                at[axis] = k + d
+                values.append(float(score[tuple(at)]))
+            curvature = values[0] - 2 * values[1] + values[2]
+            if curvature < 0:
+                peak[axis] += 0.5 * (values[0] - values[2]) / curvature
+    shift_rc = peak / up - pad
+    return np.array([shift_rc[1], shift_rc[0]])
+
+
 def _refine_positions(poses, observed, objects, camera, table_z_m, render_masks, max_iterations, tolerance_px,
-                      max_step_m) -> tuple[int, dict[str, float]]:
-    """Gauss-Newton on the rendered-vs-observed centroid; keeps each object's best iterate."""
+                      max_step_m, observed_masks=None) -> tuple[int, dict[str, float]]:
+    """Gauss-Newton on the rendered-vs-observed centroid, or with ``observed_masks`` on the shift of
+    largest overlap (``overlap_shift``); keeps each object's best iterate."""
     errors = {name: float("nan") for name in poses}
     best = {name: (np.inf, pose.copy()) for name, pose in poses.items()}
     iterations = 0
@@ -151,7 +199,10 @@ def _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
             mask = rendered.get(obj.name)
             if mask is None or not mask.any():
                 continue  # rendered out of view or hidden: keep the back-projection
-            residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
+            if observed_masks is None:
+                residuals[obj.name] = observed[obj.name] - _centroid_and_axis(mask)[0]
+            else:
+                residuals[obj.name] = overlap_shift(mask, observed_masks[obj.name])
             err = float(np.linalg.norm(residuals[obj.name]))
             if err < best[obj.name][0]:
                 best[obj.name] = (err, poses[obj.name].copy())
@@ -178,8 +229,10 @@ def _luma(image_rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(image_rgb), cv2.COLOR_RGB2GRAY).astype(np.float32)
 
 
-def _appearance_score(observed_luma: np.ndarray, rendered_luma: np.ndarray, window) -> float:
-    """Best normalised cross-correlation of the observed window within the rendered one (+-pad px)."""
+def _appearance_score(observed_luma: np.ndarray, rendered_luma: np.ndarray, window,
+                      weight: np.ndarray | None = None) -> float:
+    """Best normalised cross-correlation of the observed window within the rendered one (+-pad px);
+    with ``weight`` (HxW, 0 or 1) only over the observed window's pixels it marks."""
     r0, r1, c0, c1 = window
     pad, up = APPEARANCE_PAD_PX, APPEARANCE_UPSAMPLE
     h, w = rendered_luma.shape
@@ -189,12 +242,21 @@ def _appearance_score(observed_luma: np.ndarray, rendered_luma: np.ndarray, wind
     template = cv2.resize(template, None, fx=up, fy=up, interpolation=cv2.INTER_LINEAR)
     if search.shape[0] < template.shape[0] or search.shape[1] < template.shape[1]:
         return -1.0
-    return float(cv2.matchTemplate(search, template, cv2.TM_CCOEFF_NORMED).max())
+    if weight is None:
+        return float(cv2.matchTemplate(search, template, cv2.TM_CCOEFF_NORMED).max())
+    weight = cv2.resize(np.asarray(weight[r0:r1, c0:c1], np.float32), None, fx=up, fy=up,
+                        interpolation=cv2.INTER_LINEAR)
+    scores = cv2.matchTemplate(search, template, cv2.TM_CCOEFF_NORMED, mask=weight)
+    scores[~np.isfinite(scores)] = -1.0  # a flat patch of the rendering correlates with nothing
+    return float(scores.max())
 
 
 def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: tuple[int, int],
-                image_rgb: np.ndarray | None = None, render_image: RenderImage | None = None) -> float:
-    """Yaw (within one symmetry period) whose rendering best matches the frame."""
+                image_rgb: np.ndarray | None = None, render_image: RenderImage | None = None,
+                appearance_window: str = "box") -> float:
+    """Yaw (within one symmetry period) whose rendering best matches the frame; the luminance
+    compared over the observed mask's box (``appearance_window`` ``box``) or only over the object's
+    pixels in it (``object``: the observed mask grown by a pixel)."""
     period = 2.0 * np.pi / obj.yaw_symmetry
     n_coarse, n_fine = grid
     n_coarse = max(n_coarse, int(np.ceil(period / np.deg2rad(10.0))))  # coarse steps of at most 10 deg
@@ -211,8 +273,12 @@ def _search_yaw(obj: ObjectGeometry, poses, observed_mask, render_masks, grid: t
         window = (max(0, rows.min() - APPEARANCE_PAD_PX), min(h, rows.max() + 1 + APPEARANCE_PAD_PX),
                   max(0, cols.min() - APPEARANCE_PAD_PX), min(w, cols.max() + 1 + APPEARANCE_PAD_PX))
 
+        weight = None
+        if appearance_window == "object":  # the room round the object (its grain, shadows) does not count
+            weight = cv2.dilate(observed_mask.astype(np.uint8), np.ones((3, 3), np.uint8))
+
         def score(yaw: float) -> float:
-            return _appearance_score(observed_luma, _luma(render_image(trial(yaw))), window)
+            return _appearance_score(observed_luma, _luma(render_image(trial(yaw))), window, weight)
     else:
         observed_centroid = _centroid_and_axis(observed_mask)[0]
 
@@ -249,8 +315,20 @@ def estimate_initial_poses(
     offsets: Mapping[str, Sequence[float]] | None = None,
     yaw_grid: tuple[int, int] = (16, 11),
     render_image: RenderImage | None = None,
+    match: str = "centroid",
+    appearance_window: str = "box",
 ) -> dict[str, PoseEstimate]:
-    """Estimate each object's planar pose from `image_rgb`; see the module docstring."""
+    """Estimate each object's planar pose from `image_rgb`; see the module docstring. ``match``:
+    how a rendered silhouette is laid over the observed one in the position refinement:
+    ``centroid`` (their centroids coincide) or ``overlap`` (the shift of largest overlap,
+    ``overlap_shift``: robust to parts of the object the model lacks). ``appearance_window``: the
+    pixels the yaw search's luminance is compared over, the observed mask's box (``box``) or the
+    object's own pixels in it (``object``: what lies round the object, a textured table, a shadow,
+    a distractor, does not count)."""
+    if match not in MATCHES:
+        raise ValueError(f"match: one of {MATCHES}, got {match!r}")
+    if appearance_window not in APPEARANCE_WINDOWS:
+        raise ValueError(f"appearance_window: one of {APPEARANCE_WINDOWS}, got {appearance_window!r}")
     masks = segmenter.segment(image_rgb)
     observed, poses, areas = {}, {}, {}
     for obj in objects:
@@ -272,15 +350,16 @@ def estimate_initial_poses(
     errors = {name: float("nan") for name in poses}
     iterations = 0
     if render_masks is not None:
+        by_overlap = masks if match == "overlap" else None
         iterations, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
-                                               max_iterations, tolerance_px, max_step_m)
+                                               max_iterations, tolerance_px, max_step_m, by_overlap)
         yawed = [obj for obj in objects if obj.yaw_symmetry]
         if yawed:
             for obj in yawed:
                 poses[obj.name][2] = _search_yaw(obj, poses, masks[obj.name], render_masks, yaw_grid, image_rgb,
-                                                 render_image)
+                                                 render_image, appearance_window)
             more, errors = _refine_positions(poses, observed, objects, camera, table_z_m, render_masks,
-                                             max_iterations, tolerance_px, max_step_m)
+                                             max_iterations, tolerance_px, max_step_m, by_overlap)
             iterations += more
 
     offsets = offsets or {}

@@ -2,12 +2,19 @@
 
 Everything here comes from the nominal (calibrated) world: its camera is the calibration and
 its renders are what the refinement matches. Nothing reads the twin's parameters or truth.
+
+The renders are pinhole images; a recorded frame is compared with them as the calibrated sim's
+pinhole camera would see it (``pinhole_frame``: undistorted through the lens the calibration fitted
+for that camera, ``WorldParams.lens_distortion``), so both sides are undistorted.
 """
 
 from __future__ import annotations
 
+import numpy as np
+
 from r2s_eval.calib.estimate import CameraModel, ObjectGeometry
 from r2s_eval.sim import TabletopEnv
+from r2s_eval.sim.sensor import undistorted, undistorted_coverage
 
 
 def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
@@ -21,6 +28,26 @@ def object_geometries(env: TabletopEnv) -> list[ObjectGeometry]:
             base = env.task.object(parent).kind_object.support_top_m(env.object_dims(parent))
         geoms.append(ObjectGeometry(name, centroid_height_m=base + 0.5 * height, yaw_symmetry=env.task.yaw_symmetry(name)))
     return geoms
+
+
+def camera_lens(env: TabletopEnv, camera: str):
+    """The calibrated lens of ``camera`` (five coefficients), or None for a pinhole."""
+    return env.params.lens_distortion.get(camera)
+
+
+def pinhole_frame(env: TabletopEnv, camera: str, image: np.ndarray) -> np.ndarray:
+    """``image`` (a frame ``camera`` recorded, RGB) as the calibrated sim's pinhole camera sees it:
+    undistorted through that camera's calibrated lens (``env.params.lens_distortion``) with the
+    camera's model K at the frame's size (``r2s_eval.sim.sensor.undistorted``). Without a lens
+    (none fitted, or all zero) the frame itself, the same bytes."""
+    lens = camera_lens(env, camera)
+    return undistorted(image, env.camera_K(camera, image.shape[:2]), lens)
+
+
+def pinhole_coverage(env: TabletopEnv, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+    """bool[H, W]: the pixels of ``pinhole_frame``'s image the recorded frame covers (all of
+    them without a lens)."""
+    return undistorted_coverage(env.camera_K(camera, size_hw), camera_lens(env, camera), size_hw)
 
 
 def camera_model(env: TabletopEnv, camera: str) -> CameraModel:

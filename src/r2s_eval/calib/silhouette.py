@@ -5,7 +5,8 @@ where the frame shows it; only the camera's mount is unknown. The fit moves each
 (its mount error: three position and three rotation parameters, from the model's pose) until the
 simulated silhouette lies over the recorded one in many frames at once.
 
-- **The recorded silhouette** is what the world says the robot looks like (``robot.find``: an
+- **The recorded silhouette** (in the frame undistorted through the camera's lens where one is
+  known: ``lens_distortion``) is what the world says the robot looks like (``robot.find``: an
   HSV range, or the open-vocabulary segmenter's prompt), with the task objects' pixels (their own
   ``find``) left out of the comparison: an object in front of the arm is neither.
 - **The simulated silhouette** is drawn by segmentation, so it depends on no colour or light: the
@@ -37,6 +38,7 @@ import numpy as np
 
 from r2s_eval.calib import fitting
 from r2s_eval.calib.cameras import camera_record, nominal_env
+from r2s_eval.calib.scene import pinhole_coverage, pinhole_frame
 from r2s_eval.calib.segment import HueRange, make_segmenter
 from r2s_eval.data import STATE_KEY
 from r2s_eval.data.contract import read_metadata
@@ -171,10 +173,14 @@ def fit_mount(renderer: SilhouetteRenderer, recorded: np.ndarray, valid: np.ndar
 
 
 def calibrate_from_silhouette(dataset: str, episodes: Sequence[int], world: Mapping, cfg: Mapping,
-                              segmenter_cfg: Mapping, tasks: Sequence[str]) -> dict:
+                              segmenter_cfg: Mapping, tasks: Sequence[str],
+                              lens_distortion: Mapping[str, Sequence[float]] | None = None) -> dict:
     """Every recorded fixed camera's pose from the robot's silhouette in ``dataset``'s ``episodes``
-    (``cfg``: ``calib.cameras.silhouette``; ``segmenter_cfg``: ``calib.segmenter``)."""
-    env = nominal_env(world, tasks)
+    (``cfg``: ``calib.cameras.silhouette``; ``segmenter_cfg``: ``calib.segmenter``).
+    ``lens_distortion``: the cameras' lenses where known (per camera, five coefficients, e.g. a
+    board take's fit): the recorded frames are undistorted through them before their silhouettes
+    are compared with the pinhole renders (``r2s_eval.calib.scene.pinhole_frame``); None: pinholes."""
+    env = nominal_env(world, tasks, lens_distortion)
     robot = env.robot
     try:
         segment = robot_segmenter(robot, segmenter_cfg)
@@ -202,10 +208,12 @@ def calibrate_from_silhouette(dataset: str, episodes: Sequence[int], world: Mapp
         out = {}
         for cam in cameras:
             size_hw = images[chosen[0] + (cam,)].shape[:2]
-            frames = [images[k + (cam,)] for k in chosen]
+            # Undistorted through the camera's lens where known, as the pinhole renders see the scene.
+            frames = [pinhole_frame(env, cam, images[k + (cam,)]) for k in chosen]
             recorded = np.stack([segment(f) for f in frames]).astype(np.float32)
             objects_seen = [np.any(list(find_objects.segment(f).values()), axis=0) for f in frames]
             valid = ~np.stack([cv2.dilate(m.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0 for m in objects_seen])
+            valid &= pinhole_coverage(env, cam, size_hw)  # a lens's corners the undistorted frame lacks
             robot_like = robot_like_geoms(env, cam, chosen_states, size_hw, segment)
             renderer = SilhouetteRenderer(env, cam, chosen_states, size_hw, int(cfg["supersample"]), robot_like)
             dpos, drot, mismatch = fit_mount(renderer, recorded, valid, [float(b) for b in cfg["blur_px"]])

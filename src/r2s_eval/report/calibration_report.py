@@ -207,6 +207,9 @@ def camera_lines(calibration: dict) -> list[str]:
                          f"{e['distortion_px']:.2f} px RMS ({e['distortion_max_px']:.2f} max; no lens "
                          f"{e['model_px']:.2f}), focal {e['focal_pct']['fx']:+.2f} / {e['focal_pct']['fy']:+.2f} %, "
                          f"principal point {e['principal_point_px']:.2f} px off")
+    for cam, e in sorted((calibration.get("background") or {}).items()):
+        lines.append(f"background {cam}: mean colour error of {e['frames']} first frames {e['without_plate']:.1f} with "
+                     f"the sim's own surroundings, {e['with_plate']:.1f} over the plate from the recordings (0-255)")
     appearance = calibration.get("appearance") or {}
     if appearance.get("fitted"):
         lines.append(f"appearance: mean colour error of the first frames {appearance['residual_before']:.1f} -> "

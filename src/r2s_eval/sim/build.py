@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.env import TabletopEnv
@@ -81,7 +82,7 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
         if len(offsets) != len(robot.arms[arm].joints):
             raise ConfigError(f"{source}: world parameters of another world: {len(offsets)} joint offsets for arm "
                               f"{arm!r}, which has {len(robot.arms[arm].joints)} joints in {world_name}")
-    for key in ("camera_pos_offset_m", "camera_rot_offset_rad", "lens_distortion"):
+    for key in ("camera_pos_offset_m", "camera_rot_offset_rad", "lens_distortion", "background_plates"):
         for camera in getattr(params, key):
             if camera not in robot.rig:
                 raise ConfigError(f"{source}: world parameters of another world: {key} of camera {camera!r}, "
@@ -90,6 +91,9 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
         if len(coefficients) != 5:
             raise ConfigError(f"{source}: lens_distortion of camera {camera!r} has {len(coefficients)} coefficients, "
                               "OpenCV's model has five (k1, k2, p1, p2, k3)")
+    for camera, plate in params.background_plates.items():
+        if not Path(plate).is_file():
+            raise ConfigError(f"{source}: background_plates: camera {camera!r}'s plate {plate} does not exist")
     latency = params.command_latency_steps
     if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
         raise ConfigError(f"{source}: command_latency_steps must be a whole number of control steps >= 0, "

@@ -19,7 +19,8 @@ Observation: ``{"observation.state": float32[action_dim],
 "observation.images.<camera>": uint8[H, W, 3]}`` for each requested camera of the rig
 (the bundled world: ``head_left``, ``head_right``, ``wrist_left``, ``wrist_right``), default
 H = W = 128. Images are what the world's camera records (``recorded_image``,
-``r2s_eval.sim.sensor``: the world's lens distortion, then its pixel noise; a nominal world's is a
+``r2s_eval.sim.sensor``: the world's lens distortion, the robot and task objects over the world's
+background plate of that camera where it has one, then its pixel noise; a nominal world's is a
 pinhole without noise), ``render()`` returns clean pinhole images unless asked. A camera's noise
 at a control step is drawn from a generator keyed by (world noise seed, episode seed, step,
 camera), so an image is the same whether or not the steps before it were rendered: a loop renders
@@ -101,6 +102,7 @@ class TabletopEnv:
         self._noise_key = (int(self.params.noise_seed), 0)
         self.steps = 0  # control steps since reset
         self._pending_commands: deque[np.ndarray] = deque()  # sent, not yet at the servos (latency)
+        self._plates: dict = {}  # background plates read, by (camera, size)
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
@@ -359,9 +361,16 @@ class TabletopEnv:
     def recorded_image(self, camera: str, size_hw: tuple[int, int],
                        noise_rng: np.random.Generator | None = None) -> np.ndarray:
         """What the world's camera records now: the pinhole image through the world's lens
-        (``lens_image``), then its pixel noise (``params.image_noise_std``) from ``noise_rng``
+        (``lens_image``), composited over the camera's background plate where the world has one
+        (``background_plate``: the plate wherever the lensed ``foreground_mask`` is not), then its
+        pixel noise (``params.image_noise_std``) from ``noise_rng``
         (default: ``noise_rng(camera)``)."""
         rgb = self.lens_image(self.pinhole_image(camera, size_hw), camera)
+        plate = self.background_plate(camera, size_hw)
+        if plate is not None:  # the sim's robot and objects over the room the recordings show
+            foreground = self.lens_image(self.foreground_mask(camera, size_hw).astype(np.uint8) * 255, camera)
+            alpha = foreground[..., None].astype(np.float32) / 255.0
+            rgb = (alpha * rgb + (1.0 - alpha) * plate).round().astype(np.uint8)
         std = float(self.params.image_noise_std)
         if std <= 0:
             return rgb
@@ -375,6 +384,31 @@ class TabletopEnv:
         if is_pinhole(coefficients):
             return rgb
         return through_lens(rgb, self.camera_K(camera, rgb.shape[:2]), coefficients)
+
+    def background_plate(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray | None:
+        """The world's background plate of ``camera`` (``params.background_plates``) at ``size_hw``,
+        RGB uint8; None where the world has none. Read once per camera and size."""
+        path = self.params.background_plates.get(camera)
+        if path is None:
+            return None
+        key = (camera, tuple(size_hw))
+        if key not in self._plates:
+            import cv2
+
+            raw = cv2.imread(str(path))
+            if raw is None:
+                raise ConfigError(f"background plate of camera {camera!r}: cannot read {path}")
+            plate = cv2.cvtColor(raw, cv2.COLOR_BGR2RGB)
+            if plate.shape[:2] != tuple(size_hw):
+                plate = cv2.resize(plate, (int(size_hw[1]), int(size_hw[0])), interpolation=cv2.INTER_AREA)
+            self._plates[key] = plate.astype(np.float32)
+        return self._plates[key]
+
+    def foreground_mask(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+        """bool[H, W]: where ``camera``'s pinhole image shows the robot or a task object (what a
+        background plate does not hold)."""
+        geoms = self.render_geoms(camera, size_hw)
+        return (geoms >= 0) & (self._geom_label[np.clip(geoms, 0, None)] >= 2)
 
     def noise_rng(self, camera: str) -> np.random.Generator:
         """The generator of ``camera``'s pixel noise at this step of this episode."""

@@ -50,6 +50,10 @@ class WorldParams:
     # Each command reaches the servos this many whole control steps after it was given (the
     # latency the recordings show); until the first one arrives they hold their reset targets.
     command_latency_steps: int = 0
+    # Per fixed camera, a PNG of the room behind the robot as the recordings show it (the
+    # calibrated sim's answer to a room no world file holds, r2s_eval.calib.background): the camera
+    # records the sim's robot and task objects over it. Missing -> the sim's own surroundings.
+    background_plates: dict[str, str] = field(default_factory=dict)
 
     def mass_scale(self, obj: str) -> float:
         return float(self.object_mass_scale.get(obj, 1.0))

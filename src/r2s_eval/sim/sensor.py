@@ -7,6 +7,9 @@ five coefficients as a board calibration fits them) and then the additive pixel 
 (``image_noise_std``, ``add_image_noise``); ``add_noise=False`` renders (the calibration's
 hypotheses) stay clean pinhole images. A world without a lens records the pinhole image.
 
+``undistorted`` is the way back: a recorded frame as the camera's pinhole would show it, which is
+how the calibration compares a lab's frames with the calibrated sim's pinhole renders.
+
 The same distortion maps draw the reality twin's own lens (``r2s_eval.twin.camera``: OpenCV's
 rational model, eight coefficients), which is richer than any five-coefficient answer.
 """
@@ -113,6 +116,59 @@ def through_lens(rgb: np.ndarray, K: np.ndarray, coefficients) -> np.ndarray:
     K = np.asarray(K, dtype=np.float64)
     key = tuple(float(c) for c in coefficients)
     return distort(rgb, _cached_maps(tuple(map(tuple, K)), key, rgb.shape[:2]))
+
+
+def undistortion_maps(K: np.ndarray, coefficients, size_hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel of the pinhole image samples the distorted one: cv2.remap's maps
+    (``CV_16SC2``, ``cv2.initUndistortRectifyMap`` with the same ``K`` before and after) for a
+    camera with intrinsics ``K`` (3x3, at ``size_hw``) and OpenCV distortion ``coefficients``
+    (five, or the rational model's eight): the inverse of ``distortion_maps``."""
+    import cv2
+
+    coefficients = np.asarray(checked_coefficients(coefficients, len(coefficients)))
+    h, w = int(size_hw[0]), int(size_hw[1])
+    K = np.asarray(K, dtype=np.float64)
+    return cv2.initUndistortRectifyMap(K, coefficients, None, K, (w, h), cv2.CV_16SC2)
+
+
+def undistorted(rgb: np.ndarray, K: np.ndarray, coefficients) -> np.ndarray:
+    """``rgb`` (a frame recorded through the lens of ``coefficients``, a camera with intrinsics ``K``
+    at that size) as the camera's pinhole would show it: ``cv2.undistort`` with ``K`` kept
+    (bilinear), its maps made once per camera, size and lens. Where the pinhole image looks past
+    what the lens recorded (the corners of a pincushion lens), the frame's edge is repeated
+    (``undistorted_coverage`` says where). A pinhole lens (``is_pinhole``) returns ``rgb`` itself.
+
+    The calibration's steps that compare a recorded frame with the calibrated sim's pinhole
+    renders see the frame through this (``r2s_eval.calib.scene.pinhole_frame``)."""
+    import cv2
+
+    if is_pinhole(coefficients):
+        return rgb
+    maps = _cached_undistortion_maps(_K_key(K), tuple(float(c) for c in coefficients), tuple(rgb.shape[:2]))
+    return cv2.remap(rgb, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def undistorted_coverage(K: np.ndarray, coefficients, size_hw: tuple[int, int]) -> np.ndarray:
+    """bool[H, W]: the pixels of ``undistorted``'s image that the recorded frame covers (their
+    source lies inside it); all of them for a pinhole lens."""
+    import cv2
+
+    size_hw = (int(size_hw[0]), int(size_hw[1]))
+    if is_pinhole(coefficients):
+        return np.ones(size_hw, bool)
+    maps = _cached_undistortion_maps(_K_key(K), tuple(float(c) for c in coefficients), size_hw)
+    ones = np.full(size_hw, 255, np.uint8)
+    return cv2.remap(ones, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=0) == 255
+
+
+def _K_key(K: np.ndarray) -> tuple:
+    return tuple(map(tuple, np.asarray(K, dtype=np.float64)))
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_undistortion_maps(K_rows: tuple, coefficients: tuple, size_hw: tuple[int, int]):
+    return undistortion_maps(np.asarray(K_rows), coefficients, size_hw)
 
 
 def is_pinhole(coefficients) -> bool:

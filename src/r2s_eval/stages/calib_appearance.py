@@ -2,24 +2,30 @@
 world parameters, which replay and every sim rollout build their simulation with.
 
 Combines what calibration found (the cameras of ``calib.cameras.use``, the joint offsets and the
-commands' latency of ``calib_joints``), fits the light and colours (``r2s_eval.calib.appearance``) and writes::
+commands' latency of ``calib_joints``, the background plates of ``calib_background`` where
+``calib.background.fit``), fits the light and colours (``r2s_eval.calib.appearance``) and writes::
 
     {"params": {...WorldParams...}, "cameras": {...the cameras record used, or {"method": "none"}},
      "joints": {...calib_joints' report...}, "appearance": {"fitted": bool, "residual_before": ...,
-     "residual_after": ..., ...}}
+     "residual_after": ..., ...}, "background": {...calib_background's record..., "errors": {camera:
+     {"with_plate": ..., "without_plate": ..., "frames": ...}}} (with plates only)}
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import pandas as pd
 
 from r2s_eval.calib.appearance import calibrate_appearance
+from r2s_eval.calib.background import plate_errors
 from r2s_eval.calib.cameras import camera_params
 from r2s_eval.sim import WorldParams, load_world_params
 from r2s_eval.stages import _cli
 from r2s_eval.utils.io import read_json, write_json
+
+log = logging.getLogger("r2s_eval.calib_appearance")
 
 READS = ("calib.appearance", "calib.camera", "world")  # config paths the --cfg slice holds (see _reads.py)
 
@@ -28,13 +34,21 @@ def main(args) -> None:
     cfg = args.cfg
     cameras = read_json(args.cameras) if args.cameras else {"method": "none", "cameras": {}}
     joints = load_world_params(args.joints)
+    background = read_json(f"{args.background}/background.json") if args.background else None
     params = WorldParams(joint_offset_rad=joints.joint_offset_rad, command_latency_steps=joints.command_latency_steps,
-                         **camera_params(cameras))
-    fitted, appearance = calibrate_appearance(pd.read_parquet(args.index), args.frames, pd.read_parquet(args.estimates),
-                                              args.dataset, cfg["world"], params, cfg["calib.appearance"],
-                                              cfg["calib.camera"])
-    write_json(args.out, {"params": dataclasses.asdict(fitted), "cameras": cameras,
-                          "joints": read_json(args.joints)["joints"], "appearance": appearance}, provenance=True)
+                         background_plates=background["plates"] if background else {}, **camera_params(cameras))
+    index, estimates = pd.read_parquet(args.index), pd.read_parquet(args.estimates)
+    fitted, appearance = calibrate_appearance(index, args.frames, estimates, args.dataset, cfg["world"], params,
+                                              cfg["calib.appearance"], cfg["calib.camera"])
+    record = {"params": dataclasses.asdict(fitted), "cameras": cameras, "joints": read_json(args.joints)["joints"],
+              "appearance": appearance}
+    if background:
+        errors = plate_errors(args.dataset, index, estimates, cfg["world"], fitted, cfg["calib.appearance"])
+        record["background"] = {**background, "errors": errors}
+        for cam, e in errors.items():
+            log.info("%s: first frames' colour error %.1f with its plate, %.1f without (0-255, %d frames)", cam,
+                     e["with_plate"], e["without_plate"], e["frames"])
+    write_json(args.out, record, provenance=True)
 
 
 if __name__ == "__main__":
@@ -45,5 +59,6 @@ if __name__ == "__main__":
     p.add_argument("--index", required=True, help="ingest's episode index")
     p.add_argument("--frames", required=True, help="ingest's first frames folder")
     p.add_argument("--estimates", required=True, help="the initial-pose estimates")
+    p.add_argument("--background", help="calib_background's folder (its plates); none: the sim's own surroundings")
     p.add_argument("--out", required=True)
     _cli.run(main, p)

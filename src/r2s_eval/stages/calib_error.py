@@ -12,6 +12,7 @@ size). Only this scoring reads the reality record, never the calibration. Writes
 
     {"cameras": {"model" | METHOD: {camera: {"position_mm": .., "rotation_deg": ..}}},
      "used": METHOD | "none", "appearance": {"residual_before": .., "residual_after": ..}
+     [, "background": {camera: {"with_plate", "without_plate", "frames"}}]
      [, "lens": {METHOD: {camera: {"distortion_px", "distortion_max_px", "model_px",
                                    "focal_pct": {"fx", "fy"}, "principal_point_px", "image_size"}}}]}
 """

@@ -107,7 +107,8 @@ def _outlined(image: np.ndarray, env: TabletopEnv, camera: str) -> np.ndarray:
     """``image`` with the simulation's robot and objects outlined on it, as ``camera`` sees them:
     where the recording and the simulated camera agree, the outlines hug what the frame shows."""
     labels, _ = env.render(camera, size=image.shape[:2], segmentation=True)
-    drawn = labels >= 2  # the robot's arms and the objects (0 background, 1 table)
+    # the robot's arms and the objects (0 background, 1 table), through the world's lens of the camera
+    drawn = env.lens_image((labels >= 2).astype(np.uint8) * 255, camera) > 127
     edges = drawn & ~(cv2.erode(drawn.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
     out = image.copy()
     out[edges] = (0, 255, 255)
@@ -117,9 +118,10 @@ def _outlined(image: np.ndarray, env: TabletopEnv, camera: str) -> np.ndarray:
 def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, cameras: Sequence[str], calib: dict,
                        world: dict, params: WorldParams | None = None) -> np.ndarray:
     """Per task the dataset records, its first episode: each camera's first frame with the
-    simulation outlined on it, beside the simulation rendered at the poses the calibration
-    estimates from it (its robot at the recorded first state), in the world ``params`` (a
-    calibrated sim's world parameters: its cameras, light and colours; None: the model's)."""
+    simulation outlined on it, beside the simulation as its camera records it at the poses the
+    calibration estimates from it (its robot at the recorded first state), in the world ``params``
+    (a calibrated sim's world parameters: its cameras and lenses, light and colours, background
+    plates; None: the model's)."""
     meta = read_metadata(dataset_root)
     first = _first_episodes(meta, tasks)
     frames = read_frames(meta, [(e, 0) for e in first.values()], [calib["camera"], *cameras])
@@ -147,7 +149,8 @@ def dataset_beside_sim(tasks: Mapping[str, Task], dataset_root: str | Path, came
                 env.pose_robot(state)
                 row += [_labelled(_draw_poses(_outlined(shown, env, cam), env, cam, poses),
                                   f"{key} ep {episode}: {cam}, sim outlined"),
-                        _labelled(_draw_poses(env.render(cam), env, cam, poses), f"{cam}, simulated")]
+                        # as the sim's camera records it: its lens, its background plate, its noise
+                        _labelled(_draw_poses(env.render(cam, add_noise=True), env, cam, poses), f"{cam}, simulated")]
             finally:
                 env.close()
         rows.append(row)

@@ -272,7 +272,8 @@ PERTURBATION_FAMILIES = {
     "latency": ("command_latency_steps",),
     "backlash": (),
     "gripper": (),
-    # The room and the true shapes (r2s_eval.twin.scene): the sim has no answer to them.
+    # The room and the true shapes (r2s_eval.twin.scene). The sim's answer to the room, its
+    # background plates, are pictures of this twin's own room: no family hands them to a twin.
     "table_texture": (),
     "walls": (),
     "shadows": (),
@@ -310,7 +311,8 @@ def _family_fields(family: str, families: dict[str, tuple[str, ...]]) -> tuple[s
 def without_family(twin: WorldParams, sim: WorldParams, family: str) -> WorldParams:
     """The twin's world parameters with one family's gap to the calibrated sim taken away: that
     family's fields take the sim's values (nominal, or what the calibration estimated: its lens,
-    its latency in steps); ``all``: the sim itself (with the twin's noise seed). The twin's own
+    its latency in steps); ``all``: the sim itself (with the twin's noise seed, without its
+    background plates, which no twin takes). The twin's own
     effects of the family go with it: ``reality_without_family``."""
     return dataclasses.replace(twin, **{f: getattr(sim, f) for f in _family_fields(family, PERTURBATION_FAMILIES)})
 

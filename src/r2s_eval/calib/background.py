@@ -31,6 +31,7 @@ calibrated sim keeps drawing its own table and the world beyond for such a camer
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import warnings
 from collections.abc import Mapping, Sequence
@@ -39,24 +40,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from r2s_eval.calib.silhouette import pick_frames
+from r2s_eval.calib.silhouette import pick_frames, strided_states
 from r2s_eval.data import STATE_KEY
 from r2s_eval.data.contract import read_metadata
 from r2s_eval.data.frames import episode_rows, read_frames
 from r2s_eval.errors import DataError
 from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import make_env
+from r2s_eval.sim.cameras import fixed_cameras
 
 log = logging.getLogger("r2s_eval.calib_background")
 
 WRIST_CAMERA = "moves with its arm: the room slides past it with every joint, so no plate holds it; the " \
                "calibrated sim draws its own table and surroundings for it"
-
-
-def fixed_cameras(env, cameras: Sequence[str]) -> list[str]:
-    """The cameras of ``cameras`` mounted on no arm (their body is welded to the world)."""
-    m = env.model
-    return [c for c in cameras if m.body_weldid[m.cam_bodyid[m.camera(c).id]] == 0]
 
 
 def foreground_masks(envs: Mapping, camera: str, frames: Sequence[tuple[str, Mapping | None, np.ndarray]],
@@ -76,8 +72,8 @@ def foreground_masks(envs: Mapping, camera: str, frames: Sequence[tuple[str, Map
             env.reset(poses, settle=False, observe=False)
         env.pose_robot(state)
         geoms = env.render_geoms(camera, size_hw)
-        drawn = env.foreground_mask(camera, size_hw)
-        is_robot = drawn & env.geom_is_robot[np.clip(geoms, 0, None)]
+        is_robot = (geoms >= 0) & env.geom_is_robot[np.clip(geoms, 0, None)]
+        drawn = env.foreground_mask(camera, size_hw, geoms)
         robot[i] = env.lens_image(is_robot.astype(np.uint8) * 255, camera) > 127
         objects[i] = env.lens_image((drawn & ~is_robot).astype(np.uint8) * 255, camera) > 127
     return robot, objects
@@ -142,15 +138,11 @@ def fit_plates(dataset: str, index, estimates, world: Mapping, params: WorldPara
     envs = {task: make_env(task, world, params, cameras=()) for task in sorted(set(task_of.values()))}
     try:
         meta = read_metadata(dataset)
-        states = {}
-        for episode in task_of:
-            rows = episode_rows(meta, episode, [STATE_KEY])
-            for i in range(0, len(rows), int(cfg["stride"])):
-                states[episode, int(rows["frame_index"][i])] = np.asarray(rows[STATE_KEY][i], float)
+        states = strided_states(meta, task_of, int(cfg["stride"]))
         chosen = pick_frames(states, int(cfg["frames"]))
         env = next(iter(envs.values()))
         recorded = [c for c in world["cameras"] if f"observation.images.{c}" in meta.features]
-        cameras = fixed_cameras(env, recorded)
+        cameras = fixed_cameras(env.model, recorded)
         skipped = {c: WRIST_CAMERA for c in recorded if c not in cameras}
         images = read_frames(meta, chosen, cameras)
         margin = np.ones((2 * int(cfg["margin_px"]) + 1,) * 2, np.uint8)
@@ -213,8 +205,6 @@ def plate_errors(dataset: str, index, estimates, world: Mapping, params: WorldPa
     ``calib.appearance``, its ``frames_per_task`` of each task), the sim at each episode's
     estimated object poses (``estimates``) and recorded first state. The plates were taken from
     the same recordings: an in-sample figure of how much of the image the room makes up."""
-    import dataclasses
-
     meta = read_metadata(dataset)
     per_task = int(appearance_cfg["frames_per_task"])
     chosen = [int(e) for _, rows in index.groupby("task", sort=True) for e in rows.head(per_task)["episode_index"]]

@@ -73,6 +73,17 @@ def pick_frames(states: Mapping[tuple[int, int], np.ndarray], n: int) -> list[tu
     return [keys[i] for i in sorted(chosen)]
 
 
+def strided_states(meta, episodes: Sequence[int], stride: int) -> dict[tuple[int, int], np.ndarray]:
+    """The recorded state of every ``stride``-th frame of each of ``episodes`` (a dataset's
+    metadata ``meta``), by (episode, frame index): the pool ``pick_frames`` picks from."""
+    states = {}
+    for episode in episodes:
+        rows = episode_rows(meta, int(episode), [STATE_KEY])
+        for i in range(0, len(rows), int(stride)):
+            states[int(episode), int(rows["frame_index"][i])] = np.asarray(rows[STATE_KEY][i], float)
+    return states
+
+
 def robot_segmenter(robot, segmenter_cfg: Mapping):
     """``segment(image) -> mask`` of the robot as the world says it looks (``robot.find``)."""
     kind = segmenter_cfg.get("type", "hsv")
@@ -190,17 +201,12 @@ def calibrate_from_silhouette(dataset: str, episodes: Sequence[int], world: Mapp
         for name in env.task.object_names:  # out of sight: only the robot is drawn
             env.set_object_pose(name, (0.0, 0.0, -5.0))
         meta = read_metadata(dataset)
-        stride = int(cfg["stride"])
-        states = {}
-        for episode in episodes:
-            rows = episode_rows(meta, int(episode), [STATE_KEY])
-            for i in range(0, len(rows), stride):
-                states[int(episode), int(rows["frame_index"][i])] = np.asarray(rows[STATE_KEY][i], float)
+        states = strided_states(meta, episodes, int(cfg["stride"]))
         chosen = pick_frames(states, int(cfg["frames"]))
         if len(chosen) < int(cfg["min_frames"]):
             raise DataError(f"dataset {dataset}: {len(chosen)} frames to fit the cameras' silhouettes, at least "
                             f"{cfg['min_frames']} needed (calib.cameras.silhouette.min_frames)")
-        cameras = [c for c in world["cameras"] if env.model.body_weldid[env.model.cam_bodyid[env.model.camera(c).id]] == 0]
+        cameras = cam_geom.fixed_cameras(env.model, world["cameras"])
         skipped = {c: "moves with the arm: its own gripper's silhouette does not depend on its joints; use a board take"
                    for c in world["cameras"] if c not in cameras}
         images = read_frames(meta, chosen, cameras)

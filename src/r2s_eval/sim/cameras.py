@@ -112,3 +112,6 @@ def look_at_quat_wxyz(pos_m: np.ndarray, target_m: np.ndarray, up=(0.0, 0.0, 1.0
     return quat_from_matrix(R)
 
 
+def fixed_cameras(model, cameras) -> list:
+    """The cameras of ``cameras`` mounted on no arm: their body is welded to the world."""
+    return [c for c in cameras if model.body_weldid[model.cam_bodyid[model.camera(c).id]] == 0]

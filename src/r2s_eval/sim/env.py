@@ -404,10 +404,10 @@ class TabletopEnv:
             self._plates[key] = plate.astype(np.float32)
         return self._plates[key]
 
-    def foreground_mask(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+    def foreground_mask(self, camera: str, size_hw: tuple[int, int], geoms: np.ndarray | None = None) -> np.ndarray:
         """bool[H, W]: where ``camera``'s pinhole image shows the robot or a task object (what a
-        background plate does not hold)."""
-        geoms = self.render_geoms(camera, size_hw)
+        background plate does not hold); ``geoms``: that image's ``render_geoms``, where drawn already."""
+        geoms = self.render_geoms(camera, size_hw) if geoms is None else geoms
         return (geoms >= 0) & (self._geom_label[np.clip(geoms, 0, None)] >= 2)
 
     def noise_rng(self, camera: str) -> np.random.Generator:

@@ -404,7 +404,7 @@ def lens_take_plan(env: TabletopEnv, board: Board, stated: np.ndarray, sizes: di
     ``take["lens_frames"]`` of it held up to each fixed camera. A board carried by an arm
     (``mount``: its name) is held in one grip throughout, as the calibration finds one pose of it
     on the gripper: ``take["lens_frames"]`` frames held up to each fixed camera."""
-    fixed = [cam for cam in sizes if env.model.body_weldid[env.model.cam_bodyid[env.model.camera(cam).id]] == 0]
+    fixed = cam_geom.fixed_cameras(env.model, sizes)
     if mount != "table":
         if mount not in env.robot.arms or not fixed:
             raise ConfigError(f"calib.cameras.board.mount: {mount!r}: the twin carries the board in an arm of the "

@@ -73,7 +73,7 @@ def test_success_gaps_in_percentage_points(success):
 
 
 def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes):
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"], n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict"], n_boot=100, **STATS, shuffled_permutations=20)
     assert audit["a_share"] == pytest.approx(4 / 6)
     # Same outcome: a1/b1 (both succeed, answered A) and c2/b2 (both fail, answered B).
     assert audit["n_same_outcome"] == 2 and audit["a_share_same_outcome"] == pytest.approx(0.5)
@@ -83,7 +83,7 @@ def test_audit_position_bias_without_swaps_or_annotations(verdicts, sim_episodes
 
 def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
     verdicts["swapped_letter"] = ["A", None, "B", "B", "B", None]  # original letters A, B, A, A, A, B
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict", "swapped_letter"], n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["swapped_verdict", "swapped_letter"], n_boot=100, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 4 and audit["swap_column"] == "swapped_letter"
     assert audit["swap_consistency"] == pytest.approx(3 / 4)  # only the first audited row kept its letter
 
@@ -91,15 +91,15 @@ def test_audit_swap_consistency_from_letters(verdicts, sim_episodes):
 def test_audit_swap_consistency_skips_empty_answers(verdicts, sim_episodes):
     # The judge stage writes "" where a pair was not audited or its swapped answer was invalid.
     verdicts["verdict_swapped"] = ["B", "", "", "B", "", "A"]  # original letters A, B, A, A, A, B
-    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=100, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 3 and audit["swap_consistency"] == pytest.approx(1.0)
     verdicts["verdict_swapped"] = ""
-    assert judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=1000, **STATS, shuffled_permutations=20)["swap_consistency"] is None
+    assert judge_audit(verdicts, sim_episodes, swapped_letter_columns=["verdict_swapped"], n_boot=100, **STATS, shuffled_permutations=20)["swap_consistency"] is None
 
 
 def test_audit_swap_consistency_from_winners(verdicts, sim_episodes):
     verdicts["swapped_winner"] = ["a", None, "a", "a", "c", None]  # winners a, a, c, a, b, b
-    audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"], n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, swapped_winner_columns=["swapped_winner"], n_boot=100, **STATS, shuffled_permutations=20)
     assert audit["n_swapped"] == 4 and audit["swap_consistency"] == pytest.approx(0.5)
 
 
@@ -110,7 +110,7 @@ def test_audit_human_agreement_majority_and_flipped_order(verdicts, sim_episodes
         "choice": ["A", "a", "B", "A", "B", "A", "B"],
         "annotator": ["x", "y", "z", "x", "x", "x", "y"],
     })
-    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=100, **STATS, shuffled_permutations=20)
     # a1/b1: majority A, judge A (agree). a2/b2 was shown to the judge as b2/a2 and answered B (a2):
     # the annotator's A for a2 agrees. c1/a1: annotator B, judge A. b1/c1: tied vote, left out.
     assert audit["human_agreement"] == pytest.approx(2 / 3)
@@ -149,7 +149,7 @@ def test_audit_human_agreement_by_outcome_category(verdicts, sim_episodes):
 def test_audit_counts_annotated_pairs_the_judge_never_compared(verdicts, sim_episodes):
     # A judge may lack an annotated pair (an excluded comparison): it is counted, not scored.
     annotations = pd.DataFrame({"episode_a": ["a1", "a1"], "episode_b": ["c2", "b1"], "choice": ["A", "A"]})
-    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=1000, **STATS, shuffled_permutations=20)
+    audit = judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=100, **STATS, shuffled_permutations=20)
     assert audit["human"]["n_unjudged_pairs"] == 1 and audit["n_annotated_pairs"] == 2
     assert audit["human_agreement"] == 1.0 and audit["human"]["judge_agreement"]["n_pairs"] == 1
 
@@ -157,20 +157,20 @@ def test_audit_counts_annotated_pairs_the_judge_never_compared(verdicts, sim_epi
 def test_audit_names_annotation_of_unknown_episode(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["zz"], "choice": ["A"]})
     with pytest.raises(ValueError, match=r"ann\.csv, row 0: episode zz has no sim rollout"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=1000, **STATS, shuffled_permutations=20)
+        judge_audit(verdicts, sim_episodes, annotations=annotations, annotations_source="ann.csv", n_boot=100, **STATS, shuffled_permutations=20)
 
 
 def test_audit_names_an_annotator_answering_a_pair_twice(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1", "b1"], "episode_b": ["b1", "a1"], "choice": ["A", "A"],
                                 "annotator": ["x", "x"]})
     with pytest.raises(ValueError, match=r"rows 0 and 1: annotator x answered episodes b1 / a1 twice"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
+        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=100, **STATS, shuffled_permutations=20)
 
 
 def test_audit_rejects_bad_choice(verdicts, sim_episodes):
     annotations = pd.DataFrame({"episode_a": ["a1"], "episode_b": ["b1"], "choice": ["left"]})
     with pytest.raises(ValueError, match="choice must be A or B"):
-        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=1000, **STATS, shuffled_permutations=20)
+        judge_audit(verdicts, sim_episodes, annotations=annotations, n_boot=100, **STATS, shuffled_permutations=20)
 
 
 def test_win_rate_matrix_ordered_by_win_share(verdicts):

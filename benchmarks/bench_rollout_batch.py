@@ -110,7 +110,7 @@ def _one_at_a_time(out: Path, trained: Path, inits, cfg: dict, model_buffer: boo
                 for size in (envs[p.task].image_size, tuple(rollout["video_size"])):
                     renderers[p.task][size] = mujoco.Renderer(envs[p.task].model, *size)
         runner.reset(seed=p.seed)
-        result = run_episode(envs[p.task], runner, p.object_poses, p.seed, rollout["max_steps"],
+        result = run_episode(envs[p.task], runner, p.object_poses, p.seed, ROBOT.steps_in(rollout["max_duration_s"]),
                              rollout["video_camera"], video_size=rollout["video_size"])  # a frame every step
         folder = store / p.episode_id
         folder.mkdir()
@@ -147,7 +147,7 @@ def main() -> None:
     parser.add_argument("--model-batch", type=int, default=None, help="rows of a model call (default: the demo's)")
     parser.add_argument("--cameras", type=int, default=4, choices=range(1, len(CAMERA_NAMES) + 1),
                         help="cameras the policy reads (the first N of the world's)")
-    parser.add_argument("--max-steps", type=int, default=None, help="default: the demo's rollout.max_steps")
+    parser.add_argument("--max-steps", type=int, default=None, help="default: the demo's rollout.max_duration_s at 10 Hz")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--checkpoint", type=Path, help="a trained ACT folder instead of a random one")
     args = parser.parse_args()
@@ -156,7 +156,7 @@ def main() -> None:
     cfg = compose_config(CONF_DIR, experiment="demo")
     cfg["world"]["cameras"] = list(CAMERA_NAMES)
     if args.max_steps:
-        cfg["rollout"]["max_steps"] = args.max_steps
+        cfg["rollout"]["max_duration_s"] = args.max_steps / ROBOT.control_hz
     if args.model_batch:
         cfg["rollout"]["model_batch"] = args.model_batch
     args.batch = args.batch or cfg["rollout"]["batch_episodes"]

@@ -105,7 +105,7 @@ def success_rate(run: Path, cfg: dict, policy: str, arm: str, sigma: float, join
     try:
         run_batched(noisy, planned, EnvPool(lambda task, **shared: make_env(task, world, params, cameras=cameras, **shared)),
                     arm=arm, horizon=Horizon.from_config(rollout["horizon"]), action_map=None,
-                    max_steps=rollout["max_steps"], video_camera=rollout["video_camera"], video_size=None,
+                    max_steps=robot.steps_in(rollout["max_duration_s"]), video_camera=rollout["video_camera"], video_size=None,
                     open_episode=lambda p: _Discard(),
                     on_finished=lambda p, episode, stats, sink: results.append((p.task, bool(episode.success))),
                     batch_episodes=batch, threads=1,

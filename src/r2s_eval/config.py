@@ -20,6 +20,7 @@ from typing import Any, NoReturn
 
 from hydra import compose, initialize_config_dir
 from hydra.errors import HydraException
+import yaml
 from omegaconf import OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
@@ -27,8 +28,10 @@ from r2s_eval.errors import ConfigError, R2SError
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.schema import (
     WITHOUT_TRAINING,
+    Source,
     composition_sources,
     config_problems,
+    foreign_cameras,
     problems_error,
     unknown_override_problem,
     where,
@@ -42,6 +45,17 @@ def compose_config(
     config_name: str = "config",
 ) -> dict[str, Any]:
     """Compose `config_name` with the experiment and user overrides into a plain, validated dict."""
+    return compose_with_layers(config_dir, experiment, overrides, config_name)[0]
+
+
+def compose_with_layers(
+    config_dir: str | Path,
+    experiment: str = "demo",
+    overrides: Sequence[str] = (),
+    config_name: str = "config",
+) -> tuple[dict[str, Any], list[Source], set[str]]:
+    """``compose_config``'s dict, the layers it was composed from (highest precedence first) and
+    the paths filled in from the world (``derive_camera_settings``)."""
     config_dir = Path(config_dir).resolve()
     if not (config_dir / f"{config_name}.yaml").exists():
         raise FileNotFoundError(f"no Hydra config {config_name}.yaml in {config_dir}")
@@ -66,17 +80,44 @@ def compose_config(
         del cfg["hydra"]
     plain = sort_keys(OmegaConf.to_container(cfg, resolve=True))
     sources = composition_sources(config_dir, config_name, choices, overrides)
+    as_written = dict(leaves(plain))
     unset = derive_camera_settings(plain)
     plain = sort_keys(plain)  # a derived key keeps its sorted place
+    derived = {path for path, value in leaves(plain) if as_written.get(path, value) != value}
     problems = refused + config_problems(plain, sources)
     if unset:  # one line for the settings the world could not fill (not one more per setting)
         problems = [p for p in problems if not p.startswith(tuple(f"{key} (" for key in unset))]
+    if foreign_cameras(plain.get("world")):
+        # Cameras of another world leave none fixed: that is the cause, not the derived settings.
+        cause = [p for p in problems if p.startswith("world.cameras (")]
+        problems = cause + [p for p in problems if p not in cause]
+    elif unset:
         problems.insert(len(refused), f"{unset[0]} ({where(unset[0], sources)}) is null (the world's first recorded "
                                       f"fixed camera), but world.cameras {plain['world'].get('cameras')} records "
                                       f"none (a camera on no arm); set {', '.join(unset)}")
     if problems:
         raise problems_error(problems)
-    return plain
+    return plain, sources, derived
+
+
+def leaves(cfg: dict[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted path, value) of every setting of ``cfg``; a list or an empty map is one setting."""
+    out = []
+    for key, value in cfg.items():
+        path = f"{prefix}.{key}" if prefix else str(key)
+        out += leaves(value, path) if isinstance(value, dict) and value else [(path, value)]
+    return out
+
+
+def layer_lines(cfg: dict[str, Any], sources: Sequence[Source], derived: set[str] = frozenset()) -> list[str]:
+    """One line per setting: its path, its value and the layer that set it (a file of conf/, a
+    command-line override, or the world, for a camera setting filled in from it)."""
+    lines = []
+    for path, value in leaves(cfg):
+        shown = yaml.safe_dump(value, default_flow_style=True, width=10**9).strip().removesuffix("\n...").strip()
+        layer = "from the world's cameras" if path in derived else where(path, sources).removeprefix("set in ").removeprefix("set by ")
+        lines.append(f"{path}: {shown}  # {layer}")
+    return lines
 
 
 def fixed_cameras(world: dict) -> list[str]:
@@ -225,3 +266,29 @@ def candidate_config(name: str, experiment: str = "demo", **changes: Any) -> dic
     cfg = copy.deepcopy(candidates[name])
     cfg.update(copy.deepcopy(changes))
     return validate_policy_cfg(cfg)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m r2s_eval.config",
+                                description="Print an experiment's composed configuration (what a run would use).")
+    p.add_argument("experiment", nargs="?", default="demo", help="a file of conf/experiment/, without .yaml")
+    p.add_argument("overrides", nargs="*", help="overrides as the workflow takes them, e.g. rollout.inits_per_task=4")
+    p.add_argument("--where", action="store_true", help="one line per setting, with the file or override that set it")
+    p.add_argument("--conf", type=Path, default=None,
+                   help="the config folder (default: ./conf where the command runs in a checkout, as Snakemake "
+                        "reads it beside the Snakefile; else the installed project's)")
+    args = p.parse_args(argv)
+    conf = args.conf or (Path("conf") if (Path("conf") / "config.yaml").is_file() else CONF_DIR)
+    try:
+        cfg, sources, derived = compose_with_layers(conf, args.experiment, args.overrides)
+    except R2SError as err:
+        print(err, file=sys.stderr)
+        return 1
+    print("\n".join(layer_lines(cfg, sources, derived)) if args.where else yaml.safe_dump(cfg, sort_keys=False), end="\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -142,7 +142,7 @@ class BoardTake:
 @dataclass
 class Teleop:
     episodes_per_task: PositiveInt
-    max_steps: PositiveInt
+    max_duration_s: Positive  # seconds; the world's control rate makes them steps
     keep_failed: bool
     max_attempts_factor: PositiveInt
     operator: Annotated[dict, FieldsOf(_operator_config)]
@@ -299,7 +299,7 @@ class Rollout:
     horizon: RolloutHorizon
     inits_per_task: PositiveInt
     real_inits_per_task: PositiveInt | None
-    max_steps: PositiveInt
+    max_duration_s: Positive  # seconds; the world's control rate makes them steps
     device: str
     batch_episodes: PositiveInt
     model_batch: PositiveInt
@@ -687,6 +687,9 @@ class Config:
 RENAMED = {
     "rollout.chunk_size": "rollout.horizon.chunk",
     "rollout.n_action_steps": "rollout.horizon.execute",
+    # Episode lengths are times: the same seconds at any control rate.
+    "teleop.max_steps": "teleop.max_duration_s (seconds; the world's robot.control_hz makes them steps)",
+    "rollout.max_steps": "rollout.max_duration_s (seconds; the world's robot.control_hz makes them steps)",
 }
 
 
@@ -1012,12 +1015,18 @@ def _override_key(line: str) -> str | None:
     return m.group(1) if m else None
 
 
+def _setter(path: str, sources: Sequence[Source]) -> Source | None:
+    """The layer that set `path` (the effective one), if any did."""
+    bare = re.sub(r"\[\d+\]", "", path)
+    return next((source for source in sources if source.sets(bare)), None)
+
+
 def where(path: str, sources: Sequence[Source]) -> str:
     """Which layer set `path` (the effective one), as words for a message."""
     bare = re.sub(r"\[\d+\]", "", path)
-    for source in sources:
-        if source.sets(bare):
-            return f"set in {source.label}" if source.override_key is None else f"set by {source.label}"
+    source = _setter(bare, sources)
+    if source is not None:
+        return f"set in {source.label}" if source.override_key is None else f"set by {source.label}"
     group = bare.split(".", 1)[0]
     files = [s for s in sources if s.override_key is None]
     owner = next((s for s in files if s.group == group), files[-1] if files else None)  # else the root file
@@ -1068,7 +1077,7 @@ def suggest(path: str, known: Sequence[str]) -> str | None:
 # model's device, rollout.horizon / device, are shared with real-to-sim).
 LIBERO_UNREAD = ("tasks", "suite", "world", "real", "teleop", "ingest", "calib", "replay", "fidelity",
                  "rollout.inits_per_task",
-                 "rollout.real_inits_per_task", "rollout.max_steps", "rollout.batch_episodes", "rollout.model_batch",
+                 "rollout.real_inits_per_task", "rollout.max_duration_s", "rollout.batch_episodes", "rollout.model_batch",
                  "rollout.video_camera", "rollout.video_size", "rollout.real_video_size", "rollout.video_fps")
 
 
@@ -1093,8 +1102,32 @@ def config_problems(cfg: dict, sources: Sequence[Source] = ()) -> list[str]:
         line = f"{p.path} ({where(p.path, sources)}){':' if p.owner else ''} {p.message}"
         if p.unknown and (hint := suggest(p.path, known)):
             line += f"; did you mean {hint}?"
+        if p.path == "world.cameras" and foreign_cameras(cfg.get("world")):
+            line += _foreign_cameras_advice(cfg["world"], sources)
         lines.append(line)
     return lines
+
+
+def foreign_cameras(world: Any) -> list[str]:
+    """The cameras ``world.cameras`` records that the world's rig does not place."""
+    if not isinstance(world, dict) or not isinstance(world.get("rig"), dict):
+        return []
+    cameras = world.get("cameras")
+    return [c for c in cameras if c not in world["rig"]] if isinstance(cameras, list) else []
+
+
+def _foreign_cameras_advice(world: dict, sources: Sequence[Source]) -> str:
+    """What to do when a layer above the world's own file (an experiment written for another
+    world, an override) set cameras the rig does not place; empty when the world file set them."""
+    source = _setter("world.cameras", sources)
+    if source is None or source.group == "world":
+        return ""
+    own = next((s.data["world"]["cameras"] for s in sources if s.group == "world" and s.sets("world.cameras")), None)
+    example = f"world.cameras=[{','.join(own if isinstance(own, list) else sorted(world['rig']))}]"
+    if source.override_key is not None:
+        return f"; name cameras of this world's rig, e.g. {example}"
+    return (f"; {source.label} names the cameras of another world: override world.cameras for this world "
+            f"(e.g. {example}) or write an experiment of your own for it (docs/experiments.md)")
 
 
 def problems_error(lines: Sequence[str]) -> ConfigError:

@@ -21,7 +21,7 @@ from tests.helpers.commands import POSES
 from tests.helpers.worlds import bundled_env, bundled_world
 
 TASKS = ["cup_on_plate"]
-TELEOP = {"episodes_per_task": 4, "max_steps": 150, "keep_failed": True, "max_attempts_factor": 2,
+TELEOP = {"episodes_per_task": 4, "max_duration_s": 15.0, "keep_failed": True, "max_attempts_factor": 2,
           "operator": {"pause_prob": 0.0, "overshoot_prob": 0.0, "regrasp_prob": 0.0},
           "video": {"vcodec": "h264", "preset": "ultrafast", "crf": 18}}
 # A room no world file holds: a wooden table, walls with a poster, shadows, a marker on the far strip.

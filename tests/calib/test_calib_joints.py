@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from r2s_eval.calib.joints import RecordedEpisode, estimate_joint_offsets, replay_residuals
+from r2s_eval.calib.joints import JointFit, RecordedEpisode, estimate_joint_offsets, fit_summary, replay_residuals
 from r2s_eval.errors import DataError
 from r2s_eval.sim import TabletopEnv, WorldParams
 from tests.helpers.worlds import bundled_env
@@ -51,6 +51,18 @@ def test_a_nominal_recording_gives_no_offsets():
     fit = estimate_joint_offsets(robot, [record(WorldParams(), 7)], make_env, iterations=1)
     for offsets in fit.offsets_rad.values():
         assert np.abs(offsets).max() < 1e-6
+
+
+def test_each_arms_log_line_names_that_arm_alone():
+    # A bimanual robot's arms are left and right: the right arm's line once said "residual left".
+    fit = JointFit(offsets_rad={"left": (np.deg2rad(1.0), 0.0), "right": (np.deg2rad(-2.0), np.deg2rad(0.5))},
+                   pass_residual_rad=[{"left": (0.1, 0.1), "right": (0.1, 0.1)},
+                                      {"left": (0.0, np.deg2rad(0.01)), "right": (np.deg2rad(0.02), 0.0)}],
+                   episodes=1, frames=10)
+    left, right = fit_summary(fit)
+    assert left == "arm left: joint offsets (deg) [1.0, 0.0]; median residual after the last pass (deg) [0.0, 0.01]"
+    assert right == "arm right: joint offsets (deg) [-2.0, 0.5]; median residual after the last pass (deg) [0.02, 0.0]"
+    assert "left" not in right
 
 
 def test_an_episode_of_the_wrong_width_is_named():

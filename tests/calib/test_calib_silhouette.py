@@ -16,7 +16,7 @@ from r2s_eval.twin.record import record_teleop
 TASKS = ["cup_on_plate"]
 SILHOUETTE = {"fit": True, "frames": 16, "stride": 4, "min_frames": 8, "supersample": 2, "blur_px": [4, 2, 1],
               "max_mismatch": 0.3}
-TELEOP = {"episodes_per_task": 3, "max_steps": 150, "keep_failed": True, "max_attempts_factor": 2,
+TELEOP = {"episodes_per_task": 3, "max_duration_s": 15.0, "keep_failed": True, "max_attempts_factor": 2,
           "operator": {"pause_prob": 0.0, "overshoot_prob": 0.0, "regrasp_prob": 0.0},
           "video": {"vcodec": "h264", "preset": "ultrafast", "crf": 18}}
 # A head camera placed from a tape measure, and the wrist camera (which the silhouette cannot see).

@@ -57,8 +57,8 @@ def test_config_validation_names_libero_mistakes():
     with pytest.raises(ConfigError, match="libero.video.fps"):
         compose_config(conf, experiment="libero_smoke", overrides=["libero.video.fps=3"])
     # A setting the LIBERO run would ignore is an error, not a silent no-op.
-    with pytest.raises(ConfigError, match=r"rollout.max_steps \(set by the command-line override.*not read in the LIBERO setting"):
-        compose_config(conf, experiment="libero_smoke", overrides=["rollout.max_steps=50"])
+    with pytest.raises(ConfigError, match=r"rollout.max_duration_s \(set by the command-line override.*not read in the LIBERO setting"):
+        compose_config(conf, experiment="libero_smoke", overrides=["rollout.max_duration_s=5"])
     with pytest.raises(ConfigError, match="teleop.keep_failed.*not read in the LIBERO setting"):
         compose_config(conf, experiment="libero_smoke", overrides=["teleop.keep_failed=true"])
     assert compose_config(conf, experiment="libero_smoke",

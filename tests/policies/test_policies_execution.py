@@ -96,7 +96,7 @@ def test_an_execution_that_is_wrong_or_changes_nothing_names_the_key(execution, 
 
 TASKS = ["cup_on_plate", "stack_blocks"]
 WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left"]}
-ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 2, "real_inits_per_task": None, "max_steps": 12,
+ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 2, "real_inits_per_task": None, "max_duration_s": 1.2,
            "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64],
            "real_video_size": None, "video_fps": 10}
 SEED = 3

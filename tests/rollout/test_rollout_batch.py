@@ -28,7 +28,7 @@ from tests.helpers.policies import save_random_policy
 
 TASKS = ["cup_on_plate", "stack_blocks"]
 WORLD = {**bundled_world(), "image_height": 48, "image_width": 48, "cameras": ["head_left", "wrist_right"]}
-ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 3, "real_inits_per_task": None, "max_steps": 12,
+ROLLOUT = {"horizon": {"chunk": 10, "execute": 5}, "inits_per_task": 3, "real_inits_per_task": None, "max_duration_s": 1.2,
            "device": "cpu", "model_batch": 4, "video_camera": "head_left", "video_size": [64, 64], "real_video_size": [64, 64],
            "video_fps": 10}
 SEED = 3
@@ -81,7 +81,7 @@ def _one_at_a_time(tmp: Path, inits: Path, act: Path, twin: Path) -> dict[str, b
     for p in planned_episodes(pd.read_parquet(inits), "real", "act", SEED):
         env = make_env(p.task, WORLD, load_world_params(twin))
         runner = RecedingHorizon(policy, Horizon.from_config(ROLLOUT["horizon"]), slot=p.slot, seed=p.seed)
-        result = run_episode(env, runner, p.object_poses, p.seed, ROLLOUT["max_steps"], ROLLOUT["video_camera"],
+        result = run_episode(env, runner, p.object_poses, p.seed, 12, ROLLOUT["video_camera"],  # 1.2 s at 10 Hz
                              video_size=ROLLOUT["video_size"])
         env.close()
         write_video(tmp / f"{p.episode_id}.mp4", result.frames, ROLLOUT["video_fps"])

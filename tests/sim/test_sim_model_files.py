@@ -1,9 +1,12 @@
 """Model files as their makers ship them (r2s_eval.sim.model_files): gym-aloha's ViperX 300 as an
 include fragment with its assets file and as one body of the package's bimanual model, unnamed
-actuators named by their joints, grippers with several fingers, and the physics a world states."""
+actuators named by their joints and unnamed geoms by their body, a file's own simulation settings
+giving way to the scene's, grippers with several fingers, and the physics a world states."""
 
 from __future__ import annotations
 
+import re
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -17,6 +20,7 @@ from r2s_eval.sim.model_files import load_model_spec
 from r2s_eval.sim.reading import WorldError, package_dir
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.sim.tasks import get_task
+from tests.helpers.worlds import bundled_world
 
 REPO = Path(__file__).resolve().parents[2]
 ALOHA = package_dir("gym_aloha", "test") / "assets"
@@ -77,7 +81,81 @@ def test_unnamed_actuators_are_named_by_their_joint_and_a_clash_is_an_error(tmp_
 
 def test_the_bundled_arm_and_scene_read_as_mujoco_reads_them():
     for path in (REPO / "assets" / "arm.xml", REPO / "assets" / "tabletop.xml"):
-        assert load_model_spec(path, where=WHERE).to_xml() == mujoco.MjSpec.from_file(str(path)).to_xml()
+        ours, mujocos = load_model_spec(path, where=WHERE), mujoco.MjSpec.from_file(str(path))
+        for theirs, named in zip(mujocos.geoms, ours.geoms, strict=True):  # but for the names it gives
+            assert theirs.name == named.name or re.fullmatch(rf"{theirs.parent.name}_geom\d", named.name)
+            theirs.name = named.name
+        assert ours.to_xml() == mujocos.to_xml()
+
+
+def _arm_file(tmp_path: Path, old: str, new: str) -> Path:
+    text = (REPO / "assets" / "arm.xml").read_text()
+    assert text.count(old) == 1, old
+    path = tmp_path / "maker_arm.xml"
+    path.write_text(text.replace(old, new))
+    return path
+
+
+def _world_with_left_arm(model: Path, **keys) -> dict:
+    world = bundled_world()
+    world["robot"]["arms"]["left"].update(model=str(model), **keys)
+    return world
+
+
+def test_a_files_own_simulation_settings_give_way_to_the_scenes_without_a_warning(tmp_path, monkeypatch, capfd):
+    # A maker's file stating its own step, solver tolerance, iterations and Jacobian, and a near
+    # plane, attached into the bundled scene with the world's own step.
+    model = _arm_file(tmp_path, '<compiler angle="radian" autolimits="true"/>',
+                      '<compiler angle="radian" autolimits="true"/>\n'
+                      '<option timestep="0.0025" tolerance="1e-6" iterations="50" jacobian="sparse"/>\n'
+                      '<size memory="1M"/><visual><map znear="0.1"/></visual>')
+    world = _world_with_left_arm(model)
+    world["robot"]["timestep_s"] = 0.001
+    monkeypatch.chdir(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = TabletopEnv(get_task("cup_on_plate", world), cameras=(), robot=world_robot(world))
+    try:
+        scene = mujoco.MjSpec.from_file(str(REPO / "assets" / "tabletop.xml")).compile()
+        opt = env.model.opt
+        assert opt.timestep == 0.001  # robot.timestep_s
+        assert (opt.tolerance, opt.iterations, opt.jacobian) == (scene.opt.tolerance, scene.opt.iterations,
+                                                                 scene.opt.jacobian)
+        assert env.model.vis.map.znear == scene.vis.map.znear
+    finally:
+        env.close()
+    out, err = capfd.readouterr()
+    assert "conflict" not in (out + err).lower() and "WARNING" not in out + err
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+def test_an_unnamed_geom_is_named_by_its_body_and_a_world_can_disable_it(tmp_path):
+    # The right jaw's pad left unnamed, as a maker's package may leave its jaws' collision geoms.
+    model = _arm_file(tmp_path, '<geom name="pad_b" class="pad"', '<geom class="pad"')
+    world = _world_with_left_arm(model, collision={"disable": {"geoms": ["finger_b_geom1"]}})
+    robot, _ = load_world(world)
+    compiled = build_robot_model(robot)
+    pad = compiled.geom("left_finger_b_geom1")  # the body's second geom
+    assert compiled.geom_bodyid[pad.id] == compiled.body("left_finger_b").id
+    assert (pad.contype[0], pad.conaffinity[0]) == (0, 0)
+    assert (compiled.geom("left_finger_b").contype[0], compiled.geom("right_pad_b").contype[0]) == (2, 2)
+
+    world["robot"]["arms"]["left"]["collision"]["disable"]["geoms"] = ["finger_b_geom7"]
+    with pytest.raises(WorldError) as err:
+        load_world(world)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(
+        "world.robot.arms.left.collision.disable.geoms: maker_arm.xml has no geom 'finger_b_geom7'; its colliding "
+        "geoms (an unnamed one is <body>_geom<i>): [")
+    assert "'finger_b_geom1'" in message and "'pad_a'" in message
+
+
+def test_a_derived_geom_name_another_geom_holds_is_an_error(tmp_path):
+    model = _arm_file(tmp_path, '<geom name="pad_b" class="pad"', '<geom class="pad"')
+    model.write_text(model.read_text().replace('name="pad_a"', 'name="finger_b_geom1"'))
+    with pytest.raises(WorldError, match=r"^world\.robot\.arms\.left\.model: maker_arm\.xml: the unnamed geom 1 of "
+                                         r"body 'finger_b' would be named 'finger_b_geom1'"):
+        load_model_spec(model, where=WHERE)
 
 
 def test_the_aloha_worlds_fingers_close_together_with_the_physics_it_states(aloha_world):
@@ -108,3 +186,12 @@ def test_the_aloha_worlds_fingers_close_together_with_the_physics_it_states(aloh
         assert np.allclose(env.state()[[6, 13]], 0.0, atol=0.05)  # the dataset's gripper: 0 closed .. 1 open
     finally:
         env.close()
+
+
+def test_a_table_geom_the_scene_lacks_is_named_with_the_scenes_geoms():
+    world = bundled_world()
+    world["robot"]["workspace"]["geom"] = "table"
+    with pytest.raises(WorldError) as err:
+        load_world(world)
+    assert re.fullmatch(r"world\.robot\.workspace\.geom: tabletop\.xml has no geom 'table'; its geoms \(an unnamed one "
+                        r"is <body>_geom<i>\): \[.*'table_top'.*\]", str(err.value)), str(err.value)

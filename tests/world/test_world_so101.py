@@ -2,7 +2,8 @@
 from the installed package without importing it: the package's own code needs dm_control), at
 30 fps with a 1/600 s physics step, boxes on its jaws in place of the printed parts' convex hulls,
 and the layout LeRobot's so_follower records (joints in degrees, the gripper 0 closed .. 100 open).
-The twin records it; the gripper holds what it lifts."""
+The twin records it; the gripper holds what it lifts, and the world check says so when, and only
+when, the scripted operator's grasp holds."""
 
 from __future__ import annotations
 
@@ -31,13 +32,16 @@ from r2s_eval.sim.predicates import centre_m  # noqa: E402
 from r2s_eval.sim.assembly import load_world
 from r2s_eval.sim.robot import WorldError  # noqa: E402
 from r2s_eval.sim.assembly import build_robot_model  # noqa: E402
+from r2s_eval.sim.arm_ik import ArmIK, top_down_rotation  # noqa: E402
+from r2s_eval.sim.tasks import world_tasks  # noqa: E402
+from r2s_eval.sim.world_check import grasp_problems  # noqa: E402
 from r2s_eval.twin import twin_world  # noqa: E402
-from r2s_eval.twin.operator import ArmIK, top_down_rotation  # noqa: E402
+from r2s_eval.twin.operator import episode_failures  # noqa: E402
 from r2s_eval.twin.record import record_teleop  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 SO101 = ["world=so101", "suite=world", "tasks=[block_on_plate,ball_in_cup]", "world.cameras=[front,wrist]",
-         "calib.camera=front", "rollout.video_camera=front", "teleop.max_steps=450",  # 15 s at 30 fps
+         "calib.camera=front", "rollout.video_camera=front",
          *(f"policies.{p}.image_keys=[observation.images.front]" for p in ("act", "act_subset", "act_weak"))]
 FEATURES = ["shoulder_pan.pos", "shoulder_lift.pos", "elbow_flex.pos", "wrist_flex.pos", "wrist_roll.pos", "gripper.pos"]
 EPISODES = 1  # per task
@@ -129,6 +133,28 @@ def test_the_gripper_holds_what_it_lifts(world):
     del hulls["robot"]["arms"]["so101"]["collision"]
     rise, grasped = _lift(hulls, "ball", 0.05)
     assert grasped is None and rise < 0.01
+
+
+@pytest.mark.parametrize(("kp", "friction", "held"), [(30.0, None, True), (3.0, 0.02, False)])
+def test_the_world_check_holds_what_the_operator_holds(world, kp, friction, held):
+    """One fixed jaw: the check grasps as the operator does (its pre-shape, gripper rate, holds and
+    lift speed). A stiff gripper servo (kp 30) holds in every operator episode (20/20 of each task)
+    and passes; the same jaw, commanded shut from fully open at once, used to knock the block
+    away and fail the check. Slippery jaws on a softer servo (kp 3, friction 0.02) slip in the
+    operator's lift (0/10) and fail the check."""
+    w = copy.deepcopy(world)
+    w["robot"]["arms"]["so101"]["gripper"]["servo"] = {"kp": kp, "kv": 0.0}
+    if friction is not None:
+        for pad in (0, 2):  # the two jaws' faces, and the block
+            w["robot"]["arms"]["so101"]["collision"]["add"][pad]["friction"] = [friction, 0.005, 0.0001]
+        w["objects"]["block"]["friction"] = friction
+    lines = grasp_problems(world_robot(w), {"block_on_plate": world_tasks(w)["block_on_plate"]})
+    failure, = episode_failures("block_on_plate", 1, world=w)
+    if held:
+        assert lines == [] and failure is None, (lines, failure)
+    else:
+        assert len(lines) == 1 and lines[0].startswith("world.robot.arms.so101.gripper: did not hold block"), lines
+        assert failure is not None and failure.reason == "slipped", failure
 
 
 @pytest.mark.parametrize(("old", "new", "message"), [

@@ -49,7 +49,8 @@ class R2SEvalEnv(EnvConfig):
     ``results/calib/world_params.json`` (or the twin's; None: nominal); ``inits`` and
     ``experiment_seed``: start episode ``--seed=k`` from the rollout stage's init ``k``
     (``results/rollout/inits.parquet``) with its episode seed; ``image_height``/``image_width``
-    (0: the world's), ``cameras`` (empty: the world's); ``episode_length``: steps before truncation.
+    (0: the world's), ``cameras`` (empty: the world's); ``episode_length``: steps before truncation (None: the rollout stage's
+    ``rollout.max_duration_s`` at the world's control rate, 150 steps at 10 Hz, 450 at 30 Hz).
     ``fps`` is the world's control rate.
     """
 
@@ -61,7 +62,7 @@ class R2SEvalEnv(EnvConfig):
     image_height: int = 0
     image_width: int = 0
     cameras: list[str] = field(default_factory=list)
-    episode_length: int = gym_env.DEFAULT_EPISODE_STEPS
+    episode_length: int | None = None
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 
@@ -78,6 +79,8 @@ class R2SEvalEnv(EnvConfig):
     def _describe_world(self) -> None:
         config = world_config(self.world)
         self.fps = int(round(float(config["robot"]["control_hz"])))
+        if self.episode_length is None:  # an episode's length is a time: the same seconds at any rate
+            self.episode_length = gym_env.episode_steps(config)
         recorded = self.recorded()
         for key, shape in recorded.items():
             if key == ACTION:
@@ -108,7 +111,7 @@ class R2SEvalEnv(EnvConfig):
         size = (self.image_height, self.image_width) if self.image_height and self.image_width else None
         return {"world": self.world, "task": self.task, "world_params": self.world_params, "inits": self.inits,
                 "experiment_seed": self.experiment_seed, "image_size": size, "cameras": self.cameras or None,
-                "max_episode_steps": self.episode_length}
+                "max_steps": self.episode_length, "max_episode_steps": self.episode_length}
 
     def check_policy(self, policy_dir: str | Path) -> None:
         """One line (r2s_eval's PolicyError) when the LeRobot policy saved in ``policy_dir`` reads

@@ -235,6 +235,16 @@ def estimate_joint_offsets(robot: Robot, episodes: Sequence[RecordedEpisode],
                     frames=int(sum(len(e.actions) for e in episodes)))
 
 
+def fit_summary(fit: JointFit) -> list[str]:
+    """One log line per arm: its offsets and the median residual its last pass found. The arm's
+    name starts the line and no other word on it names a side (a bimanual robot's arms are
+    called left and right)."""
+    return [f"arm {arm}: joint offsets (deg) {np.round(np.rad2deg(offsets), 2).tolist()}; "
+            f"median residual after the last pass (deg) "
+            f"{np.round(np.rad2deg(fit.pass_residual_rad[-1][arm]), 3).tolist()}"
+            for arm, offsets in fit.offsets_rad.items()]
+
+
 def _as_tuples(per_arm: dict[str, Iterable[float]]) -> dict[str, tuple[float, ...]]:
     return {arm: tuple(float(v) for v in values) for arm, values in per_arm.items()}
 
@@ -278,10 +288,8 @@ def calibrate_joints(dataset: str, index: pd.DataFrame, estimates: pd.DataFrame,
         offsets = fit.offsets_rad
         report.update(episodes=fit.episodes, frames=fit.frames, offsets_rad=fit.offsets_rad,
                       pass_residual_rad=fit.pass_residual_rad)
-        for arm, arm_offsets in fit.offsets_rad.items():
-            log.info("%s joint offsets (deg): %s; residual left (deg): %s", arm,
-                     np.round(np.rad2deg(arm_offsets), 2).tolist(),
-                     np.round(np.rad2deg(fit.pass_residual_rad[-1][arm]), 3).tolist())
+        for line in fit_summary(fit):
+            log.info("%s", line)
     else:
         log.info("calib.joints.estimate is false: the calibrated sim keeps the nominal joints")
     params = WorldParams(joint_offset_rad=offsets, command_latency_steps=latency_steps)

@@ -62,14 +62,15 @@ def perturb(poses: Poses, offsets: np.ndarray, xy_m: float, yaw_rad: float,
     return out
 
 
-def run_actions(env: TabletopEnv, poses: Poses, actions: np.ndarray, seed: int, settle_steps: int = 5) -> tuple[bool, list]:
-    """Replay `actions` open loop from `poses`; success is checked after a short settle."""
+def run_actions(env: TabletopEnv, poses: Poses, actions: np.ndarray, seed: int, settle_s: float = 0.5) -> tuple[bool, list]:
+    """Replay `actions` open loop from `poses` (the recording's own length); success is checked
+    after a short settle (a time: 5 steps at 10 Hz, 15 at 30 Hz)."""
     obs = env.reset(poses, seed=seed)
     frames = []
     for action in actions:
         frames.append((obs, action))
         obs = env.step(action)
-    for _ in range(settle_steps):  # hold the last command so a just-released object comes to rest
+    for _ in range(env.robot.steps_in(settle_s)):  # hold the last command so a just-released object comes to rest
         env.step(actions[-1])
     return bool(env.is_success()), frames
 

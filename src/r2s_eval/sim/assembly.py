@@ -7,6 +7,9 @@ mount with the prefix ``<arm>_`` (its ``visual`` entry decimating its drawn mesh
 entry swapping collision shapes); the rig's
 cameras are renamed, placed, aimed and given their intrinsics; the task objects are added as
 free bodies; ``WorldParams`` perturbs the result.
+The simulation settings are the scene's (``robot.timestep_s`` setting its timestep): an arm's file's
+``<option>``, ``<size>`` and ``<visual>`` give way to them; its ``<compiler>`` settings still read
+its own elements (angle units, autolimits, inertia from geoms).
 The bundled world's files are ``assets/tabletop.xml`` and ``assets/arm.xml``.
 """
 
@@ -21,7 +24,7 @@ import numpy as np
 
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.meshes import decimated_meshes
-from r2s_eval.sim.model_files import load_model_spec
+from r2s_eval.sim.model_files import load_model_spec, unnamed_geom_name
 from r2s_eval.sim.objects import ObjectSpec, add_object
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.reading import fail
@@ -31,6 +34,9 @@ from r2s_eval.sim.robot import Arm, Collision, JointPhysics, RigCamera, Robot, w
 from r2s_eval.sim.tasks import sample_initial_poses, world_tasks
 
 EE_SITE_GROUP = 5  # a site group no renderer shows by default
+# MuJoCo's <size> settings: an attached model's that differ from the scene's are warned of, as its <option>'s.
+SIZE_SETTINGS = ("memory", "nconmax", "njmax", "nstack", "nuserdata", "nkey", "nemax",
+                 *(f"nuser_{kind}" for kind in ("actuator", "body", "cam", "geom", "jnt", "sensor", "site", "tendon")))
 
 
 def ee_site(arm: str) -> str:
@@ -49,6 +55,7 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
     model = load_model_spec(arm.model, assets=arm.model_assets, body=arm.model_body, where=f"{where}.model")
     if arm.visual_max_faces is not None:
         _decimate_visuals(model, arm)
+    _give_scene_settings(spec, model)
     spec.attach(model, prefix=f"{arm.name}_", frame=frame)
     for local in arm.joints:
         if spec.joint(arm.named(local)) is None:
@@ -83,6 +90,20 @@ def _attach_arm(spec: mujoco.MjSpec, arm: Arm) -> None:
         for body in spec.bodies:
             if body.name.startswith(arm.named("")):
                 body.gravcomp = 1.0
+
+
+def _give_scene_settings(scene: mujoco.MjSpec, model: mujoco.MjSpec) -> None:
+    """The scene's simulation settings written over the arm model's before it is attached.
+
+    MuJoCo keeps the scene's anyway, but reports each one that differs at every compile (printed,
+    as a Python warning and into MUJOCO_LOG.TXT in the working folder): keeping them is the world's
+    intent, not a conflict. Compiler settings stay the file's: MuJoCo reads its elements with them."""
+    for name in dir(scene.option):
+        if not name.startswith("_"):
+            setattr(model.option, name, getattr(scene.option, name))
+    for name in SIZE_SETTINGS:
+        setattr(model, name, getattr(scene, name))
+    model.visual = scene.visual  # some are compared too (the near plane)
 
 
 def _drop_actuators(spec: mujoco.MjSpec, joint: str) -> None:
@@ -217,6 +238,13 @@ def _collision_bits(body: mujoco.MjsBody) -> tuple[int, int]:
     return next(((g.contype, g.conaffinity) for g in body.geoms if g.contype or g.conaffinity), (1, 1))
 
 
+def _colliding_geoms(spec: mujoco.MjSpec, arm: Arm) -> list[str]:
+    """The arm's colliding geoms, by the names the world gives them (the model file's)."""
+    prefix = arm.named("")
+    return [g.name[len(prefix):] for g in spec.geoms
+            if g.name.startswith(prefix) and (g.contype or g.conaffinity)]
+
+
 def _swap_collision(spec: mujoco.MjSpec, arm: Arm, collision: Collision) -> None:
     """Switch the arm's named collision geoms off and add its primitives (invisible, massless),
     which collide as their body's own collision geoms did."""
@@ -234,7 +262,9 @@ def _swap_collision(spec: mujoco.MjSpec, arm: Arm, collision: Collision) -> None
     for local in collision.disable_geoms:
         geom = spec.geom(arm.named(local))
         if geom is None:
-            raise fail(f"{where}.disable.geoms", f"{arm.model.name} has no geom {local!r}")
+            raise fail(f"{where}.disable.geoms", f"{arm.model.name} has no geom {local!r}; its colliding geoms "
+                                                 f"(an unnamed one is {unnamed_geom_name('<body>', '<i>')}): "
+                                                 f"{_colliding_geoms(spec, arm)}")
         off.append(geom)
     for local in collision.disable_bodies:
         geoms = [g for g in body_of(local, "disable.bodies").geoms if g.contype or g.conaffinity]
@@ -301,7 +331,9 @@ def build_robot_spec(robot: Robot) -> mujoco.MjSpec:
     if robot.timestep_s is not None:
         spec.option.timestep = robot.timestep_s
     if spec.geom(robot.table_geom) is None:
-        raise fail("robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}")
+        raise fail("robot.workspace.geom", f"{robot.scene.name} has no geom {robot.table_geom!r}; its geoms (an "
+                                           f"unnamed one is {unnamed_geom_name('<body>', '<i>')}): "
+                                           f"{[g.name for g in spec.geoms if g.name]}")
     for arm in robot.arms.values():
         _attach_arm(spec, arm)
     for cam in robot.rig.values():

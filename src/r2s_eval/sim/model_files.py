@@ -15,7 +15,10 @@ A world names a model file (``r2s_eval.sim.robot``'s model references) that may 
   settings are kept.
 
 An actuator the file leaves unnamed that drives a joint is named after that joint (its name in the
-file), so a world can name it by its joint. Two actuators that would get one name are an error.
+file), so a world can name it by its joint. A geom the file leaves unnamed in a named body is named
+``<body>_geom<i>``, ``i`` its place among that body's geoms in the file (from 0, named ones
+counted), so a world can name it (``collision.disable.geoms``). Two elements that would get one
+name are an error.
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ def load_model_spec(path: Path, *, assets: Sequence[Path] = (), body: str | None
                     where: str) -> mujoco.MjSpec:
     """The model ``path`` holds (``assets``: the files an include fragment's assets and defaults come
     from; ``body``: the one top body to keep of a multi-arm file), its unnamed joint actuators named
-    by their joints. ``where`` is the world key that names the file (``robot.arms.left.model``)."""
+    by their joints and its unnamed geoms by their body and place in it. ``where`` is the world key
+    that names the file (``robot.arms.left.model``)."""
     root = _root(path, where)
     if root.tag == "mujocoinclude":
         spec = _fragment_spec(path, root, assets, where)
@@ -53,6 +57,7 @@ def load_model_spec(path: Path, *, assets: Sequence[Path] = (), body: str | None
     if body is not None:
         _keep_body(spec, body, path, where)
     _name_actuators_by_joint(spec, path, where)
+    _name_geoms_by_body(spec, path, where)
     return spec
 
 
@@ -172,4 +177,26 @@ def _name_actuators_by_joint(spec: mujoco.MjSpec, path: Path, where: str) -> Non
         names.add(actuator.target)
 
 
-__all__ = ["load_model_spec"]
+def unnamed_geom_name(body: str, index: int | str) -> str:
+    """The name an unnamed geom gets: its body's and its place among the body's geoms."""
+    return f"{body}_geom{index}"
+
+
+def _name_geoms_by_body(spec: mujoco.MjSpec, path: Path, where: str) -> None:
+    names = {g.name for g in spec.geoms if g.name}
+    for body in spec.bodies:
+        if not body.name:  # no stable name to derive one from
+            continue
+        # Counting the named geoms too keeps a derived name when the maker names another geom.
+        for i, geom in enumerate(body.geoms):
+            if geom.name:
+                continue
+            name = unnamed_geom_name(body.name, i)
+            if name in names:
+                raise fail(where, f"{path.name}: the unnamed geom {i} of body {body.name!r} would be named {name!r} "
+                                  f"(unnamed geoms are named by their body), but {name!r} names another geom already")
+            geom.name = name
+            names.add(name)
+
+
+__all__ = ["load_model_spec", "unnamed_geom_name"]

@@ -184,6 +184,11 @@ class Robot:
     def control_dt_s(self) -> float:
         return 1.0 / self.control_hz
 
+    def steps_in(self, seconds: float) -> int:
+        """Control steps in ``seconds`` at this robot's rate: an episode's length is a time, so a
+        30 Hz arm gets three times the steps of a 10 Hz one."""
+        return max(1, round(float(seconds) * self.control_hz))
+
     @property
     def feature_names(self) -> list[str]:
         return [f.name for f in self.features]

@@ -12,11 +12,17 @@ Two trials, each a few simulated seconds:
 * **A grasp.** Each object a task's plan picks (``pick: X``, ``turn_upright: X``) rests on the
   table, in the task's placement, at a spot of its start region the arm reaches with its hand
   pointing down (the region's centre if it can, else the nearest point of a grid over it). The
-  arm is put there, its jaws open on either side of the object's centre (turned square to it),
-  the gripper closes, and the hand rises ``LIFT_M``: the object must rise with it (to within
-  ``SLIP_M``). Jaws whose collision shapes squeeze the object out, too little friction or too
-  weak a gripper show here. Each arm the task may use is tried (its ``arm``, or every arm for
-  ``nearest`` and ``behind_axis``).
+  arm is put there and grasps it as the scripted operator does (``r2s_eval.sim.grasping``, which
+  both read): the hand at the yaw the arm holds with its joints nearest home (the object turned
+  square to it), the tcp at the operator's grasp height, the jaws at its pre-shape; after
+  ``SETTLE_S`` the gripper closes at the operator's rate and stays closed as long, then the hand
+  rises ``LIFT_M`` at the operator's lift speed and holds ``HOLD_LIFTED_S``: the object must rise
+  with it (to within ``SLIP_M``). Jaws whose collision shapes squeeze the object out, too little
+  friction, too weak a gripper or one so stiff that its jaw knocks the object away show here.
+  Each arm the task may use is tried (its ``arm``, or every arm for ``nearest`` and
+  ``behind_axis``). What it does not try: the operator's approach from above, its aiming error
+  and speed jitter, a hand turned off its natural yaw (neighbours, a block's faces at its start
+  yaw), the carry to the target and the twin's perturbations and reality effects.
 
 Each problem is one line naming the world key, the arm and the joint or object, and what was
 seen, e.g. ``world.robot.arms.left.gripper: left_finger reached 0.17 at home with the gripper
@@ -28,14 +34,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
-import mink
 import mujoco
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim import assembly
+from r2s_eval.sim.arm_ik import ArmIK, top_down_rotation
 from r2s_eval.sim.env import TabletopEnv
+from r2s_eval.sim.grasping import GraspSettings, natural_yaw, task_grasp, ticks
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.reading import WorldError
 from r2s_eval.sim.robot import Robot, world_robot
@@ -43,71 +49,11 @@ from r2s_eval.sim.tasks import Task, world_tasks
 
 HOLD_S = 1.0  # seconds at home, with the grippers open, then closed
 LIMIT_TOLERANCE = 0.1  # share of a joint's range it may pass its limit by (soft limits)
-SETTLE_S, CLOSE_S, LIFT_S, HOLD_LIFTED_S = 0.2, 0.6, 0.5, 0.3  # the grasp trial's phases
+SETTLE_S, HOLD_LIFTED_S = 0.2, 0.3  # the grasp trial's arm settling at the grasp, and its hold once lifted
 LIFT_M = 0.05  # how far the hand rises with the object
 SLIP_M = 0.015  # how far the object may fall behind the hand and still count as held
-GRASP_ABOVE_CENTRE_M = 0.006  # the grasp centre this far above the object's centre (fingertips off the table)
-IK_ITERATIONS, IK_TOLERANCE_M, IK_TOLERANCE_RAD = 80, 0.002, np.deg2rad(2.0)
 FAR_AWAY_M = 5.0  # where a task's other objects are put, out of the trial's way
 REGION_GRID = 5  # points per side of the grid searched for a reachable spot
-
-
-def top_down(yaw_rad: float) -> np.ndarray:
-    """A hand frame (columns: approach, jaw axis, third) pointing down, its third axis at ``yaw_rad``."""
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    return np.column_stack([[0.0, 0.0, -1.0], [-s, c, 0.0], [c, s, 0.0]])
-
-
-class _Reach:
-    """Inverse kinematics of one arm's grasp centre on the robot-only model, from home."""
-
-    def __init__(self, robot: Robot, arm: str):
-        self.arm, self.robot = arm, robot
-        self.model = assembly.build_robot_model(robot)
-        self.site = assembly.ee_site(arm)
-        self.qadr = np.array([self.model.joint(robot.arms[arm].named(j)).qposadr[0] for j in robot.arms[arm].joints])
-        home = mink.Configuration(self.model).q.copy()
-        for name, a in robot.arms.items():
-            home[[self.model.joint(a.named(j)).qposadr[0] for j in a.joints]] = a.home
-        self.home = home
-        self.frame = mink.FrameTask(self.site, "site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3)
-        self.posture = mink.PostureTask(self.model, cost=1e-3)
-        self.posture.set_target(home)
-        self.limits = [mink.ConfigurationLimit(self.model)]
-        data = mujoco.MjData(self.model)  # where the arm's base stands (its root body, at home)
-        data.qpos[:] = home
-        mujoco.mj_kinematics(self.model, data)
-        self.base_xy = data.xpos[self.model.body_rootid[self.model.site_bodyid[self.model.site(self.site).id]], :2].copy()
-
-    def joints(self, pos: np.ndarray, R: np.ndarray, seed: np.ndarray | None = None) -> np.ndarray | None:
-        """The arm's joints that put its grasp centre at ``pos`` turned ``R``; None out of reach."""
-        config = mink.Configuration(self.model, self.home if seed is None else seed)
-        self.frame.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(R), pos))
-        dt = self.robot.control_dt_s
-        for _ in range(IK_ITERATIONS):
-            vel = mink.solve_ik(config, [self.frame, self.posture], dt, solver="daqp", damping=1e-3, limits=self.limits)
-            config.integrate_inplace(vel, dt)
-        T = config.get_transform_frame_to_world(self.site, "site").as_matrix()
-        turn = Rotation.from_matrix(T[:3, :3] @ R.T).magnitude()
-        if np.linalg.norm(T[:3, 3] - pos) > IK_TOLERANCE_M or turn > IK_TOLERANCE_RAD:
-            return None
-        return config.q.copy()
-
-    def grasp(self, centre: np.ndarray) -> tuple[float, np.ndarray, np.ndarray] | None:
-        """(hand yaw, joints at the grasp, joints lifted) for a top-down grasp at ``centre``: the
-        hand turned by the quarter turn about the reach that keeps the joints nearest home."""
-        reach = centre[:2] - self.base_xy
-        best = None
-        for turn in (0.0, np.pi / 2, np.pi, -np.pi / 2):
-            yaw = float(np.arctan2(reach[1], reach[0]) + turn)
-            q = self.joints(centre, top_down(yaw))
-            if q is None:
-                continue
-            lifted = self.joints(centre + [0.0, 0.0, LIFT_M], top_down(yaw), seed=q)
-            cost = float(np.linalg.norm(q[self.qadr] - self.home[self.qadr]))
-            if lifted is not None and (best is None or cost < best[0]):
-                best = (cost, yaw, q[self.qadr], lifted[self.qadr])
-        return None if best is None else best[1:]
 
 
 def _arm_joints(model: mujoco.MjModel, robot: Robot) -> dict[str, list[int]]:
@@ -176,34 +122,46 @@ def _region_points(task: Task, name: str) -> list[np.ndarray]:
     return sorted(grid, key=lambda p: float(np.linalg.norm(p - centre)))
 
 
-def _grasp_problem(env: TabletopEnv, reach: _Reach, name: str, xy: np.ndarray, yaw: float) -> str | None:
-    """Close the arm's gripper on ``name`` resting at ``xy`` (turned ``yaw``) and lift it."""
-    robot, m, d, arm = env.robot, env.model, env.data, reach.arm
+def _grasp_problem(env: TabletopEnv, ik: ArmIK, name: str, xy: np.ndarray, settings: GraspSettings) -> str | None:
+    """Close the arm's gripper on ``name`` resting at ``xy`` as the operator does and lift it; None
+    where the arm does not reach the grasp or the lift with its hand pointing down."""
+    robot, m, d, arm = env.robot, env.model, env.data, ik.arm
     others = [n for n in env.task.object_names if n != name]
     poses = {n: (FAR_AWAY_M, FAR_AWAY_M * (1 + i), 0.0) for i, n in enumerate(others)}
-    env.reset(object_poses={**poses, name: (float(xy[0]), float(xy[1]), yaw)}, settle=False, observe=False)
-    centre = centre_m(env, name) + [0.0, 0.0, GRASP_ABOVE_CENTRE_M]
-    found = reach.grasp(centre)
-    if found is None:
+    env.reset(object_poses={**poses, name: (float(xy[0]), float(xy[1]), 0.0)}, settle=False, observe=False)
+    centre = centre_m(env, name)
+    grasp = task_grasp(env.task, name, env.object_dims(name), robot.arms[arm].gripper.jaw_open_m, settings)
+    reach = centre[:2] - env.arm_base_positions()[arm][:2]
+    yaw = natural_yaw(ik, centre, float(np.arctan2(reach[1], reach[0])))
+    R = top_down_rotation(yaw)
+    at = np.r_[centre[:2], grasp.tcp_z_m(centre[2], env.table_top_z_m)]
+    q_grasp = ik.joints_for(at, R)
+    q_lift = None if q_grasp is None else ik.joints_for(at + [0.0, 0.0, LIFT_M], R, seed=q_grasp)
+    if q_lift is None:
         return None
-    yaw, q_grasp, q_lift = found
-    # The object turned with the hand (its faces square to the jaws), the arm at the grasp.
+    # The object turned with the hand (a block's faces square to the jaws, as the operator turns
+    # its hand to them), the arm at the grasp with the jaws pre-shaped.
     env.reset(object_poses={**poses, name: (float(xy[0]), float(xy[1]), yaw)}, settle=False, observe=False)
     command = {n: (a.home, 0.0) for n, a in robot.arms.items()}
-    env.pose_robot(robot.from_model({**command, arm: (q_grasp, 0.0)}))
+    env.pose_robot(robot.from_model({**command, arm: (q_grasp, grasp.preshape)}))
 
-    def hold(q: np.ndarray, closing: float, seconds: float) -> None:
+    def step(q: np.ndarray, closing: float, steps: int = 1) -> None:  # control steps, as the operator's
         command[arm] = (q, closing)
         env.apply_action(robot.from_model(command))
-        mujoco.mj_step(m, d, nstep=_steps(env, seconds))
+        mujoco.mj_step(m, d, nstep=steps * env.n_substeps)
 
-    hold(q_grasp, 0.0, SETTLE_S)
-    hold(q_grasp, 1.0, CLOSE_S)
+    dt, per_step = env.control_dt_s, ticks(env.control_dt_s)
+    step(q_grasp, grasp.preshape, round(SETTLE_S / dt))
+    closing, rate = grasp.preshape, settings.gripper_rate_per_step / per_step  # the operator's gripper rate
+    while closing < 1.0:
+        closing = min(1.0, closing + rate)
+        step(q_grasp, closing)
+    step(q_grasp, 1.0, settings.close_hold_steps * per_step)
     hand0, obj0 = env.ee_positions()[arm][2], centre_m(env, name)[2]
-    ramp = _steps(env, LIFT_S) // 10
-    for s in np.linspace(0.1, 1.0, 10):
-        hold(q_grasp + s * (q_lift - q_grasp), 1.0, ramp * m.opt.timestep)
-    hold(q_lift, 1.0, HOLD_LIFTED_S)
+    n = int(np.ceil(LIFT_M / (settings.lift_speed_m_s * dt)))
+    for k in range(1, n + 1):
+        step(q_grasp + k / n * (q_lift - q_grasp), 1.0)
+    step(q_lift, 1.0, round(HOLD_LIFTED_S / dt))
     hand, obj = env.ee_positions()[arm][2] - hand0, centre_m(env, name)[2] - obj0
     if not np.isfinite(obj) or hand - obj > SLIP_M:
         return (f"world.robot.arms.{arm}.gripper: did not hold {name}: it stayed {100 * (hand - obj):.1f} cm "
@@ -211,10 +169,13 @@ def _grasp_problem(env: TabletopEnv, reach: _Reach, name: str, xy: np.ndarray, y
     return ""
 
 
-def grasp_problems(robot: Robot, tasks: Mapping[str, Task]) -> list[str]:
-    """Each object a task picks, closed on and lifted by each arm the task may use."""
+def grasp_problems(robot: Robot, tasks: Mapping[str, Task], settings: GraspSettings | None = None) -> list[str]:
+    """Each object a task picks, closed on and lifted by each arm the task may use, as the
+    operator's ``settings`` (default: its defaults) grasp it."""
+    settings = settings or GraspSettings()
     problems, tried = [], set()
-    reaches: dict[str, _Reach] = {}
+    iks: dict[str, ArmIK] = {}
+    home = {name: a.home for name, a in robot.arms.items()}
     for key, task in tasks.items():
         name = task.manipulated
         arms = [task.arm] if task.arm in robot.arms else list(robot.arms)
@@ -226,9 +187,9 @@ def grasp_problems(robot: Robot, tasks: Mapping[str, Task]) -> list[str]:
             reached_by = []
             for arm in todo:
                 tried.add((arm, name, task.placement(name)))
-                reach = reaches.setdefault(arm, _Reach(robot, arm))
+                ik = iks.setdefault(arm, ArmIK(robot, arm, home))
                 for xy in _region_points(task, name):
-                    line = _grasp_problem(env, reach, name, xy, 0.0)
+                    line = _grasp_problem(env, ik, name, xy, settings)
                     if line is not None:
                         reached_by.append(arm)
                         if line:
@@ -246,9 +207,11 @@ def grasp_problems(robot: Robot, tasks: Mapping[str, Task]) -> list[str]:
     return problems
 
 
-def world_problems(world: Mapping, tasks: Sequence[str] | None = None) -> list[str]:
+def world_problems(world: Mapping, tasks: Sequence[str] | None = None,
+                   grasp: GraspSettings | None = None) -> list[str]:
     """Every physical problem of ``world`` (a ``world`` config slice), one line each; the grasps of
-    the ``tasks`` named (default: all the world's)."""
+    the ``tasks`` named (default: all the world's), made with the operator's ``grasp`` settings
+    (default: its defaults)."""
     robot, every = world_robot(world), world_tasks(world)
     tasks = {key: every[key] for key in (every if tasks is None else tasks)}
     env = TabletopEnv(next(iter(tasks.values())), cameras=(), robot=robot)
@@ -257,13 +220,14 @@ def world_problems(world: Mapping, tasks: Sequence[str] | None = None) -> list[s
         problems = home_problems(env)
     finally:
         env.close()
-    return problems + grasp_problems(robot, tasks)
+    return problems + grasp_problems(robot, tasks, grasp)
 
 
-def check_world(world: Mapping, tasks: Sequence[str] | None = None) -> None:
+def check_world(world: Mapping, tasks: Sequence[str] | None = None, grasp: GraspSettings | None = None) -> None:
     """Raise a ``WorldError`` (one problem) or a ``ConfigError`` listing every physical problem of
-    ``world`` (grasps: of ``tasks``), one line each; return when it has none."""
-    lines = world_problems(world, tasks)
+    ``world`` (grasps: of ``tasks``, with the operator's ``grasp`` settings), one line each; return
+    when it has none."""
+    lines = world_problems(world, tasks, grasp)
     if len(lines) == 1:
         raise WorldError(*lines[0].split(": ", 1))
     if lines:

@@ -115,7 +115,7 @@ ModelFile = str | ModelRef  # a path, or a reference with more to say
 class Workspace:
     z_m: Number = key("height of the table top: objects rest on it, first frames are back-projected onto it",
                       unit="m")
-    geom: str = key("the scene's table-top geom")
+    geom: str = key("the scene's table-top geom (an unnamed one is <body>_geom<i>)")
 
 
 @dataclass(frozen=True)
@@ -172,7 +172,8 @@ class Gripper:
     joint: str | Names = key("the joint whose position measures the opening, or a list: all set open at reset, the "
                              "first measures")
     position: OpenClosed = key("that joint's position fully open / fully closed", unit="model units")
-    jaw_open_m: PositiveNumber = key("each jaw's distance from the grasp centre when open", unit="m")
+    jaw_open_m: PositiveNumber = key("each jaw's distance from the grasp centre when open (one fixed jaw: the moving "
+                                     "jaw's)", unit="m")
     pads: tuple[str, str] = key("the two jaws' bodies (a grasp is contact with both)")
     fingers: tuple[Finger, ...] = key("further fingers, each driven by its own actuator to the same closing "
                                       "fraction", ())
@@ -202,8 +203,8 @@ class Ee:
     site: str = key("a site of the arm's model at (or near) the grasp centre")
     approach: Axis = key("the site's axis along which the hand approaches an object", "+x")
     jaw: Axis = key("the site's axis along which the jaws close", "+y")
-    pos: Vec3 = key("the grasp centre in the site's frame (a site that is not midway between the jaws)",
-                    (0.0, 0.0, 0.0), "m")
+    pos: Vec3 = key("the grasp centre in the site's frame (a site that is not midway between the jaws; one fixed "
+                    "jaw: where a held object's centre sits)", (0.0, 0.0, 0.0), "m")
 
     def problems(self) -> list[tuple[str, str]]:
         if self.approach[1] == self.jaw[1]:
@@ -228,7 +229,8 @@ class CollisionAdd:
 
 @dataclass(frozen=True)
 class CollisionDisable:
-    geoms: Annotated[tuple[str, ...], Distinct()] = key("geoms of the arm's model that stop colliding", ())
+    geoms: Annotated[tuple[str, ...], Distinct()] = key(
+        "geoms of the arm's model that stop colliding (an unnamed one is <body>_geom<i>)", ())
     bodies: Annotated[tuple[str, ...], Distinct()] = key("bodies of the arm's model whose collision geoms all stop colliding", ())
 
 
@@ -330,8 +332,8 @@ class Robot:
                                      unit="Hz")
     arms: Annotated[dict[str, Arm], NonEmpty()] = key("the arms by name, in the order of the default dataset layout")
     type: str = key("the datasets' robot_type (LeRobot's info.json)", "robot")
-    timestep_s: PositiveNumber | None = key("the physics timestep; null: the scene's. The control period must be "
-                                            "whole timesteps", None, "s")
+    timestep_s: PositiveNumber | None = key("the physics timestep; null: the scene's (never an arm's model file's). "
+                                            "The control period must be whole timesteps", None, "s")
     features: Annotated[tuple[Feature, ...], NonEmpty()] | None = key(
         "the dataset's observation.state / action entries; null: per arm <arm>_<joint> then <arm>_gripper in "
         "model units", None)
@@ -589,6 +591,12 @@ RULES = """\
 - **Unnamed actuators.** An actuator the model leaves unnamed that drives a joint is named after
   that joint (its name in the model file), so `actuators` and `gripper.actuator` can name it by
   its joint. Two actuators of one joint make the name ambiguous: an error.
+- **Unnamed geoms.** A geom the model leaves unnamed in a named body is named `<body>_geom<i>`,
+  `i` its place among that body's geoms in the model file, from 0 and counting the named ones:
+  the second geom of body `right_follower` is `right_follower_geom1` (`<arm>_right_follower_geom1`
+  in the assembled model), so `collision.disable.geoms` (and the scene's `workspace.geom`) can
+  name it. A geom name the model lacks stops the run with the arm's colliding geoms listed; a
+  derived name that another geom of the file already has is an error.
 - **Actuators' default.** `actuators` left out means the joints' names: a model whose position
   actuators are named as their joints (or unnamed) needs no list. `servo` replaces the joints'
   actuators with position servos of its gain (ranged as the joints), for a torque-driven model.
@@ -602,6 +610,17 @@ RULES = """\
   names joints that are set open at reset (a model's own coupled fingers); the first measures.
   `fingers` adds fingers driven by their own actuators to the same closing fraction; `couple`
   makes joints follow the first through an equality the world adds (their own actuators removed).
+- **One fixed jaw.** A gripper with one fixed jaw (the SO-101's) closes with the other alone, but
+  the scripted operator still puts the grasp centre (`ee.site` moved by `ee.pos`) over an object's
+  centre and pre-shapes to the object's half width plus a margin from it. So the grasp centre is
+  where a held object's centre sits: off the fixed jaw's inner face by about half the width of the
+  objects the tasks pick, plus a few millimetres for the fixed jaw to clear an object's side as the
+  hand comes down (the SO-101's 2 cm, for a 2.8 cm block and a 3.2 cm ball). `jaw_open_m` is the
+  moving jaw's distance from that centre when fully open (a hinged jaw: a linear fit over the
+  openings used), and `pads` still names both jaws' bodies (the fixed jaw's is the hand's). A
+  narrower object is pushed against the fixed jaw, off the centre by the difference; a wider one
+  meets the fixed jaw on the way down. The recorded end-effector position (`ee_pos_<arm>`, the
+  judges' and the success checks' hand) is this point too.
 - **Cameras.** A rig entry either names a camera of a model (`camera`, with `arm` for a camera of
   that arm's model, re-aimed with `look_at`) or places one (`body`, `pos`, `look_at`, and
   `fovy_deg` or `intrinsics`). `fovy_deg` is MuJoCo's vertical field of view in degrees;
@@ -612,6 +631,11 @@ RULES = """\
   (the files holding an include fragment's assets and defaults). `robot.scene` is a model
   reference too, so a scene may be a package resource. A file may be MJCF (`<mujoco>`), an
   include fragment (`<mujocoinclude>`) or URDF.
+- **Simulation settings.** The scene's: its `<option>` (with `robot.timestep_s` for the step),
+  `<size>` and `<visual>`. An arm's model file's own (its timestep, solver, tolerance, iterations,
+  Jacobian, integrator, cone, impratio, gravity, flags, memory, near plane, ...) give way to them
+  without a warning; its `<compiler>` settings still read its own elements (angle units,
+  autolimits, inertia from geoms, mesh folder).
 - **Units.** SI throughout (m, kg, s, rad) unless a key's name says otherwise (`_deg`, `_hz`);
   joint values are the model's units (rad for a hinge, m for a slide).
 """

@@ -11,6 +11,7 @@ before it records, one line per problem.
 from __future__ import annotations
 
 from r2s_eval.sim import load_world_params
+from r2s_eval.sim.grasping import grasp_settings
 from r2s_eval.sim.world_check import check_world
 from r2s_eval.stages import _cli
 from r2s_eval.twin.reality import load_reality_effects
@@ -21,10 +22,10 @@ READS = ("teleop", "tasks", "suite", "world", "seed")  # config paths the --cfg 
 
 
 def main(args) -> None:
-    cfg = args.cfg
+    cfg, teleop = args.cfg, args.cfg["teleop"]  # the group whole: record_teleop reads all of it
     # Fingers flung past their limits or a grasp that drops its object would record only failures.
-    check_world(cfg["world"], cfg["tasks"])
-    truth, attempts = record_teleop(args.dataset, load_world_params(args.twin), teleop=cfg["teleop"], world=cfg["world"],
+    check_world(cfg["world"], cfg["tasks"], grasp_settings(teleop["operator"]))  # as the operator grasps
+    truth, attempts = record_teleop(args.dataset, load_world_params(args.twin), teleop=teleop, world=cfg["world"],
                                     tasks=cfg["tasks"], suite=cfg["suite"], seed=cfg["seed"],
                                     reality=load_reality_effects(args.twin))
     write_parquet(args.truth, truth, metadata={"stage": "teleop", "attempts": attempts})

@@ -37,10 +37,10 @@ from r2s_eval.data import DatasetRecorder, lerobot_features
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.sim import cameras as cam_geom
+from r2s_eval.sim.arm_ik import ArmIK
 from r2s_eval.sim.assembly import build_model, ee_site
 from r2s_eval.sim.build import configured_task
 from r2s_eval.sim.robot import Robot, world_robot
-from r2s_eval.twin.operator import ArmIK
 from r2s_eval.twin.reality import RealityEffects, RealityEnv
 from r2s_eval.twin.scene import scene_adder
 from r2s_eval.twin.servos import weaken_gripper

@@ -92,15 +92,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import mink
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from r2s_eval.sim import assembly
+from r2s_eval.sim.arm_ik import ArmIK, top_down_rotation
 from r2s_eval.sim.env import TabletopEnv
-from r2s_eval.sim.robot import Robot, world_robot
+from r2s_eval.sim.grasping import GraspSettings, natural_yaw, task_grasp, ticks
+from r2s_eval.sim.robot import world_robot
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim.objects import KINDS
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, get_task, world_config
 from r2s_eval.twin import primitives
@@ -111,11 +110,13 @@ from r2s_eval.twin.primitives import PlanStep, Segment
 
 
 @dataclass(frozen=True)
-class OperatorConfig:
+class OperatorConfig(GraspSettings):
+    """The operator's settings; those of its grasp (pre-shape, cup grasp height, gripper rate,
+    closed hold, lift speed) are ``GraspSettings``', which the world check's grasp reads too."""
+
     free_speed_m_s: float = 0.20  # tcp speed in free space
     fine_speed_m_s: float = 0.10  # tcp speed near objects (approach, lower)
     speed_jitter_rel: float = 0.25  # per-segment speed factor U(1 -/+ jitter)
-    gripper_rate_per_step: float = 0.35  # normalised gripper command change per step
     pause_prob: float = 0.15  # chance of a pause before a segment
     pause_steps: tuple[int, int] = (1, 3)
     overshoot_prob: float = 0.3  # chance per free-space move
@@ -123,11 +124,9 @@ class OperatorConfig:
     aim_error_m: float = 0.003  # std of the horizontal aiming error at grasp
     regrasp_prob: float = 0.1
     hover_above_cup_m: float = 0.06  # fingertips clearance above the rim at pregrasp
-    grasp_tcp_height_m: float = 0.05  # tcp above the table when closing on the cup
     carry_tcp_height_m: float = 0.18  # tcp above the table while carrying
     place_clearance_m: float = 0.006  # cup bottom above the plate when released
     retreat_m: float = 0.10
-    preshape_margin_m: float = 0.012  # jaw opening beyond a ball's/block's half width
     drop_height_m: float = 0.02  # gap under a ball released over a container
     put_down_margin_m: float = 0.03  # gap between a block put down and the box
     upright_lift_tcp_height_m: float = 0.16  # tcp above the table while turning a cup
@@ -138,94 +137,8 @@ class OperatorConfig:
     max_steps_per_segment: int = 60
 
 
-def top_down_rotation(approach_yaw_rad: float) -> np.ndarray:
-    """Gripper frame pointing down (x = -z world), with its z axis along the reach direction."""
-    c, s = np.cos(approach_yaw_rad), np.sin(approach_yaw_rad)
-    return np.column_stack([[0.0, 0.0, -1.0], [-s, c, 0.0], [c, s, 0.0]])
-
-
-_ROBOT_MODELS: dict[int, tuple[Robot, object]] = {}
-PROBE_ITERATIONS = 60  # IK iterations of a reach probe
-PROBE_TOLERANCE_M, PROBE_TOLERANCE_RAD = 0.002, np.deg2rad(2.0)  # a probe closer than this reaches
-STEP_S = 0.1  # the settings' step counts and per-step rates are for control steps of this length
 STOPPED_M_S = 0.005  # a tcp slower than this has stopped
 REST_TILT_RAD = np.deg2rad(30.0)  # a hand tilted further from pointing down at the start turns gradually
-
-
-def robot_model(robot: Robot):
-    """The robot-only model of ``robot`` (objects do not matter for kinematics), compiled once."""
-    if id(robot) not in _ROBOT_MODELS:
-        _ROBOT_MODELS[id(robot)] = (robot, assembly.build_robot_model(robot))  # holds robot: its id stays its own
-    return _ROBOT_MODELS[id(robot)][1]
-
-
-class ArmIK:
-    """Differential IK for one arm on the robot-only model, steering the arm's grasp-centre site."""
-
-    def __init__(self, robot: Robot, arm: str, q_init: dict[str, np.ndarray]):
-        self.arm, self.robot = arm, robot
-        self.model = robot_model(robot)
-        self.configuration = mink.Configuration(self.model)
-        self.frame_task = mink.FrameTask(
-            frame_name=assembly.ee_site(arm), frame_type="site", position_cost=1.0, orientation_cost=0.5, lm_damping=1e-3
-        )
-        self.posture_task = mink.PostureTask(self.model, cost=1e-3)
-        self.limits = [mink.ConfigurationLimit(self.model)]
-        self._qadr = {name: np.array([self.model.joint(a.named(j)).qposadr[0] for j in a.joints])
-                      for name, a in robot.arms.items()}
-        q = self.configuration.q.copy()
-        for name in robot.arms:
-            q[self._qadr[name]] = q_init[name]
-        self.configuration.update(q)
-        home = q.copy()
-        for name, a in robot.arms.items():
-            home[self._qadr[name]] = a.home
-        self.posture_task.set_target(home)
-        self._probe = mink.Configuration(self.model, q)  # a scratch configuration for reach probes
-
-    def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        T = self.configuration.get_transform_frame_to_world(assembly.ee_site(self.arm), "site").as_matrix()
-        return T[:3, 3].copy(), T[:3, :3].copy()
-
-    def joints_for(self, pos_world_m: np.ndarray, R_world: np.ndarray) -> np.ndarray | None:
-        """The arm's joints that put its grasp centre at the pose, solved from the commanded
-        configuration (which stays as it is); None when the pose is out of the arm's reach."""
-        self._probe.update(self.configuration.q)
-        self.frame_task.set_target(mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(R_world), pos_world_m))
-        for _ in range(PROBE_ITERATIONS):
-            vel = mink.solve_ik(self._probe, [self.frame_task, self.posture_task], self.robot.control_dt_s,
-                                solver="daqp", damping=1e-3, limits=self.limits)
-            self._probe.integrate_inplace(vel, self.robot.control_dt_s)
-        T = self._probe.get_transform_frame_to_world(assembly.ee_site(self.arm), "site").as_matrix()
-        turn = Rotation.from_matrix(T[:3, :3] @ R_world.T).magnitude()
-        if np.linalg.norm(T[:3, 3] - pos_world_m) > PROBE_TOLERANCE_M or turn > PROBE_TOLERANCE_RAD:
-            return None
-        return self._probe.q[self._qadr[self.arm]].copy()
-
-    def highest_z(self, xy: np.ndarray, z_low: float, z_high: float, R_world: np.ndarray) -> float:
-        """``z_high`` if the hand reaches it over ``xy`` (orientation ``R_world``), else the highest
-        height above ``z_low`` it reaches (to 5 mm): a small arm cannot lift a top-down hand high.
-        Where the hand reaches neither (a wrist at its limit), the height is not what limits it."""
-        if (self.joints_for(np.r_[xy, z_high], R_world) is not None
-                or self.joints_for(np.r_[xy, z_low], R_world) is None):
-            return z_high
-        while z_high - z_low > 0.005:
-            mid = 0.5 * (z_low + z_high)
-            z_low, z_high = (mid, z_high) if self.joints_for(np.r_[xy, mid], R_world) is not None else (z_low, mid)
-        return z_low
-
-    def solve(self, pos_world_m: np.ndarray, R_world: np.ndarray, iterations: int) -> np.ndarray:
-        """Move the commanded configuration toward the target; returns the arm's joint targets."""
-        target = mink.SE3.from_rotation_and_translation(mink.SO3.from_matrix(R_world), np.asarray(pos_world_m))
-        self.frame_task.set_target(target)
-        dt = self.robot.control_dt_s
-        for _ in range(iterations):
-            vel = mink.solve_ik(
-                self.configuration, [self.frame_task, self.posture_task], dt, solver="daqp", damping=1e-3,
-                limits=self.limits,
-            )
-            self.configuration.integrate_inplace(vel, dt)
-        return self.configuration.q[self._qadr[self.arm]].copy()
 
 
 class ScriptedOperator:
@@ -247,7 +160,7 @@ class ScriptedOperator:
         self._cmd_pos: np.ndarray | None = None
         self._gripper_cmd = 0.0
         # Each step of the settings (pauses, holds, gripper rate) lasts this many control steps.
-        self._ticks = max(1, round(STEP_S / env.control_dt_s))
+        self._ticks = ticks(env.control_dt_s)
         self.arm = self._choose_arm()
         self._watch = EpisodeWatch(env, self.arm, task.manipulated)
         self._plan = primitives.plan(self)
@@ -291,15 +204,15 @@ class ScriptedOperator:
         obj_yaw = self.env.object_poses()[name]["yaw_rad"]
         if self.task.placement(name) == "on_side":
             return obj_yaw  # jaws across the lying axis; the hand's z axis along it
-        natural_yaw = self._natural_yaw(centre, float(np.arctan2(reach[1], reach[0])))
-        base, step = self.task.object(name).kind_object.grasp_yaws(obj_yaw, natural_yaw)
+        natural = natural_yaw(self._ik, centre, float(np.arctan2(reach[1], reach[0])))
+        base, step = self.task.object(name).kind_object.grasp_yaws(obj_yaw, natural)
         candidates = base + step * np.arange(-int(np.pi / step), int(np.pi / step) + 1)
         others = [centre_m(self.env, n)[:2] - xy for n in self.task.object_names if n != name]
         near = [d / np.linalg.norm(d) for d in others if np.linalg.norm(d) < self.cfg.neighbour_radius_m]
         near += self._protrusion(name, xy)
 
         def cost(yaw: float) -> float:
-            turn = abs(np.angle(np.exp(1j * (yaw - natural_yaw))))
+            turn = abs(np.angle(np.exp(1j * (yaw - natural))))
             jaw_axis = np.array([-np.sin(yaw), np.cos(yaw)])
             return turn + sum(2.0 * abs(float(jaw_axis @ d)) for d in near)
 
@@ -318,18 +231,6 @@ class ScriptedOperator:
             return []
         direction = outside.sum(axis=0)
         return [direction / np.linalg.norm(direction)] if np.linalg.norm(direction) > 0 else []
-
-    def _natural_yaw(self, centre: np.ndarray, reach_yaw: float) -> float:
-        """The yaw of the top-down hand the arm holds over ``centre`` with its joints nearest home:
-        the reach direction, or a quarter or half turn from it (a wrist whose jaws close along
-        the reach; a wrist that would otherwise turn to its limit)."""
-        home = self.env.robot.arms[self.arm].home
-
-        def cost(turn: float) -> float:
-            q = self._ik.joints_for(centre, top_down_rotation(reach_yaw + turn))
-            return np.inf if q is None else float(np.linalg.norm(q - home))
-
-        return reach_yaw + min((0.0, np.pi / 2, np.pi, -np.pi / 2), key=cost)
 
     def reachable_z(self, xys, z: float) -> float:
         """``z``, or the highest height below it that the hand (in its grasp orientation) reaches
@@ -480,25 +381,12 @@ class ScriptedOperator:
 
 
 # ---------------------------------------------------------------- how the hand takes an object
-def _jaw_cmd(op: ScriptedOperator, jaw_opening_m: float) -> float:
-    """Gripper command that opens each jaw ``jaw_opening_m`` from the centre."""
-    return float(np.clip(1.0 - jaw_opening_m / op.env.robot.arms[op.arm].gripper.jaw_open_m, 0.0, 1.0))
-
-
 def _grasp(op: ScriptedOperator, name: str) -> tuple[Callable[[ScriptedOperator], float], float]:
-    """How the hand takes ``name`` from above: the tcp height when closing, and the pre-shape."""
-    env, cfg = op.env, op.cfg
-    kind = op.task.object(name).kind_object
-    grasp = kind.grasp(env.object_dims(name), op.task.placement(name))
-    if grasp is None:
-        pickable = [k for k, other in KINDS.items() if other.pickable]
-        raise ConfigError(f"task {op.task.key}: the scripted operator cannot pick a {kind.name} ({name}) from above; "
-                          f"it picks {pickable}")
-    if grasp.half_width_m is None:  # round its wall near the table, the jaws fully open
-        return (lambda op: env.table_top_z_m + cfg.grasp_tcp_height_m + grasp.tcp_offset_m), 0.0
-    # Jaws pre-shaped wider than the object.
-    return ((lambda op: centre_m(op.env, name)[2] + grasp.tcp_offset_m),
-            _jaw_cmd(op, grasp.half_width_m + cfg.preshape_margin_m))
+    """How the hand takes ``name`` from above (``r2s_eval.sim.grasping``, which the world check's
+    grasp reads too): the tcp height when closing, and the pre-shape."""
+    env = op.env
+    grasp = task_grasp(op.task, name, env.object_dims(name), env.robot.arms[op.arm].gripper.jaw_open_m, op.cfg)
+    return (lambda op: grasp.tcp_z_m(centre_m(op.env, name)[2], op.env.table_top_z_m)), grasp.preshape
 
 
 def _place_on(op: ScriptedOperator, held: str, support: str) -> Callable[[ScriptedOperator], np.ndarray]:

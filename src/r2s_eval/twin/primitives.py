@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim.env import TabletopEnv
+from r2s_eval.sim.grasping import ON_SIDE_ABOVE_CENTRE_M
 from r2s_eval.sim.plans import PLAN_PRIMITIVES
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task
@@ -154,12 +155,12 @@ def pick_and_place(op: Operator, pp: PickPlace) -> list[PlanStep]:
         return segs
 
     def close_only():
-        return [Segment("close", op.cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
+        return [Segment("close", op.cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=cfg.close_hold_steps)]
 
     def lift():  # as high as the carry over to the target allows
         xy, target = op.cmd_pos[:2], pp.place_centre_m(op)[:2]
         carry_z = op.reachable_z([xy, 0.5 * (xy + target), target], table_z + cfg.carry_tcp_height_m)
-        return [Segment("lift", np.r_[xy, carry_z], 1.0, op.speed(cfg.fine_speed_m_s * 1.5))]
+        return [Segment("lift", np.r_[xy, carry_z], 1.0, op.speed(cfg.lift_speed_m_s))]
 
     def carry():
         # Where the object sits in the hand, as seen: place the object, not the tcp.
@@ -268,15 +269,15 @@ def turn_upright(op: Operator, name: str) -> list[PlanStep]:
 
     def approach():
         cup = centre_m(env, name)
-        return [Segment("approach", np.r_[cup[:2] + op.aim(), cup[2] + 0.004], 0.0, op.speed(cfg.fine_speed_m_s),
-                        settle_m=cfg.settle_m)]
+        return [Segment("approach", np.r_[cup[:2] + op.aim(), cup[2] + ON_SIDE_ABOVE_CENTRE_M], 0.0,
+                        op.speed(cfg.fine_speed_m_s), settle_m=cfg.settle_m)]
 
     def close():
-        return [Segment("close", op.cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=3)]
+        return [Segment("close", op.cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, hold_steps=cfg.close_hold_steps)]
 
     def lift():
         return [Segment("lift", np.r_[op.cmd_pos[:2], table_z + cfg.upright_lift_tcp_height_m], 1.0,
-                        op.speed(cfg.fine_speed_m_s * 1.5))]
+                        op.speed(cfg.lift_speed_m_s))]
 
     def turn():
         return [Segment("turn", op.cmd_pos.copy(), 1.0, cfg.fine_speed_m_s, R_world=R_turn @ op.R_cmd)]

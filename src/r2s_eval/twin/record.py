@@ -70,7 +70,7 @@ def record_teleop(dataset: str, params: WorldParams, *, teleop: dict, world: dic
                 obs = env.reset(poses, seed=int(rng.integers(2**31)))
                 initial = env.object_poses()
                 operator = make_operator(task, env, rng, operator_cfg)
-                steps = run_episode(env, operator, teleop["max_steps"], obs)
+                steps = run_episode(env, operator, robot.steps_in(teleop["max_duration_s"]), obs)
                 failure = operator.failure()
                 tries += 1
                 attempts.append({"task": task, "attempt": tries, "success": failure is None, "length": len(steps),

@@ -32,6 +32,7 @@ from r2s_eval.errors import R2SError
 from r2s_eval.paths import CONF_DIR
 from r2s_eval.sim import load_world_params
 from r2s_eval.stages import _cli
+from r2s_eval.sim.grasping import grasp_settings
 from r2s_eval.sim.world_check import check_world
 from r2s_eval.world.preview import DATASET_PNG, PANEL_PX, STARTS_PNG, preview
 
@@ -48,7 +49,7 @@ def main(args: argparse.Namespace) -> None:
         stop_before_running(err)
     world = cfg["world"]
     try:
-        check_world(world, cfg["tasks"])
+        check_world(world, cfg["tasks"], grasp_settings(cfg["teleop"]["operator"]))  # the operator's grasp
     except R2SError as err:
         stop_before_running(err)
     # Panels large enough to judge a camera's pose by, in the world's aspect.

@@ -23,7 +23,10 @@ Observations follow LeRobot's Gymnasium layout, which ``lerobot-eval`` maps onto
 ``agent_pos`` is ``observation.state`` (the dataset's features, in its units) and
 ``pixels/<camera>`` is ``observation.images.<camera>`` (uint8 H x W x 3). Actions are the dataset's
 ``action`` (its units). ``terminated`` is the task's success (held ``success_hold_steps`` steps),
-also ``info["is_success"]``; the episode length is ``gymnasium.make``'s ``max_episode_steps``.
+also ``info["is_success"]``. An episode is cut (``truncated``) after ``max_steps`` control steps;
+left out, after the rollout stage's ``rollout.max_duration_s`` at the world's control rate
+(``episode_steps``: 150 steps at 10 Hz, 450 at 30 Hz). ``gymnasium.make``'s ``max_episode_steps``
+adds Gymnasium's own time limit around that (a shorter one cuts first).
 """
 
 from __future__ import annotations
@@ -47,8 +50,13 @@ from r2s_eval.sim.tasks import world_config, world_tasks
 from r2s_eval.twin.reality import load_reality_effects, make_world_env
 
 ENV_ID = "r2s_eval/World-v0"
-# The rollout stage's episode length, read from its config group's default (one owner).
-DEFAULT_EPISODE_STEPS = int(yaml.safe_load((CONF_DIR / "rollout" / "default.yaml").read_text())["max_steps"])
+# The rollout stage's episode length in seconds, read from its config group's default (one owner).
+DEFAULT_EPISODE_S = float(yaml.safe_load((CONF_DIR / "rollout" / "default.yaml").read_text())["max_duration_s"])
+
+
+def episode_steps(world: str | Path | dict) -> int:
+    """The default episode length of ``world`` in its control steps (``DEFAULT_EPISODE_S`` at its rate)."""
+    return world_robot(world if isinstance(world, dict) else world_config(world)).steps_in(DEFAULT_EPISODE_S)
 
 
 def world_features(world: str | Path, image_size: tuple[int, int] | None = None,
@@ -116,7 +124,7 @@ class WorldEnv(gym.Env):
                  inits: str | None = None, experiment_seed: int = 0, image_size: tuple[int, int] | None = None,
                  cameras: list[str] | None = None, video_camera: str | None = None,
                  video_size: tuple[int, int] | None = None, success_hold_steps: int = 3,
-                 render_mode: str | None = "rgb_array"):
+                 max_steps: int | None = None, render_mode: str | None = "rgb_array"):
         name, config, params, self.inits = checked_arguments(world, task, world_params, inits, image_size, cameras)
         robot = world_robot(config)
         self._inits_file = inits
@@ -140,6 +148,8 @@ class WorldEnv(gym.Env):
         })
         self.episode: Episode | None = None
         self.init_id: int | None = None  # the init the episode started from (with ``inits``)
+        # lerobot-eval reads _max_episode_steps (Gymnasium's TimeLimit names it so).
+        self._max_episode_steps = int(max_steps) if max_steps else robot.steps_in(DEFAULT_EPISODE_S)
 
     def _start(self, seed: int | None) -> tuple[dict | None, int]:
         """The object poses and episode seed of the episode seeded ``seed``; without a seed (a
@@ -170,7 +180,8 @@ class WorldEnv(gym.Env):
         self.episode.step(action)
         success = self.episode.success
         info = {"is_success": success, "task_progress": self.sim.task_progress()}
-        return self._observation(), float(success), success, False, info
+        truncated = not success and self.episode.steps >= self._max_episode_steps
+        return self._observation(), float(success), success, truncated, info
 
     def _observation(self) -> dict:
         obs = self.episode.policy_obs
@@ -188,7 +199,9 @@ class WorldEnv(gym.Env):
 def register() -> None:
     """Register ``ENV_ID`` with Gymnasium (once)."""
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="r2s_eval.world.gym_env:WorldEnv", max_episode_steps=DEFAULT_EPISODE_STEPS)
+        # No registered time limit: a world's default length depends on its control rate
+        # (WorldEnv's max_steps); gymnasium.make(..., max_episode_steps=N) still adds one.
+        gym.register(id=ENV_ID, entry_point="r2s_eval.world.gym_env:WorldEnv")
 
 
 register()

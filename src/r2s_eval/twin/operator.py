@@ -93,6 +93,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
 from r2s_eval.sim.arm_ik import ArmIK, top_down_rotation
@@ -100,6 +101,7 @@ from r2s_eval.sim.env import TabletopEnv
 from r2s_eval.sim.grasping import GraspSettings, natural_yaw, task_grasp, ticks
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.errors import ConfigError
+from r2s_eval.paths import CONF_DIR
 from r2s_eval.sim.predicates import centre_m
 from r2s_eval.sim.tasks import Task, get_task, world_config
 from r2s_eval.twin import primitives
@@ -425,7 +427,8 @@ def run_episode(env: TabletopEnv, operator: ScriptedOperator, max_steps: int = 1
     return steps
 
 
-EPISODE_S = 15.0  # the success rate's episodes stop after this long (150 steps at 10 Hz)
+# The success rate's episodes stop after the teleop stage's time (its config group's default: one owner).
+EPISODE_S = float(yaml.safe_load((CONF_DIR / "teleop" / "default.yaml").read_text())["max_duration_s"])
 
 
 def episode_failures(task: str, episodes: int = 20, twin: bool = False, seed: int = 0, *,
@@ -442,7 +445,7 @@ def episode_failures(task: str, episodes: int = 20, twin: bool = False, seed: in
                else RealityEnv(spec, params, reality, cameras=(), robot=robot))
         obs = env.reset(seed=seed * 100_000 + i)
         operator = make_operator(spec, env, np.random.default_rng([seed, i, 2]))
-        run_episode(env, operator, round(EPISODE_S * robot.control_hz), obs=obs)
+        run_episode(env, operator, robot.steps_in(EPISODE_S), obs=obs)
         failures.append(operator.failure())
         env.close()
     return failures

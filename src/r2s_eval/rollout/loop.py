@@ -66,7 +66,7 @@ class Episode:
 
     Success: the task's success check has held for `success_hold_steps` steps (holding it for a
     few steps keeps a cup that is let go mid-air from counting). `done`: success, or `max_steps`
-    steps (None: no limit; a Gymnasium ``TimeLimit`` truncates instead).
+    steps (None: no limit).
 
     `frame()` is the episode's video frame now, from `video_camera`: with `video_size` (H, W) it
     is rendered at that size, whatever the policy consumes; with None it is the policy's own

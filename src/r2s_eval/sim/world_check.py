@@ -151,7 +151,7 @@ def _grasp_problem(env: TabletopEnv, ik: ArmIK, name: str, xy: np.ndarray, setti
         mujoco.mj_step(m, d, nstep=steps * env.n_substeps)
 
     dt, per_step = env.control_dt_s, ticks(env.control_dt_s)
-    step(q_grasp, grasp.preshape, round(SETTLE_S / dt))
+    step(q_grasp, grasp.preshape, robot.steps_in(SETTLE_S))
     closing, rate = grasp.preshape, settings.gripper_rate_per_step / per_step  # the operator's gripper rate
     while closing < 1.0:
         closing = min(1.0, closing + rate)
@@ -161,7 +161,7 @@ def _grasp_problem(env: TabletopEnv, ik: ArmIK, name: str, xy: np.ndarray, setti
     n = int(np.ceil(LIFT_M / (settings.lift_speed_m_s * dt)))
     for k in range(1, n + 1):
         step(q_grasp + k / n * (q_lift - q_grasp), 1.0)
-    step(q_lift, 1.0, round(HOLD_LIFTED_S / dt))
+    step(q_lift, 1.0, robot.steps_in(HOLD_LIFTED_S))
     hand, obj = env.ee_positions()[arm][2] - hand0, centre_m(env, name)[2] - obj0
     if not np.isfinite(obj) or hand - obj > SLIP_M:
         return (f"world.robot.arms.{arm}.gripper: did not hold {name}: it stayed {100 * (hand - obj):.1f} cm "

@@ -169,8 +169,8 @@ class WorldEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         poses, seed_of_episode = self._start(seed)
-        self.episode = Episode(self.sim, poses, seed_of_episode, None, self.video_camera, self.video_size,
-                               self.success_hold_steps)
+        self.episode = Episode(self.sim, poses, seed_of_episode, self._max_episode_steps, self.video_camera,
+                               self.video_size, self.success_hold_steps)
         return self._observation(), {"is_success": False}
 
     def step(self, action):
@@ -180,8 +180,7 @@ class WorldEnv(gym.Env):
         self.episode.step(action)
         success = self.episode.success
         info = {"is_success": success, "task_progress": self.sim.task_progress()}
-        truncated = not success and self.episode.steps >= self._max_episode_steps
-        return self._observation(), float(success), success, truncated, info
+        return self._observation(), float(success), success, self.episode.done and not success, info
 
     def _observation(self) -> dict:
         obs = self.episode.policy_obs

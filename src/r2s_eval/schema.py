@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
+import operator
 import re
 import types
 import typing
@@ -453,15 +455,29 @@ def _perturbation_families() -> list[str]:
     return [*PERTURBATION_FAMILIES, ALL_FAMILIES]
 
 
+def _reality_families() -> list[str]:
+    from r2s_eval.twin.perturb import REALITY_FAMILIES
+
+    return list(REALITY_FAMILIES)
+
+
+def _sim_variants() -> list[str]:
+    from r2s_eval.sim.params import SIM_VARIANTS
+
+    return list(SIM_VARIANTS)
+
+
 @dataclass
 class Ablation:
     policies: list[str]  # candidates trained here
     families: Annotated[list[Annotated[str, OneOf(_perturbation_families)]], NonEmpty()]
+    alone: list[Annotated[str, OneOf(_reality_families)]]  # the twin with each of these effects alone
 
 
 @dataclass
 class Fidelity:
     ablation: Ablation
+    sims: list[Annotated[str, OneOf(_sim_variants)]]  # further sims the crossing runs in
 
 
 @dataclass
@@ -807,6 +823,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("fidelity.ablation.policies", "needs real.source twin: the ablation takes the "
                                                               "twin's perturbations away one family at a time "
                                                               "(set fidelity.ablation.policies=[] for your own data)"))
+    problems += _fidelity_sim_problems(cfg)
     for name, policy in trained.items():  # an external candidate's needs are checked when it is opened
         cameras = [k.removeprefix("observation.images.") for k in policy["image_keys"]]
         missing = [c for c in cameras if c not in world["cameras"]]
@@ -822,6 +839,36 @@ def _cross_problems(cfg: dict) -> list[Problem]:
         problems.append(Problem("report.judge_audit.planted_order",
                                 f"names {strangers}, not candidates of this line-up {sorted(cfg['policies'])}; "
                                 f"list the line-up's planted order (best first) or set it to null"))
+    return problems
+
+
+# Each answer a sim variant takes away, and the calibration setting that gives the sim that answer.
+_ANSWER_SETTINGS = {"lens": "calib.cameras.board.intrinsics", "background": "calib.background.fit",
+                    "latency": "calib.joints.latency"}
+
+
+def _fidelity_sim_problems(cfg: dict) -> list[Problem]:
+    """A sim without an answer needs the calibration to give that answer; effects alone need
+    the policies that roll out there (and the twin, whose effects they are)."""
+    problems = []
+    for i, name in enumerate(cfg["fidelity"]["sims"]):
+        setting = _ANSWER_SETTINGS.get(name.removeprefix("without_"))
+        if setting and not functools.reduce(operator.getitem, setting.split("."), cfg):
+            problems.append(Problem(f"fidelity.sims[{i}]", f"{name!r} takes away an answer the calibration does not "
+                                                           f"give ({setting} is off): the sim would be the calibrated one"))
+    ablation = cfg["fidelity"]["ablation"]
+    if ablation["alone"] and not ablation["policies"]:
+        problems.append(Problem("fidelity.ablation.alone", "needs fidelity.ablation.policies: the candidates whose "
+                                                           "pi^S rolls out in the twin with each effect alone"))
+    if ablation["alone"] and cfg["real"]["source"] == "twin":
+        from r2s_eval.twin.perturb import has_effect
+
+        magnitudes = cfg["real"]["twin"]["magnitudes"] or {}
+        for i, effect in enumerate(ablation["alone"]):
+            if not has_effect(magnitudes, effect):
+                problems.append(Problem(f"fidelity.ablation.alone[{i}]", f"this twin has no {effect!r} effect "
+                                                                         f"(real.twin.magnitudes leaves it off, as "
+                                                                         f"real=twin_unmodelled sets it on)"))
     return problems
 
 

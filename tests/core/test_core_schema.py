@@ -288,6 +288,15 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
     (["fidelity.ablation.policies=[act]", "real.source=dataset", "real.dataset_root=x", "real.reference_csv=y.csv"],
      "needs real.source twin"),
     (["+policies.act.seeds=0"], r"policies.act.seeds .*must be in \[1, inf\]"),
+    (["fidelity.sims=[calibrated]"], r"fidelity.sims\[0\].*must be one of"),
+    (["fidelity.sims=[nominal,without_lens]"],
+     r"fidelity.sims\[1\] .*'without_lens' takes away an answer the calibration does not give "
+     r"\(calib.cameras.board.intrinsics is off\)"),
+    (["fidelity.sims=[without_background]"], r"fidelity.sims\[0\].*\(calib.background.fit is off\)"),
+    (["fidelity.ablation.alone=[lens]", "fidelity.ablation.policies=[]"], r"fidelity.ablation.alone .*needs fidelity.ablation.policies"),
+    (["fidelity.ablation.alone=[focus]"], r"fidelity.ablation.alone\[0\].*must be one of"),
+    (["fidelity.ablation.alone=[lens]", "fidelity.ablation.policies=[act]"],
+     r"fidelity.ablation.alone\[0\] .*this twin has no 'lens' effect"),
     (["calib.joints.iterations=0"], r"calib.joints.iterations"),
 ])
 def test_fidelity_settings_are_checked(overrides, message):

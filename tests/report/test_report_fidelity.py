@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import pandas as pd
 from PIL import Image
 
 from r2s_eval.report import save_figure
+from r2s_eval.report.tables import DASH
 from r2s_eval.report.fidelity_report import (ablation_figure, ablation_rows, ablation_table, fidelity_table, format_report,
                                       joint_report)
 from r2s_eval.stats.fidelity import cross_evaluation
@@ -90,3 +92,83 @@ def test_the_estimated_latency_is_reported_against_the_twins():
     assert "commands' latency (control steps): estimated 1, twin 1.5" in format_report(between)
     without = build_report(reference, sim, sim, None, {}, {}, {"joints": {"estimated": False}}, None, 0.95, 50, 0)
     assert "latency" not in without["joints"]
+
+
+def _task_episodes(policy, successes, trials, task="cup_on_plate"):
+    return pd.DataFrame({"policy": policy, "task": task, "success": [k < successes for k in range(trials)]})
+
+
+def test_the_crossing_in_further_sims_and_the_effects_alone():
+    from r2s_eval.report.fidelity_report import alone_table, build_report, sims_table
+
+    reference = counts([("act", "cup_on_plate", 10, 18), ("act_weak", "cup_on_plate", 0, 18)])
+    s_sim, r_sim, s_real = _task_episodes("act", 12, 18), _task_episodes("act", 9, 18), _task_episodes("act", 6, 18)
+    sims = {"nominal:real": _task_episodes("act", 2, 18), "nominal:sim": _task_episodes("act", 3, 18),
+            "without_lens:real": _task_episodes("act", 8, 18)}
+    alone = {"none": _task_episodes("act", 12, 18), "blur": _task_episodes("act", 9, 18),
+             "walls": _task_episodes("act", 12, 18)}
+    built = build_report(reference, s_sim, r_sim, s_real, {}, {}, {}, None, 0.95, 200, 0, sims=sims, alone=alone)
+
+    nominal = built["sims"]["nominal"]
+    # pi^R there minus pi^R on the real side: 2 - 10 of 18; pi^S on the real side minus there: 6 - 3 of 18.
+    assert np.isclose(nominal["parts"]["calibration"]["mean_gap_pp"], 100 * (2 - 10) / 18)
+    assert np.isclose(nominal["parts"]["calibration_reverse"]["mean_gap_pp"], 100 * (6 - 3) / 18)
+    assert {c["policy"] for c in nominal["cells"]} == {"act"}  # act_weak has no checkpoint there
+    assert set(built["sims"]["without_lens"]["parts"]) == {"calibration"}  # only pi^R ran there
+    # Each effect against the twin with none: blur costs 3 of 18, walls nothing.
+    costs = {r["family"]: r["cost_pp"] for r in built["alone"]}
+    assert np.isclose(costs["blur"], -100 * 3 / 18) and costs["walls"] == 0 and "none" not in costs
+
+    table = sims_table(built)
+    rows = {line.split(" & ")[0]: line for line in table.splitlines() if " & " in line}
+    assert rows["calibrated"].startswith("calibrated & 50.0 & -5.6 [") and "& 66.7 & -33.3 [" in rows["calibrated"]
+    assert rows["nominal"].startswith("nominal & 11.1 & -44.4 [") and "& 16.7 & +16.7 [" in rows["nominal"]
+    assert rows["without lens"].startswith("without lens & 44.4 & -11.1 [") and rows["without lens"].count(DASH) == 2
+    assert r"$\pi^R$ 55.6\%, $\pi^S$ 33.3\%" in table  # the real side, in the note
+    alone_tex = alone_table(built["alone"])
+    assert "act & blur & 50.0 [" in alone_tex and "& -16.7 [" in alone_tex and "with the effect alone" in alone_tex
+    text = format_report(built)
+    assert "in nominal: calibration (R_sim - R_real)" in text
+    assert "alone act with blur" in text and "cost -16.7 pp" in text
+
+
+def test_effects_alone_need_the_twin_with_none():
+    from r2s_eval.report.fidelity_report import alone_rows
+
+    with pytest.raises(ValueError, match="the twin with 'none'"):
+        alone_rows({"blur": _task_episodes("act", 9, 18)}, 0.95)
+
+
+def _rollout_folder(path, policy, successes, trials):
+    path.mkdir(parents=True)
+    table = _task_episodes(policy, successes, trials).assign(video_path="v.mp4", trajectory_path="t.parquet")
+    table.to_parquet(path / "episodes.parquet")
+    return str(path)
+
+
+def test_the_stage_reads_each_sim_and_effect_by_its_key_and_writes_their_tables(tmp_path):
+    import argparse
+    import json
+
+    from r2s_eval.errors import DataError
+    from r2s_eval.stages import fidelity
+
+    reference = tmp_path / "success.parquet"
+    counts([("act", "cup_on_plate", 10, 18)]).to_parquet(reference)
+    world = tmp_path / "world_params.json"
+    world.write_text(json.dumps({"params": {}}))
+    folder = lambda name, k: _rollout_folder(tmp_path / name, "act", k, 18)  # noqa: E731
+    args = argparse.Namespace(
+        cfg={"stats.n_boot": 50, "stats.ci_level": 0.95, "seed": 0, "world.robot.control_hz": 10,
+             "report.fidelity": {"decimals": 1}},
+        reference=str(reference), sim=[folder("S_sim", 12)], cross_sim=[folder("R_sim", 9)], cross_real=[],
+        ablation=[], seed_rollouts=[], twin=None, world_params=str(world),
+        sims=[f"nominal:real={folder('nominal_R', 2)}", f"nominal:sim={folder('nominal_S', 3)}"],
+        alone=[], out=str(tmp_path / "report.json"), table=str(tmp_path / "fidelity_table.tex"),
+        sims_table=str(tmp_path / "sims.tex"), alone_table=None, ablation_table=None, pdf=None, png=None)
+    fidelity.main(args)
+    assert "nominal & 11.1 & -44.4 [" in (tmp_path / "sims.tex").read_text()
+    assert set(json.loads((tmp_path / "report.json").read_text())["sims"]) == {"nominal"}
+    args.sims = [folder("bad", 2)]  # no SIM:TRAINED_ON= before the folder: named, with what was expected
+    with pytest.raises(DataError, match=r"--sims '.*bad': expected KEY=PATH"):
+        fidelity.main(args)

@@ -75,7 +75,8 @@ def test_every_rule_builds_its_cfg_from_the_stage_declaration():
             helper = re.search(r"cfg=(\w+)", block).group(1)
             assert helper in ("stage_params", "policy_params", "rollout_params", "judge_params", "libero_rollout_params",
                               "cross_rollout_params", "ablation_rollout_params", "seed_rollout_params",
-                              "twin_ablation_params"), block
+                              "twin_ablation_params", "sim_variant_params", "twin_alone_params",
+                              "sim_variant_rollout_params"), block
             if helper == "stage_params":
                 assert f'stage_params("{stage}"' in block, block  # with the values it PROVIDES, if any
         else:

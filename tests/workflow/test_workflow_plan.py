@@ -90,6 +90,23 @@ def test_the_twin_cross_evaluates_both_ways_and_runs_the_ablation(tmp_path):
     assert {w["policy"] for rule, w in plan if rule == "train_replicate"} == {"act_weak"}
 
 
+def test_further_sims_and_effects_alone_are_planned_only_where_asked(tmp_path):
+    # Every checkpoint trained here, both arms' trainings, in each further sim; pi^S of the
+    # ablation's policies in the twin with each effect alone and with none.
+    overrides = ["fidelity.sims=[nominal,without_answers]", "fidelity.ablation.alone=[blur,walls]",
+                 "+real.twin.magnitudes.exposure_time_s_max=0.02", "+real.twin.magnitudes.walls=true"]
+    plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/fidelity_sims_table.tex",
+                                  "reports/fidelity_alone_table.tex", overrides=overrides).stdout)
+    in_sims = {(w["sim"], w["trained_on"], w["policy"]) for rule, w in plan if rule == "sim_variant_rollout"}
+    assert in_sims == {(s, arm, p) for s in ("nominal", "without_answers") for arm in ("real", "sim")
+                       for p in ("act", "act_subset", "act_weak")}
+    assert {w["effect"] for rule, w in plan if rule == "alone_rollout"} == {"none", "blur", "walls"}
+    assert {w["policy"] for rule, w in plan if rule == "alone_rollout"} == {"act"}
+    # Without them, the smoke's plan has none of these jobs.
+    plain = {rule for rule, _ in planned_jobs(snakemake(tmp_path / "plain", "-n", "reports/fidelity_table.tex").stdout)}
+    assert not {"sim_variant", "sim_variant_rollout", "twin_alone", "alone_rollout"} & plain
+
+
 def test_adaptive_allocation_judges_in_one_job_per_judge_and_describes_on_the_way(tmp_path):
     # compare.allocation: adaptive: no describe jobs; a two-step judge's job writes the
     # descriptions it made; a one-step judge gets the job without descriptions.

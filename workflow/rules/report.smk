@@ -22,6 +22,10 @@ SHARED_REPORTS = [
 ABLATION_POLICIES = [] if LIBERO or not TWIN else CFG["fidelity"]["ablation"]["policies"]
 FIDELITY_ABLATION = (["reports/fidelity_ablation_table.tex", *expand("reports/fidelity_ablation.{ext}", ext=FIGURE_EXTS)]
                      if ABLATION_POLICIES else [])
+# The crossing in further sims (fidelity.sims) and the twin's effects alone (fidelity.ablation.alone).
+FIDELITY_MORE_TABLES = ((["reports/fidelity_sims_table.tex"] if not LIBERO and CFG["fidelity"]["sims"] else [])
+                        + (["reports/fidelity_alone_table.tex"] if ABLATION_POLICIES and CFG["fidelity"]["ablation"]["alone"]
+                           else []))
 if LIBERO:
     REPORTS = ["reports/libero_table.tex", *SHARED_REPORTS]
 else:
@@ -32,6 +36,7 @@ else:
         *expand("reports/hardware_effort.{ext}", ext=FIGURE_EXTS),
         "reports/fidelity_table.tex",
         *FIDELITY_ABLATION,
+        *FIDELITY_MORE_TABLES,
         *SHARED_REPORTS,
     ]
 # The evaluation repeated on disjoint blocks of inits (stability.repetitions; the twin's trials are the truth).

@@ -10,7 +10,10 @@ Its JSON layout (``results/fidelity/report.json``, built by ``r2s_eval.stages.fi
                             the twin's latency in control steps, a fraction where it falls mid-step)},
      "ablation": [{"policy", "family", "successes", "trials", "rate", "ci", "full_twin_rate",
                    "cost_pp", "cost_ci_pp"}],
-     "seeds": r2s_eval.stats.fidelity.seed_spread(...)}
+     "seeds": r2s_eval.stats.fidelity.seed_spread(...),
+     "sims": {sim: {"cells", "parts": {"calibration", "calibration_reverse"}, "agreement"}}
+             (the crossing both ways in each further sim, as "cross" holds it for the calibrated one),
+     "alone": [ablation rows, "family" the effect left on, costs against the twin with none]}
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from r2s_eval.report.figures import _figure, _rc
 from r2s_eval.report.tables import DASH, _row, _tabular, latex_escape
 from r2s_eval.stats.fidelity import cross_evaluation, seed_spread
 from r2s_eval.stats.proportions import newcombe_difference, success_counts, wilson_interval
+from r2s_eval.twin.perturb import NO_EFFECT
 
 WORLD_LABELS = {"R_real": r"$\pi^R$ real", "R_sim": r"$\pi^R$ sim", "S_sim": r"$\pi^S$ sim", "S_real": r"$\pi^S$ real"}
 
@@ -33,12 +37,15 @@ WORLD_LABELS = {"R_real": r"$\pi^R$ real", "R_sim": r"$\pi^R$ sim", "S_sim": r"$
 def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataFrame, cross_real: pd.DataFrame | None,
                  ablated: Mapping[str, pd.DataFrame], seed_episodes: Mapping[tuple[str, int], pd.DataFrame],
                  calibrated: Mapping, truth: Mapping | None, level: float, n_boot: int, seed,
-                 latency_truth: float | None = None) -> dict:
+                 latency_truth: float | None = None, sims: Mapping[str, pd.DataFrame] | None = None,
+                 alone: Mapping[str, pd.DataFrame] | None = None) -> dict:
     """The report (module docstring) from the reference success table (R_real), episode tables
     (pi^S in the sim, pi^R in the sim, pi^S on the real side; ``ablated``: family -> pi^S's episodes
     in the twin without it; ``seed_episodes``: (world, replicate) -> a further seed's episodes),
     the calibrated sim's world-parameter record and the twin's true joint offsets and commands'
-    latency (control steps, its reality effects' seconds times the control rate)."""
+    latency (control steps, its reality effects' seconds times the control rate); ``sims``:
+    "SIM:TRAINED_ON" -> the episodes of the checkpoints trained on that arm in a further sim;
+    ``alone``: effect -> pi^S's episodes in the twin with that effect alone (``none`` among them)."""
     worlds = {"R_real": reference, "R_sim": success_counts(cross_sim), "S_sim": success_counts(sim),
               "S_real": None if cross_real is None else success_counts(cross_real)}
     seeds: dict[str, dict[int, pd.DataFrame]] = {}
@@ -57,7 +64,40 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
         "joints": joints,
         "ablation": ablation_rows(ablated, cross_real, level),
         "seeds": seed_spread(seeds),
+        "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed),
+        "alone": alone_rows(alone or {}, level),
     }
+
+
+CROSSING_PARTS = ("calibration", "calibration_reverse")  # the same weights in the twin and in a sim
+
+
+def sims_report(sims: Mapping[str, pd.DataFrame], reference: pd.DataFrame, s_real: pd.DataFrame | None, level: float,
+                n_boot: int, seed) -> dict:
+    """Per further sim, the crossing both ways: pi^R there against pi^R on the real side and pi^S
+    on the real side against pi^S there (``cross_evaluation``'s calibration parts, its cells and
+    the same-policy agreement). ``sims``: "SIM:TRAINED_ON" -> episodes."""
+    arms: dict[str, dict[str, pd.DataFrame]] = {}
+    for key, episodes in sims.items():
+        sim, _, trained_on = key.partition(":")
+        arms.setdefault(sim, {})[trained_on] = success_counts(episodes)
+    out = {}
+    for sim, tables in sorted(arms.items()):
+        cross = cross_evaluation({"R_real": reference, "R_sim": tables.get("real"), "S_sim": tables.get("sim"),
+                                  "S_real": s_real}, level, n_boot, seed)
+        out[sim] = {"cells": [c for c in cross["cells"] if "R_sim" in c or "S_sim" in c],
+                    "parts": {k: v for k, v in cross["parts"].items() if k in CROSSING_PARTS},
+                    "agreement": cross["agreement"]}
+    return out
+
+
+def alone_rows(alone: Mapping[str, pd.DataFrame], level: float) -> list[dict]:
+    """``ablation_rows`` of the twin with each effect alone, each cost against the twin with none."""
+    if not alone:
+        return []
+    if NO_EFFECT not in alone:
+        raise ValueError(f"the twin with each effect alone needs its reference, the twin with {NO_EFFECT!r}")
+    return ablation_rows({e: episodes for e, episodes in alone.items() if e != NO_EFFECT}, alone[NO_EFFECT], level)
 
 
 def sim_rates(report: Mapping) -> dict[str, float]:
@@ -139,10 +179,12 @@ def part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
             f"{summary['max_abs_gap_pp']:.{decimals}f} pp over {summary['cells']} cells")
 
 
-def ablation_table(rows: list[Mapping], decimals: int = 1) -> str:
+def ablation_table(rows: list[Mapping], decimals: int = 1, alone: bool = False) -> str:
     """LaTeX: per ablation policy and family, pi^S's success in the twin without that family (%)
-    and what the family costs (pp, with its interval)."""
-    header = [_row(["Policy", "Without", r"$\pi^S$ in the twin (\%)", "Trials", "Cost (pp)"])]
+    and what the family costs (pp, with its interval); ``alone``: the rows of ``alone_rows``, the
+    twin with only that effect, each cost against the twin with none."""
+    header = [_row(["Policy", "Effect alone" if alone else "Without", r"$\pi^S$ in the twin (\%)", "Trials",
+                    "Cost (pp)"])]
     body = []
     for r in rows:
         cost = DASH if r["cost_pp"] is None else (f"{r['cost_pp']:+.{decimals}f} [{r['cost_ci_pp'][0]:+.{decimals}f}, "
@@ -151,10 +193,52 @@ def ablation_table(rows: list[Mapping], decimals: int = 1) -> str:
         body.append(_row([latex_escape(r["policy"]), latex_escape(family),
                           f"{100 * r['rate']:.{decimals}f} [{100 * r['ci'][0]:.{decimals}f}, {100 * r['ci'][1]:.{decimals}f}]",
                           str(r["trials"]), cost]))
-    full = {r["policy"]: r["full_twin_rate"] for r in rows if r["full_twin_rate"] is not None}
-    notes = [f"Cost: success without the family minus in the full twin ({', '.join(f'{latex_escape(p)} {100 * v:.{decimals}f}\\%' for p, v in full.items())}); "
-             "Wilson intervals per rate, Newcombe per cost."]
+    base = {r["policy"]: r["full_twin_rate"] for r in rows if r["full_twin_rate"] is not None}
+    rates = ", ".join(f"{latex_escape(p)} {100 * v:.{decimals}f}\\%" for p, v in base.items())
+    what = ("with the effect alone minus in the twin with none of its effects" if alone
+            else "without the family minus in the full twin")
+    notes = [f"Cost: success {what} ({rates}); Wilson intervals per rate, Newcombe per cost."]
     return _tabular("llrrr", header, body, notes=notes)
+
+
+def alone_table(rows: list[Mapping], decimals: int = 1) -> str:
+    """``ablation_table`` of the twin with each effect alone."""
+    return ablation_table(rows, decimals, alone=True)
+
+
+def _pooled(cells: list[Mapping], world: str) -> str:
+    s = sum(c[world]["successes"] for c in cells if world in c)
+    n = sum(c[world]["trials"] for c in cells if world in c)
+    return DASH if not n else f"{100 * s / n:.1f}"
+
+
+def _mean_gap(part: Mapping | None, decimals: int) -> str:
+    if not part or not part.get("cells"):
+        return DASH
+    lo, hi = part["mean_gap_ci_pp"]
+    return f"{part['mean_gap_pp']:+.{decimals}f} [{lo:+.{decimals}f}, {hi:+.{decimals}f}]"
+
+
+def sims_table(report: Mapping, decimals: int = 1) -> str:
+    """LaTeX: the crossing both ways in the calibrated sim and in each further sim: the
+    checkpoints' pooled success there (%) and the mean signed gap over the cells (pp, with its
+    interval): pi^R there minus pi^R on the real side, pi^S on the real side minus pi^S there."""
+    header = [_row(["Sim", r"$\pi^R$ sim (\%)", r"$\pi^R$ sim $-$ real (pp)", r"$\pi^S$ sim (\%)",
+                    r"$\pi^S$ real $-$ sim (pp)"])]
+    cross = report["cross"]
+    trained = {c["policy"] for c in cross["cells"] if "R_sim" in c}
+    rows = {"calibrated": {"cells": [c for c in cross["cells"] if c["policy"] in trained], "parts": cross["parts"]},
+            **report["sims"]}
+    body = [_row([latex_escape(name.replace("_", " ")), _pooled(r["cells"], "R_sim"),
+                  _mean_gap(r["parts"].get("calibration"), decimals), _pooled(r["cells"], "S_sim"),
+                  _mean_gap(r["parts"].get("calibration_reverse"), decimals)]) for name, r in rows.items()]
+    real = rows["calibrated"]["cells"]
+    level = 100 * cross["ci_level"]
+    notes = [f"The same checkpoints in every sim, from the same initial configurations; on the real side "
+             f"$\\pi^R$ {_pooled(real, 'R_real')}\\%, $\\pi^S$ {_pooled(real, 'S_real')}\\% "
+             f"({', '.join(sorted(latex_escape(p) for p in trained))}). Mean signed gap over the policy-task cells, "
+             f"{level:g}\\% percentile-bootstrap interval."]
+    return _tabular("lrrrr", header, body, notes=notes)
 
 
 def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
@@ -190,6 +274,13 @@ def format_report(report: Mapping) -> str:
         cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
                                                 f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
         lines.append(f"ablation {r['policy']} without {r['family']:10s}: {100 * r['rate']:5.1f} % "
+                     f"[{100 * r['ci'][0]:.1f}, {100 * r['ci'][1]:.1f}] ({r['successes']}/{r['trials']}){cost}")
+    for sim, r in report.get("sims", {}).items():
+        lines += [f"in {sim}: " + part_sentence(name, part) for name, part in r["parts"].items() if part.get("cells")]
+    for r in report.get("alone", []):
+        cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
+                                                f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
+        lines.append(f"alone {r['policy']} with {r['family']:13s}: {100 * r['rate']:5.1f} % "
                      f"[{100 * r['ci'][0]:.1f}, {100 * r['ci'][1]:.1f}] ({r['successes']}/{r['trials']}){cost}")
     for s in report["seeds"]:
         lines.append(f"seeds {s['world']:6s} {s['policy']:12s} {s['task']:16s} "

@@ -9,6 +9,7 @@ expresses and this never reads.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +64,30 @@ class WorldParams:
 
     def joint_offsets(self, arm: str, n_joints: int) -> np.ndarray:
         return np.asarray(self.joint_offset_rad.get(arm, (0.0,) * n_joints), dtype=float)
+
+
+# The calibrated sim's answers to what its world files cannot state (each by the fields above that
+# hold it), and the sims a fidelity experiment crosses the checkpoints into besides the calibrated
+# one (fidelity.sims): the world as its files state it (nothing calibrated), the calibration
+# without its answers, the calibration without one answer.
+ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates",), "latency": ("command_latency_steps",)}
+NOMINAL_SIM = "nominal"
+WITHOUT_ANSWERS = "without_answers"
+SIM_VARIANTS = (NOMINAL_SIM, WITHOUT_ANSWERS, *(f"without_{answer}" for answer in ANSWERS))
+
+
+def sim_variant(calibrated: WorldParams, name: str) -> WorldParams:
+    """One of ``SIM_VARIANTS`` from the calibrated sim's parameters: ``nominal`` is
+    ``WorldParams()``; ``without_answers`` and ``without_<answer>`` are the calibrated parameters
+    with those answers' fields back at their nominal values (the camera poses stay as the
+    calibration fitted them, through its lens where it fitted one)."""
+    if name == NOMINAL_SIM:
+        return WorldParams()
+    answers = list(ANSWERS) if name == WITHOUT_ANSWERS else [name.removeprefix("without_")]
+    if name not in SIM_VARIANTS:
+        raise ValueError(f"unknown sim variant {name!r}: one of {list(SIM_VARIANTS)}")
+    nominal = WorldParams()
+    return dataclasses.replace(calibrated, **{f: getattr(nominal, f) for a in answers for f in ANSWERS[a]})
 
 
 def load_world_params(path: str | Path) -> WorldParams:

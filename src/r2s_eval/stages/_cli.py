@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TypeVar
 
-from r2s_eval.errors import R2SError
+from r2s_eval.errors import DataError, R2SError
 from r2s_eval.utils.io import set_provenance
 from r2s_eval.utils.numerics import limit_threads
 
@@ -129,3 +129,15 @@ def add_validation_table_inputs(p: argparse.ArgumentParser) -> None:
 def by_judge(paths: Iterable[str], read: Callable[[str], T]) -> dict[str, T]:
     """Per-judge artefacts (`.../<judge>.parquet`, `.../<judge>.json`) read into {judge: content}."""
     return {Path(p).stem: read(p) for p in paths}
+
+
+def keyed(values: Iterable[str], read: Callable[[list[str]], T], option: str) -> dict[str, T]:
+    """``KEY=PATH`` arguments of ``--option`` read into {KEY: read([PATH, ...])} (a key given
+    more than once gets all its paths)."""
+    paths: dict[str, list[str]] = {}
+    for value in values:
+        key, sep, path = value.partition("=")
+        if not sep:
+            raise DataError(f"--{option} {value!r}: expected KEY=PATH")
+        paths.setdefault(key, []).append(path)
+    return {key: read(group) for key, group in paths.items()}

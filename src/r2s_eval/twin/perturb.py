@@ -296,7 +296,23 @@ REALITY_FAMILIES = {
     "distractors": ("distractors",),
     "shapes": ("cup_handle", "block_edge_radius_m"),
 }
+# ... and the TwinMagnitudes that draw it: a twin whose magnitudes are all nominal has no such effect.
+REALITY_MAGNITUDES = {
+    "lens": ("lens_distortion",),
+    "exposure": ("exposure_drift_rel_max", "white_balance_drift_rel_max"),
+    "blur": ("exposure_time_s_max",),
+    "sensor_noise": ("shot_noise_var_per_level_max",),
+    "latency": ("latency_s_range",),
+    "backlash": ("backlash_rad",),
+    "gripper": ("gripper_weakness_rel",),
+    "table_texture": ("table_texture",),
+    "walls": ("walls",),
+    "shadows": ("shadows",),
+    "distractors": ("distractors",),
+    "shapes": ("cup_handle", "block_edge_radius_m"),
+}
 ALL_FAMILIES = "all"  # every family at once: the twin becomes the calibrated sim
+NO_EFFECT = "none"  # the twin with none of its reality effects (the reference of reality_alone)
 
 
 def _family_fields(family: str, families: dict[str, tuple[str, ...]]) -> tuple[str, ...]:
@@ -321,3 +337,22 @@ def reality_without_family(reality: RealityEffects, family: str) -> RealityEffec
     """The twin's reality effects with one family's set off (``all``: every one)."""
     nominal = RealityEffects()
     return dataclasses.replace(reality, **{f: getattr(nominal, f) for f in _family_fields(family, REALITY_FAMILIES)})
+
+
+def reality_alone(reality: RealityEffects, family: str) -> RealityEffects:
+    """The twin's reality effects with only one family's on (``none``: every one off): what that
+    effect does on its own, the twin's parameter errors kept."""
+    nominal = RealityEffects()
+    if family == NO_EFFECT:
+        return nominal
+    if family not in REALITY_FAMILIES:
+        raise ConfigError(f"unknown reality effect {family!r}: one of {[*REALITY_FAMILIES, NO_EFFECT]}")
+    return dataclasses.replace(nominal, **{f: getattr(reality, f) for f in REALITY_FAMILIES[family]})
+
+
+def has_effect(magnitudes: dict, family: str) -> bool:
+    """Whether a twin drawn with these magnitudes (``real.twin.magnitudes``, the rest at
+    TwinMagnitudes' defaults) has the reality effect ``family`` at all."""
+    defaults = TwinMagnitudes()
+    values = [magnitudes.get(f, getattr(defaults, f)) for f in REALITY_MAGNITUDES[family]]
+    return any(np.any(np.asarray(v, dtype=float) != 0) for v in values)

@@ -145,6 +145,28 @@ def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
     assert trained == {"act", "act_close", "act_short", "act_weak"}
 
 
+def test_the_unmodelled_fidelity_experiment_plans_as_the_docs_show_it(tmp_path):
+    # The one-off run behind "The crossing in three sims" (about 70 minutes from a finished
+    # unmodelled run): its command as written plans the two trained candidates in five further sims
+    # on both arms, pi^S of act in the twin with each of twelve effects alone and with none, and
+    # the repetitions' job.
+    from .conftest import clone_checkout, readme_command, run_as_written
+
+    clone = clone_checkout(tmp_path / "r2s-eval")
+    command = readme_command("snakemake -j 2 reports/fidelity_sims_table.tex reports/fidelity_alone_table.tex "
+                             "reports/fidelity_ablation_table.tex reports/stability_table.tex "
+                             "reports/judge_card_table.tex reports/realsim_table.tex --config experiment=unmodelled_fidelity")
+    proc = run_as_written(command.replace("snakemake -j 2", "snakemake -n -j 2"), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    plan = planned_jobs(proc.stdout)
+    in_sims = {(w["sim"], w["trained_on"], w["policy"]) for rule, w in plan if rule == "sim_variant_rollout"}
+    assert in_sims == {(s, arm, p) for s in ("nominal", "without_answers", "without_lens", "without_background",
+                                             "without_latency") for arm in ("real", "sim") for p in ("act", "act_close")}
+    alone = {w["effect"] for rule, w in plan if rule == "alone_rollout"}
+    assert len(alone) == 13 and "none" in alone and "shapes" in alone
+    assert {rule for rule, _ in plan} >= {"stability", "twin_alone", "sim_variant", "board_take", "calib_background"}
+
+
 def test_a_snapshot_is_saved_by_its_trainings_and_trains_nothing_of_its_own(tmp_path):
     # act's weights after 100 of its steps, and a planted-quality variant of those: act's two
     # trainings save step 100 on the way; both candidates' rollouts read that folder.

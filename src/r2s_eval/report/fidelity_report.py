@@ -270,22 +270,22 @@ def format_report(report: Mapping) -> str:
     lines += [joint_line(arm, j) for arm, j in report["joints"]["arms"].items()]
     if "latency" in report["joints"]:
         lines.append(latency_line(report["joints"]["latency"]))
-    for r in report["ablation"]:
-        cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
-                                                f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
-        lines.append(f"ablation {r['policy']} without {r['family']:10s}: {100 * r['rate']:5.1f} % "
-                     f"[{100 * r['ci'][0]:.1f}, {100 * r['ci'][1]:.1f}] ({r['successes']}/{r['trials']}){cost}")
+    lines += [ablation_line(f"ablation {r['policy']} without {r['family']:10s}", r) for r in report["ablation"]]
     for sim, r in report.get("sims", {}).items():
         lines += [f"in {sim}: " + part_sentence(name, part) for name, part in r["parts"].items() if part.get("cells")]
-    for r in report.get("alone", []):
-        cost = "" if r["cost_pp"] is None else (f", cost {r['cost_pp']:+.1f} pp "
-                                                f"[{r['cost_ci_pp'][0]:+.1f}, {r['cost_ci_pp'][1]:+.1f}]")
-        lines.append(f"alone {r['policy']} with {r['family']:13s}: {100 * r['rate']:5.1f} % "
-                     f"[{100 * r['ci'][0]:.1f}, {100 * r['ci'][1]:.1f}] ({r['successes']}/{r['trials']}){cost}")
+    lines += [ablation_line(f"alone {r['policy']} with {r['family']:13s}", r) for r in report.get("alone", [])]
     for s in report["seeds"]:
         lines.append(f"seeds {s['world']:6s} {s['policy']:12s} {s['task']:16s} "
                      f"{[round(r, 1) for r in s['rates_pct']]} range {s['range_pp']:.1f} pp")
     return "\n".join(lines)
+
+
+def ablation_line(label: str, row: Mapping) -> str:
+    """One ablation row (``ablation_rows``) as text: its rate, interval, counts and cost."""
+    cost = "" if row["cost_pp"] is None else (f", cost {row['cost_pp']:+.1f} pp "
+                                              f"[{row['cost_ci_pp'][0]:+.1f}, {row['cost_ci_pp'][1]:+.1f}]")
+    return (f"{label}: {100 * row['rate']:5.1f} % [{100 * row['ci'][0]:.1f}, {100 * row['ci'][1]:.1f}] "
+            f"({row['successes']}/{row['trials']}){cost}")
 
 
 def joint_line(arm: str, joints: Mapping) -> str:

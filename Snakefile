@@ -34,6 +34,7 @@ include: "workflow/rules/report.smk"
 if not LIBERO:
 
     include: "workflow/rules/fidelity.smk"  # the same checkpoint in both worlds, the ablation
+    include: "workflow/rules/resolution.smk"  # each judge's resolution over the planted kinds
 
 include: "workflow/rules/annotate.smk"
 

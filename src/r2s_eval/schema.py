@@ -427,6 +427,18 @@ class ResultsBrowser:
 
 
 @dataclass
+class ResolutionFigure:
+    decimals: Count
+    judge_markers: Annotated[list[str], NonEmpty()]
+    success_color: str
+    columns: PositiveInt
+    panel_width_in: Positive
+    panel_height_in: Positive
+    font_size: Positive
+    dpi: PositiveInt
+
+
+@dataclass
 class Report:
     tasks_table: Table
     realsim_success_table: Table
@@ -442,6 +454,7 @@ class Report:
     case_study: CaseStudy
     results_browser: ResultsBrowser
     stability: StabilityReport
+    judge_resolution: ResolutionFigure
 
 
 @dataclass
@@ -488,6 +501,27 @@ class Stability:
     real_trials_per_task: PositiveInt
     trials_curve: Annotated[list[PositiveInt], NonEmpty()]
     truth_z: Positive
+
+
+@dataclass
+class Sweep:
+    """One planted kind of the resolution sweep: its execution change at its weakest, the dotted
+    key of it the levels set, and the levels (increasing; checked with the execution)."""
+
+    key: str
+    levels: Annotated[list[float], NonEmpty()]
+    execution: dict | None = optional("r2s_eval.compare.resolution (none: the key alone)")
+
+
+@dataclass
+class Resolution:
+    """Each judge's resolution (r2s_eval.compare.resolution, r2s_eval.stats.resolution)."""
+
+    policy: str | None  # a candidate of the line-up that is not a variant; None: no sweep
+    tasks: Annotated[list[str], NonEmpty()] | None  # of the experiment's tasks; None: all of them
+    kinds: list[str]  # keys of sweeps
+    sweeps: dict[str, Sweep]
+    detect_share: Annotated[float, Range(0.5, 1, open_min=True)]
 
 
 LiberoCamera = Literal["agentview", "robot0_eye_in_hand"]
@@ -644,6 +678,15 @@ class Hesitation:
 
 
 @dataclass
+class Fumble:
+    """Once the gripper has closed for `after_steps`, it opens for `open_steps` and closes again."""
+
+    after_steps: PositiveInt
+    open_steps: PositiveInt
+    opening: Annotated[float, Range(0, 1, open_min=True)] = optional(_EXECUTION)
+
+
+@dataclass
 class Execution:
     """How a variant's commands change on their way to the robot (r2s_eval.policies.execution)."""
 
@@ -651,6 +694,8 @@ class Execution:
     hesitate: Hesitation | None = optional(_EXECUTION)
     gripper_delay_steps: Count = optional(_EXECUTION)
     lowpass: Annotated[float, Range(0, 1, open_max=True)] = optional(_EXECUTION)
+    fumble: Fumble | None = optional(_EXECUTION)
+    overshoot: Annotated[float, Range(0, 1, open_max=True)] = optional(_EXECUTION)
 
 
 @dataclass
@@ -696,6 +741,7 @@ class Config:
     annotate: Annotate
     fidelity: Fidelity
     stability: Stability
+    resolution: Resolution
     libero: Libero | None = optional("LIBERO experiments compose it (conf/libero); the real-to-sim setting has none")
 
 
@@ -815,6 +861,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
     problems += _variant_problems(cfg["policies"])
     problems += _snapshot_problems(cfg["policies"], trained)
     problems += _stability_problems(cfg)
+    problems += _resolution_problems(cfg)
     for i, name in enumerate(cfg["fidelity"]["ablation"]["policies"]):
         if name not in trained:
             problems.append(Problem(f"fidelity.ablation.policies[{i}]", f"must be a candidate trained here "
@@ -894,6 +941,45 @@ def _stability_problems(cfg: dict) -> list[Problem]:
     if real_inits is not None and real_inits < k * per_block:
         problems.append(Problem("rollout.real_inits_per_task", f"the repetitions need real trials on all "
                                                                f"{k * per_block} inits per task (null), got {real_inits}"))
+    return problems
+
+
+def _resolution_problems(cfg: dict) -> list[Problem]:
+    """The sweep runs a candidate of the line-up that has weights of its own, in both worlds of
+    the real-to-sim setting; every kind it names is swept, over increasing levels that each make
+    a valid execution change, under names the line-up does not use."""
+    from r2s_eval.compare.resolution import with_key
+    from r2s_eval.policies.execution import complete_execution
+
+    res, policies = cfg["resolution"], cfg["policies"]
+    if res["policy"] is None:
+        return []
+    if cfg.get("libero") is not None:
+        return [Problem("resolution.policy", "the sweep runs in the real-to-sim setting only: set it to null "
+                                             "(LIBERO's checkpoints run in LIBERO's own rollouts)")]
+    if res["policy"] not in policies or policies[res["policy"]].get("type") == "variant":
+        others = sorted(p for p, e in policies.items() if e.get("type") != "variant")
+        return [Problem("resolution.policy", f"must name a candidate of this line-up that is not a variant "
+                                             f"{others}, got {res['policy']!r}")]
+    problems = [Problem(f"resolution.tasks[{i}]", f"must be one of the experiment's tasks {cfg['tasks']}, got {task!r}")
+                for i, task in enumerate(res["tasks"] or []) if task not in cfg["tasks"]]
+    for i, kind in enumerate(res["kinds"]):
+        if kind not in res["sweeps"]:
+            problems.append(Problem(f"resolution.kinds[{i}]", f"must be a key of resolution.sweeps "
+                                                              f"{sorted(res['sweeps'])}, got {kind!r}"))
+            continue
+        sweep = res["sweeps"][kind]
+        if any(b <= a for a, b in zip(sweep["levels"], sweep["levels"][1:])):
+            problems.append(Problem(f"resolution.sweeps.{kind}.levels", f"must increase, from barely there to "
+                                                                        f"plain, got {sweep['levels']}"))
+        for j, value in enumerate(sweep["levels"]):
+            try:
+                complete_execution(with_key(sweep.get("execution"), sweep["key"], value), f"resolution.sweeps.{kind}")
+            except R2SError as err:
+                problems.append(Problem(f"resolution.sweeps.{kind}.levels[{j}]", str(err)))
+        if f"{res['policy']}.{kind}.1" in policies:
+            problems.append(Problem(f"resolution.sweeps.{kind}", f"its levels are named {res['policy']}.{kind}.<i>, "
+                                                                 f"which the line-up uses: rename that candidate"))
     return problems
 
 

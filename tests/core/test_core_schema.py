@@ -199,7 +199,8 @@ def test_a_missing_group_option_is_a_config_error():
 def test_every_group_has_a_schema():
     top = {p for p in known_paths() if "." not in p}
     assert {"suite", "world", "real", "teleop", "ingest", "calib", "replay", "policies", "rollout", "judges",
-            "compare", "stats", "report", "annotate", "fidelity", "stability", "tasks", "seed", "libero"} == top
+            "compare", "stats", "report", "annotate", "fidelity", "stability", "resolution", "tasks", "seed",
+            "libero"} == top
 
 
 def _problem_lines(err: pytest.ExceptionInfo) -> list[str]:
@@ -302,3 +303,29 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
 def test_fidelity_settings_are_checked(overrides, message):
     with pytest.raises(ConfigError, match=message):
         compose_config(CONF, "smoke", overrides)
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (["resolution.policy=nope"], r"resolution.policy .*must name a candidate of this line-up that is not a variant"),
+    (["resolution.policy=act_hesitant"], r"resolution.policy .*not a variant"),
+    (["resolution.kinds=[jitter,wobble]"], r"resolution.kinds\[1\] .*must be a key of resolution.sweeps"),
+    (["resolution.sweeps.jitter.levels=[0.04,0.01]"], r"resolution.sweeps.jitter.levels .*must increase"),
+    (["resolution.kinds=[overshoot]", "resolution.sweeps.overshoot.levels=[0.5,1.5]"],
+     r"resolution.sweeps.overshoot.levels\[1\] .*overshoot"),
+    (["resolution.detect_share=0.5"], r"resolution.detect_share"),
+])
+def test_resolution_settings_are_checked(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        compose_config(CONF, "smoke", overrides)
+
+
+def test_every_sweep_kind_of_the_defaults_makes_valid_variants():
+    from r2s_eval.compare.resolution import sweep_levels
+    from r2s_eval.policy_sources import validate_variant_cfg
+
+    cfg = compose_config(CONF, "demo", ["resolution.policy=act",
+                                        "resolution.kinds=[jitter,stops,fumbling,overshoot,late_gripper,sluggish]"])
+    levels = sweep_levels(cfg["resolution"])
+    assert len(levels) == 30 and len({lv.policy for lv in levels}) == 30
+    for lv in levels:
+        validate_variant_cfg(lv.variant("act"), lv.policy)

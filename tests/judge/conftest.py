@@ -1,4 +1,5 @@
-"""Synthetic rollouts for judge tests: trajectories with known smoothness, pauses, progress and force."""
+"""Rollouts for judge tests: synthetic trajectories with known smoothness, pauses, progress and
+force, and real simulator episodes of the scripted operator (clean, jittered, gripper held open)."""
 
 from __future__ import annotations
 
@@ -131,3 +132,68 @@ def traj_factory(tmp_path):
 @pytest.fixture
 def episode_table():
     return make_episode_table
+
+
+class ChangedOperator:
+    """The scripted operator (``tests.helpers.policies.OperatorPolicy``) with its commands changed:
+    `jitter_rad` Gaussian noise on every arm-joint command (as the planted ``action_noise_std``
+    variant adds), or `open_gripper`, grippers held open (the arm moves as smoothly, the cup is
+    never grasped: a smooth failure)."""
+
+    def __init__(self, env, jitter_rad: float = 0.0, open_gripper: bool = False, seed: int = 0):
+        from tests.helpers.policies import OperatorPolicy
+        from tests.helpers.worlds import bundled_robot
+
+        self.base, self.jitter_rad, self.open_gripper, self.seed = OperatorPolicy(env), jitter_rad, open_gripper, seed
+        features = bundled_robot().features
+        self.joints = [i for i, f in enumerate(features) if f.joint is not None]
+        self.grippers = [i for i, f in enumerate(features) if f.joint is None]
+
+    def reset(self):
+        self.base.reset()
+        self.rng = np.random.default_rng(self.seed)
+
+    def act(self, obs):
+        action = np.array(self.base.act(obs), dtype=float)
+        action[self.joints] += self.rng.normal(0.0, self.jitter_rad, len(self.joints)) if self.jitter_rad else 0.0
+        if self.open_gripper:
+            action[self.grippers] = 0.0
+        return action
+
+
+OPERATOR_RUNS = {"clean": {}, "jittery": {"jitter_rad": 0.01}, "open_gripper": {"open_gripper": True}}
+
+
+@pytest.fixture(scope="session")
+def operator_runs(tmp_path_factory) -> dict[str, dict]:
+    """Real simulator episodes of cup_on_plate from the same initial poses (as
+    ``tests.helpers.videos.render_sim_episodes`` renders them: 128 px head_left, 10 fps): the
+    scripted operator (``clean``, succeeds), the same with jittered arm commands (``jittery``,
+    succeeds) and with its grippers held open (``open_gripper``, fails smoothly). Per name:
+    ``instruction``, ``video_path`` (a frame per control step), ``video_5fps_path`` (every second
+    frame, as the rollout stage records at its default ``video_fps: 5``), ``trajectory_path`` and
+    the episode's ``success``."""
+    from r2s_eval.rollout import run_episode
+    from r2s_eval.rollout.mp4 import write_video
+
+    from tests.helpers.videos import SIM_TASK
+    from tests.helpers.worlds import bundled_env
+
+    root = tmp_path_factory.mktemp("operator_runs")
+    env = bundled_env(SIM_TASK, image_size=(128, 128), cameras=("head_left",))
+    runs = {}
+    try:
+        poses = env.sample_initial_poses(np.random.default_rng(4))
+        for name, change in OPERATOR_RUNS.items():
+            policy = ChangedOperator(env, **change)
+            policy.reset()
+            result = run_episode(env, policy, poses, seed=1, max_steps=120, video_camera="head_left")
+            write_video(root / f"{name}.mp4", result.frames, fps=10)
+            write_video(root / f"{name}_5fps.mp4", result.frames[::2], fps=5)
+            result.trajectory.to_parquet(root / f"{name}.parquet")
+            runs[name] = {"instruction": env.task.instruction, "video_path": root / f"{name}.mp4",
+                          "video_5fps_path": root / f"{name}_5fps.mp4", "trajectory_path": root / f"{name}.parquet",
+                          "success": bool(result.success)}
+    finally:
+        env.close()
+    return runs

@@ -78,6 +78,34 @@ def test_judge_complete_beats_stalled(judge, traj_factory):
     assert_prefers(judge, describe(judge, traj_factory(noise=0.01)), stalled)
 
 
+def test_judge_success_before_style(judge, traj_factory):
+    """A success that is jerky, stop-and-go and forceful beats a smooth run that stalls (partially
+    successful) or never gets anywhere (failed), in both orders."""
+    worst = describe(judge, traj_factory(noise=0.01, pauses=3, peak_force=60.0, spikes=3))
+    assert worst.progress_label == "successful"
+    for stall_at, label in ((0.6, "partially successful"), (0.05, "failed")):
+        smooth = describe(judge, traj_factory(stall_at=stall_at))
+        assert smooth.progress_label == label
+        assert judge.behaviour_scores(smooth, worst)[0] > judge.behaviour_scores(smooth, worst)[1]
+        assert_prefers(judge, worst, smooth)
+        assert judge.compare(smooth, worst, "task").rationale.startswith("outcome:")
+
+
+def test_judge_successful_means_the_goal_holds_at_the_end(judge, traj_factory, tmp_path):
+    """"successful" is the task's goal reached at the end (final progress >= success_progress,
+    progress 1 being the task's success rule), not a goal reached once and lost again."""
+    import pandas as pd
+
+    table = pd.read_parquet(traj_factory())
+    assert table["progress"].iloc[-1] == 1.0
+    table.loc[table.index[-3:], "progress"] = 0.75  # dropped after reaching the goal
+    lost = tmp_path / "lost.parquet"
+    table.to_parquet(lost)
+    d = describe(judge, lost)
+    assert d.progress_label == "partially successful"
+    assert d.criteria["task_progress"].evidence["max_progress"] == 1.0
+
+
 def test_judge_continuous_beats_stop_and_go(judge, traj_factory):
     cont, stop_go = describe(judge, traj_factory()), describe(judge, traj_factory(pauses=3))
     assert stop_go.criteria["action_continuity"].evidence["pauses"] == 3

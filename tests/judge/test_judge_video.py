@@ -6,6 +6,7 @@ import builtins
 import io
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
@@ -98,25 +99,104 @@ def test_judge_video_descriptions_are_deterministic(sim_episodes):
     assert "not a VLM" in first.summary
 
 
-def test_judge_video_equal_weights_no_priority():
-    """A failed but otherwise clean rollout can beat a successful one that is poor on the other three."""
+def _scored(judge, progress, label, reversals, idle, speed):
+    """A description of the video judge's form with the given numbers."""
     from r2s_eval.judge import CriterionNote, Description
 
+    return Description(criteria={
+        "motion_smoothness": CriterionNote("m", {"flow_reversals_per_s": reversals}),
+        "action_continuity": CriterionNote("c", {"idle_fraction": idle, "pauses_per_100_frames": 0.0}),
+        "task_progress": CriterionNote("p", {"progress_score": progress}, label),
+        "force_control": CriterionNote("f", {"peak_object_speed": speed, "object_speed_spikes": 0,
+                                             "bystander_move": 0.0, "object_moved": True}),
+    }, summary="s", judge=judge.name)
+
+
+def test_judge_video_success_before_style():
+    """A successful rollout beats one that is not, however poor its other three criteria; the
+    verdict names the rule."""
     judge = VideoJudge(CFG)
+    shaky = _scored(judge, 1.0, "successful", reversals=50.0, idle=5.0, speed=50.0)
+    for label, progress in (("partially successful", 0.9), ("failed", 0.1)):
+        smooth = _scored(judge, progress, label, reversals=0.0, idle=0.0, speed=0.0)
+        assert judge.compare(shaky, smooth, "Stack the Two Blocks").letter == "A"
+        verdict = judge.compare(smooth, shaky, "Stack the Two Blocks")
+        assert verdict.letter == "B" and "success before style" in verdict.rationale
 
-    def desc(progress, label, jerk, idle, speed):
-        return Description(criteria={
-            "motion_smoothness": CriterionNote("m", {"energy_jerk": jerk, "energy_spike_share": 0.0}),
-            "action_continuity": CriterionNote("c", {"idle_fraction": idle, "pauses_per_100_frames": 0.0}),
-            "task_progress": CriterionNote("p", {"progress_score": progress}, label),
-            "force_control": CriterionNote("f", {"peak_object_speed": speed, "object_speed_spikes": 0,
-                                                 "bystander_move": 0.0, "object_moved": True}),
-        }, summary="s", judge=judge.name)
 
-    lucky = desc(1.0, "successful", jerk=50.0, idle=5.0, speed=50.0)
-    clean = desc(0.5, "partially successful", jerk=0.0, idle=0.0, speed=0.0)
-    assert judge.compare(lucky, clean, "Stack the Two Blocks").letter == "B"
-    assert judge.compare(clean, lucky, "Stack the Two Blocks").letter == "A"
+def test_judge_video_partial_and_failed_are_left_to_the_scores():
+    """Neither reached the goal: the four scores decide (progress among them), so a clean run
+    labelled failed can beat a poor one labelled partially successful."""
+    judge = VideoJudge(CFG)
+    poor = _scored(judge, 0.3, "partially successful", reversals=50.0, idle=5.0, speed=50.0)
+    clean = _scored(judge, 0.15, "failed", reversals=0.0, idle=0.0, speed=0.0)
+    assert judge.compare(poor, clean, "Stack the Two Blocks").letter == "B"
+    verdict = judge.compare(clean, poor, "Stack the Two Blocks")
+    assert verdict.letter == "A" and "neither successful" in verdict.rationale
+    # Both successful: the scores decide too.
+    shaky, calm = (_scored(judge, 1.0, "successful", reversals=r, idle=0.0, speed=0.1) for r in (3.0, 0.1))
+    assert judge.compare(shaky, calm, "Stack the Two Blocks").letter == "B"
+
+
+def _moving_square(side: int, shake_px: float) -> np.ndarray:
+    """20 frames of a textured square (a quarter of the image wide) crossing a grey image at 0.025
+    of the image per frame, its position shaken back and forth by `shake_px` (in a 128 px image's
+    pixels) every frame."""
+    import cv2
+
+    texture = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (side // 4, side // 4, 3), dtype=np.uint8),
+                               (0, 0), side / 128)
+    frames = np.full((20, side, side, 3), 128, np.uint8)
+    for t in range(20):
+        x = round(side * (0.1 + 0.025 * t) + (side / 128) * shake_px * (-1) ** t)
+        frames[t, side // 3: side // 3 + side // 4, x: x + side // 4] = texture
+    return frames
+
+
+def test_judge_video_flow_is_on_an_absolute_scale():
+    from r2s_eval.judge.video_judge import cell_flow, flow_reversals_per_s, grey
+
+    for side in (128, 256):  # the same motion at two resolutions: the same numbers
+        steady = cell_flow(grey(_moving_square(side, 0.0)), 10.0, 128, 8)
+        assert steady.shape == (19, 16, 16, 2)
+        # The cells inside the square (rows 6-8; from its left edge 12.8 + 3.2 t px on): 0.025 of
+        # the image per frame at 10 fps is 0.25 image per second.
+        inside = [steady[t, 6:9, int(np.ceil((12.8 + 3.2 * t) / 8)):][:, :3, 0] for t in range(19)]
+        assert np.median(np.concatenate([c.ravel() for c in inside])) == pytest.approx(0.25, rel=0.1)
+        assert flow_reversals_per_s(steady, 10.0, 0.02) < 0.5
+        shaken = cell_flow(grey(_moving_square(side, 3.0)), 10.0, 128, 8)
+        assert flow_reversals_per_s(shaken, 10.0, 0.02) > 2.0
+    # Its definition: per second of moving-cell time, slow cells left out.
+    back_and_forth = np.zeros((11, 2, 2, 2))
+    back_and_forth[:, 0, 0, 0] = 0.1 * (-1.0) ** np.arange(11)
+    back_and_forth[:, 1, 1, 0] = 0.001 * (-1.0) ** np.arange(11)  # below the minimum speed
+    assert flow_reversals_per_s(back_and_forth, 5.0, 0.02) == pytest.approx(5.0)
+    assert flow_reversals_per_s(np.abs(back_and_forth), 5.0, 0.02) == 0.0
+    assert flow_reversals_per_s(np.zeros((11, 2, 2, 2)), 5.0, 0.02) is None
+    assert flow_reversals_per_s(cell_flow(np.zeros((5, 6, 6), np.uint8), 5.0, 128, 8), 5.0, 0.02) is None  # too small
+
+
+def test_judge_video_jitter_raises_reversals_and_loses(operator_runs):
+    """The same episode with jittered arm commands: more direction reversals per second and a lower
+    smoothness score whatever its motion level, and the judge prefers the clean run."""
+    from r2s_eval.judge.video_judge import video_fps
+
+    judge = video_judge()
+    for key in ("video_path", "video_5fps_path"):
+        clean, jittery = (judge.describe(RolloutInput(operator_runs[n]["instruction"], video_path=operator_runs[n][key]))
+                          for n in ("clean", "jittery"))
+        ev_c, ev_j = clean.criteria["motion_smoothness"].evidence, jittery.criteria["motion_smoothness"].evidence
+        assert ev_j["flow_reversals_per_s"] > 3 * ev_c["flow_reversals_per_s"], key
+        assert judge.scores(jittery)["motion_smoothness"] < judge.scores(clean)["motion_smoothness"] - 0.2, key
+        assert "turn back" in clean.criteria["motion_smoothness"].text
+    assert video_fps(operator_runs["clean"]["video_5fps_path"]) == 5.0
+    # At the rollout stage's 5 fps (the same outcome read for both) the clean run wins. At a frame
+    # per control step the operator's grasp holds show as pauses, which the jitter fills with
+    # motion: the continuity criterion then favours the jittered run as much as smoothness does not.
+    assert clean.progress_label == jittery.progress_label
+    instruction = operator_runs["clean"]["instruction"]
+    assert judge.compare(clean, jittery, instruction).letter == "A"
+    assert judge.compare(jittery, clean, instruction).letter == "B"
 
 
 def test_judge_video_config_and_identity():
@@ -124,6 +204,10 @@ def test_judge_video_config_and_identity():
         make_judge({"backend": "video", "diff_treshold": 5})
     with pytest.raises(ValueError, match="unknown ref keys.*'idle'"):
         make_judge({"backend": "video", "ref": {"idle": 1.0}})
+    with pytest.raises(ValueError, match="flow_cell_px"):
+        make_judge({"backend": "video", "flow_cell_px": 0})
+    with pytest.raises(ValueError, match="reversal_min_speed"):
+        make_judge({"backend": "video", "reversal_min_speed": 0.0})
     a, b = video_judge(), video_judge({"backend": "video", "near_max": 0.6})
     assert a.identity()["prompt_version"].startswith("video-")
     assert a.identity()["config_hash"] != b.identity()["config_hash"]
@@ -155,3 +239,14 @@ def test_goal_relations_come_from_the_tasks_success_conditions():
         "stack_blocks": ("stack", "block_a", "block_b"), "block_from_box": ("out", "block_a", "box"),
         "upright_cup": ("upright", "cup", None),
     }
+
+
+def test_judge_video_reads_the_goal_over_the_last_fraction_of_a_second():
+    """The end the goal is read in spans ``end_s`` seconds whatever the frame rate (a rollout
+    ends 0.3 s after its success at 10 Hz: 2 frames at 5 fps, 3 at 10 fps), never no frame."""
+    from r2s_eval.judge.video_judge import end_frame_count
+
+    assert [end_frame_count(0.3, fps) for fps in (5, 10, 2, 30)] == [2, 3, 1, 9]
+    assert end_frame_count(0.01, 5) == 1
+    with pytest.raises(ValueError, match="end_s"):
+        make_judge({"backend": "video", "end_s": 0})

@@ -24,7 +24,7 @@ def _stream(n: int = 40, dim: int = 8) -> list[np.ndarray]:
     return [np.arange(dim, dtype=np.float32) + 0.01 * k for k in range(n)]
 
 
-def _executed(execution: dict, n_out: int, seed: int = 5) -> tuple[np.ndarray, int]:
+def _executed(execution: dict, n_out: int, seed: int = 5, **grippers) -> tuple[np.ndarray, int]:
     """The first `n_out` commands sent for the scripted stream, and how many it took from it."""
     stream = iter(_stream())
     taken = []
@@ -33,7 +33,7 @@ def _executed(execution: dict, n_out: int, seed: int = 5) -> tuple[np.ndarray, i
         taken.append(1)
         return next(stream)
 
-    commands = Execution.from_config(execution, JOINTS, GRIPPERS).start(seed)
+    commands = Execution.from_config(execution, JOINTS, GRIPPERS, **grippers).start(seed)
     return np.array([commands.next(pop) for _ in range(n_out)]), len(taken)
 
 
@@ -80,8 +80,115 @@ def test_a_lowpass_filters_the_joints_and_leaves_the_grippers():
     np.testing.assert_array_equal(sent[:, list(GRIPPERS)], base[:, list(GRIPPERS)].astype(np.float32))
 
 
+def _gripper_commands(closing: list[list[float]], execution: dict, opened=(0.0, 1.0), closed=(1.0, 0.0)):
+    """The gripper commands sent for a scripted stream whose grippers' closing follows ``closing``
+    (per step, per gripper; the second gripper's units run the other way, as ALOHA's do)."""
+    opened, closed = np.array(opened), np.array(closed)
+    stream = iter([np.r_[np.zeros(3), opened[0] + c[0] * (closed[0] - opened[0]), np.zeros(3),
+                         opened[1] + c[1] * (closed[1] - opened[1])].astype(np.float32) for c in closing])
+    commands = Execution.from_config(execution, JOINTS, GRIPPERS, gripper_open=opened, gripper_closed=closed).start(5)
+    sent = np.array([commands.next(lambda: next(stream)) for _ in closing])[:, list(GRIPPERS)]
+    return (sent - opened) / (closed - opened)  # back to closing: 0 open, 1 closed
+
+
+def test_a_fumbling_gripper_opens_once_for_n_steps_after_k_closed_steps():
+    # Open for 5 steps, half-closed (not yet closed) for 2, closed for the rest of 40.
+    closing = [[0.0, 0.0]] * 5 + [[0.3, 0.3]] * 2 + [[1.0, 1.0]] * 33
+    sent = _gripper_commands(closing, {"fumble": {"after_steps": 4, "open_steps": 3}})
+    expected = np.array(closing)
+    expected[7 + 4:7 + 4 + 3] = 0.0  # closed from step 7: steps 7..10 go out, then 3 open, then closed for good
+    np.testing.assert_allclose(sent, expected, atol=1e-7)
+    # Only part of the way open: the policy's closing less `opening`.
+    sent = _gripper_commands(closing, {"fumble": {"after_steps": 4, "open_steps": 3, "opening": 0.25}})
+    expected[7 + 4:7 + 4 + 3] = 0.75
+    np.testing.assert_allclose(sent, expected, atol=1e-7)
+
+
+def test_a_fumble_waits_for_the_gripper_to_be_closed_k_steps_in_a_row_and_each_gripper_fumbles_once():
+    # The first gripper closes twice for 2 steps (too short), then for good at step 10; the second
+    # closes at step 3, opens at step 20 (the policy lets go) and closes again at 25.
+    first = [0.0] * 3 + [1.0] * 2 + [0.0] * 2 + [1.0] * 2 + [0.0] + [1.0] * 30
+    second = [0.0] * 3 + [0.9] * 17 + [0.0] * 5 + [0.9] * 15
+    sent = _gripper_commands(list(zip(first, second)), {"fumble": {"after_steps": 3, "open_steps": 2}})
+    expected = np.array([first, second]).T
+    expected[13:15, 0] = 0.0
+    expected[6:8, 1] = 0.0  # its second closing, after 20, goes out as the policy's: once per episode
+    np.testing.assert_allclose(sent, expected, atol=1e-6)
+    # Never closed long enough: the policy's commands throughout.
+    never = [[float(k % 3 == 0), 0.4] for k in range(30)]
+    np.testing.assert_allclose(_gripper_commands(never, {"fumble": {"after_steps": 2, "open_steps": 5}}), never,
+                               atol=1e-7)
+
+
+def test_a_fumble_leaves_the_arm_joints_and_needs_the_grippers_open_and_closed_commands():
+    sent, taken = _executed({"fumble": {"after_steps": 1, "open_steps": 1}}, 10, gripper_open=(0, 0),
+                            gripper_closed=(10, 10))
+    base = np.array(_stream()[:10])
+    np.testing.assert_array_equal(sent[:, list(JOINTS)], base[:, list(JOINTS)])
+    assert taken == 10 and (sent[:, list(GRIPPERS)] != base[:, list(GRIPPERS)]).sum() == 1  # the 7 closes at once
+    with pytest.raises(PolicyConfigError, match="fumble needs each gripper's distinct open and closed"):
+        Execution.from_config({"fumble": {"after_steps": 1, "open_steps": 1}}, JOINTS, GRIPPERS)
+
+
+def _step_response(overshoot: float, n: int = 80) -> tuple[np.ndarray, np.ndarray]:
+    """Commands sent when the policy's joint targets step from 0 to 1 (to -2 on joint 1) at step 5."""
+    step = np.zeros(8, dtype=np.float32)
+    step[list(JOINTS)] = 1.0
+    step[1] = -2.0
+    step[list(GRIPPERS)] = 0.5
+    targets = [np.zeros(8, dtype=np.float32)] * 5 + [step] * (n - 5)
+    stream = iter(targets)
+    commands = Execution.from_config({"overshoot": overshoot}, JOINTS, GRIPPERS).start(5)
+    return np.array([commands.next(lambda: next(stream)) for _ in range(n)]), np.array(targets)
+
+
+@pytest.mark.parametrize("overshoot", [0.02, 0.2, 0.6])
+def test_an_overshooting_servo_passes_a_step_by_f_and_settles_back(overshoot):
+    sent, targets = _step_response(overshoot, n=300 if overshoot > 0.5 else 80)
+    np.testing.assert_array_equal(sent[:, list(GRIPPERS)], targets[:, list(GRIPPERS)])  # grippers untouched
+    np.testing.assert_array_equal(sent[:5], targets[:5])  # it starts on the first command: no jump
+    joints = sent[:, list(JOINTS)] / targets[-1, list(JOINTS)]  # each joint's response to a unit step
+    # The peak is sampled where it lies (3 steps after the last command before the step: steps 5, 6,
+    # 7), so it passes the target by F up to float32 rounding; no sample passes it by more.
+    assert np.all(np.argmax(joints, axis=0) == 7)
+    np.testing.assert_allclose(joints.max(axis=0) - 1.0, overshoot, atol=1e-6)
+    assert np.all(joints[5] > 0) and np.all(joints[5] < 1)  # the first step moves towards the target
+    # Then it rings back below the target and settles on it.
+    assert np.all(joints[8:].min(axis=0) < 1.0)
+    np.testing.assert_allclose(joints[-5:], 1.0, atol=1e-4)
+
+
+def test_changes_combine_and_with_all_switched_off_the_commands_are_the_policys_bit_for_bit():
+    everything = {"action_noise_std": 0.01, "hesitate": {"every_steps": 4, "pause_steps": 1}, "gripper_delay_steps": 1,
+                  "lowpass": 0.3, "fumble": {"after_steps": 2, "open_steps": 2, "opening": 0.5}, "overshoot": 0.1}
+    sent, taken = _executed(everything, 20, gripper_open=(0, 0), gripper_closed=(10, 10))
+    assert np.isfinite(sent).all() and taken == 16  # 4 pauses
+    # Gripper 7 (closing 0.7 in these units: closed from the start) is opened half-way at the policy's
+    # third and fourth commands, which reach it a step late; the pause after the fourth command holds it.
+    assert list(np.flatnonzero(sent[:, 7] < 6.0)) == [3, 4, 5]
+    np.testing.assert_allclose(sent[3:6, 7], [2.02, 2.02, 2.03], atol=1e-5)  # 10 * (0.7 + 0.01 k / 10 - 0.5)
+    # With every change off (which a config cannot ask for) the commands are the policy's, bit for bit.
+    off = Execution(action_noise_std=0.0, hesitate=None, gripper_delay_steps=0, lowpass=0.0, fumble=None,
+                    overshoot=0.0, joints=JOINTS, grippers=GRIPPERS)
+    stream = _stream()
+    queue = iter(stream)
+    commands = off.start(5)
+    sent = np.array([commands.next(lambda: next(queue)) for _ in range(len(stream))])
+    assert sent.dtype == np.float32 and sent.tobytes() == np.array(stream).tobytes()
+
+
 @pytest.mark.parametrize("execution, message", [
     ({}, "changes nothing"),
+    ({"overshoot": 0.0}, "changes nothing"),
+    ({"overshoot": -0.1}, r"overshoot must be in \[0, 1\)"),
+    ({"overshoot": 1.0}, r"overshoot must be in \[0, 1\)"),
+    ({"fumble": {"after_steps": 5}}, "fumble must be {after_steps: K, open_steps: N}"),
+    ({"fumble": {"after_steps": 5, "open_steps": 0}}, "fumble must be"),
+    ({"fumble": {"after_steps": 2.5, "open_steps": 1}}, "fumble must be"),
+    ({"fumble": {"after_steps": 2, "open_steps": 1, "opening": 0}}, "fumble must be"),
+    ({"fumble": {"after_steps": 2, "open_steps": 1, "opening": 1.5}}, "fumble must be"),
+    ({"fumble": {"after_steps": 2, "open_steps": 1, "closing": 1}}, "fumble must be"),
+    ({"fumble": 3}, "fumble must be"),
     ({"action_noise": 0.1}, r"unknown key\(s\) \['action_noise'\]"),
     ({"lowpass": 1.0}, r"lowpass must be in \[0, 1\)"),
     ({"hesitate": {"every_steps": 5}}, "every_steps: N, pause_steps: P"),

@@ -126,17 +126,22 @@ def test_adaptive_budget_beyond_the_last_checkpoint_is_refused(tmp_path):
     assert "compare.budget" in proc.stdout + proc.stderr and "checkpoints.stop" in proc.stdout + proc.stderr
 
 
+def plan_as_written(tmp_path, command: str, flags: str = "-n"):
+    """A documented command, found in the docs as written, planned (`flags`) in a clone of the checkout."""
+    from .conftest import clone_checkout, readme_command, run_as_written
+
+    clone = clone_checkout(tmp_path / "r2s-eval")
+    proc = run_as_written(readme_command(command).replace("snakemake -j 2", f"snakemake {flags} -j 2"), clone)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc
+
+
 def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
     # The one-off run behind "Where ranking is hard" (about 70 minutes from a finished demo): its
     # command as written plans three variants that are never trained, a close candidate that is,
     # and the repetitions' job.
-    from .conftest import clone_checkout, readme_command, run_as_written
-
-    clone = clone_checkout(tmp_path / "r2s-eval")
-    command = readme_command("snakemake -j 2 reports/realsim_table.tex reports/judge_card_table.tex "
-                             "reports/stability_table.tex reports/stability.png --config experiment=validation")
-    proc = run_as_written(command.replace("snakemake -j 2", "snakemake -n -j 2"), clone)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = plan_as_written(tmp_path, "snakemake -j 2 reports/realsim_table.tex reports/judge_card_table.tex "
+                                     "reports/stability_table.tex reports/stability.png --config experiment=validation")
     jobs = dict(line.split() for line in proc.stdout.split("Job stats:")[1].split("total")[0].splitlines()[3:]
                 if line.strip())
     # Seven candidates on two arms; four trained (act, act_close, act_short, act_weak) per arm.
@@ -150,14 +155,10 @@ def test_the_unmodelled_fidelity_experiment_plans_as_the_docs_show_it(tmp_path):
     # unmodelled run): its command as written plans the two trained candidates in five further sims
     # on both arms, pi^S of act in the twin with each of twelve effects alone and with none, and
     # the repetitions' job.
-    from .conftest import clone_checkout, readme_command, run_as_written
-
-    clone = clone_checkout(tmp_path / "r2s-eval")
-    command = readme_command("snakemake -j 2 reports/fidelity_sims_table.tex reports/fidelity_alone_table.tex "
-                             "reports/fidelity_ablation_table.tex reports/stability_table.tex "
-                             "reports/judge_card_table.tex reports/realsim_table.tex --config experiment=unmodelled_fidelity")
-    proc = run_as_written(command.replace("snakemake -j 2", "snakemake -n -j 2"), clone)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = plan_as_written(tmp_path, "snakemake -j 2 reports/fidelity_sims_table.tex reports/fidelity_alone_table.tex "
+                                     "reports/fidelity_ablation_table.tex reports/stability_table.tex "
+                                     "reports/judge_card_table.tex reports/realsim_table.tex "
+                                     "--config experiment=unmodelled_fidelity")
     plan = planned_jobs(proc.stdout)
     in_sims = {(w["sim"], w["trained_on"], w["policy"]) for rule, w in plan if rule == "sim_variant_rollout"}
     assert in_sims == {(s, arm, p) for s in ("nominal", "without_answers", "without_lens", "without_background",
@@ -182,3 +183,20 @@ def test_a_snapshot_is_saved_by_its_trainings_and_trains_nothing_of_its_own(tmp_
     assert set(rollouts) == {("real", "act_early"), ("sim", "act_early_jitter")}
     assert "--policy results/train/real/act/snapshots/100 " in rollouts["real", "act_early"]
     assert "--policy results/train/sim/act/snapshots/100 " in rollouts["sim", "act_early_jitter"]
+
+
+def test_the_judge_resolution_experiment_plans_as_the_docs_show_it(tmp_path):
+    # The one-off run behind each built-in judge's resolution card: its command as written plans
+    # act and 25 levels of it (five kinds, five magnitudes) in both worlds, the levels on the one
+    # task of resolution.tasks, and one judge_resolution job per judge; nothing is trained but act.
+    proc = plan_as_written(tmp_path, "snakemake -j 2 reports/judge_resolution_table.tex reports/judge_resolution.png "
+                                     "--config experiment=judge_resolution", flags="-n -p")
+    blocks = planned_job_blocks(proc.stdout)
+    rollouts = {(w["arm"], w["policy"]): text for rule, w, text in blocks if rule == "rollout"}
+    levels = {p for _, p in rollouts if p != "act"}
+    assert len(levels) == 25 and {arm for arm, _ in rollouts} == {"sim", "real"} and len(rollouts) == 52
+    assert {p.split(".")[1] for p in levels} == {"jitter", "stops", "fumbling", "overshoot", "late_gripper"}
+    only_its_task = '"tasks":["cup_on_plate"]'  # the rollout stage's provided key (compact JSON)
+    assert all((only_its_task in text) == (p != "act") for (arm, p), text in rollouts.items())
+    assert {w["judge"] for rule, w, _ in blocks if rule == "judge_resolution"} == {"kinematic", "video"}
+    assert {w["policy"] for rule, w, _ in blocks if rule == "train"} == {"act"}

@@ -16,6 +16,9 @@ pytestmark = pytest.mark.slow
 FIT_REPORTS = {"bt_scores_table", "bt_convergence", "overall_ranking"}
 SMOKE_LINE_UP = ("act", "act_subset", "act_weak", "act_hesitant")  # act_hesitant: act's weights, planted stops
 VERDICT_REPORTS = {"win_rate_matrix", "case_study"}
+# The judges' resolution sweep (the smoke's conf/experiment/smoke.yaml): act's weights, two kinds at two magnitudes.
+SWEEP = ("act.jitter.1", "act.jitter.2", "act.fumbling.1", "act.fumbling.2")
+RESOLUTION = {"judge_resolution", "resolution_report"}
 
 
 def test_report_has_real_numbers(smoke_run):
@@ -98,7 +101,7 @@ def test_statistics_change_reruns_only_fit_onward(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["stats.n_boot=150"])
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
     assert rules == {"fit", "validate", "realsim_table", "judge_audit", "judge_card_table", "results_browser",
-                     "world_report", "fidelity", *FIT_REPORTS}, rules
+                     "world_report", "fidelity", *FIT_REPORTS, *RESOLUTION}, rules
 
 
 def test_judge_change_reruns_describe_onward(smoke_run):
@@ -106,7 +109,7 @@ def test_judge_change_reruns_describe_onward(smoke_run):
     rules = {rule for rule, _ in planned_jobs(proc.stdout)}
     # The repeated evaluations rank from the verdicts too.
     expected = {"describe", "descriptions", "judge_pairs", "fit", "validate", "realsim_table", "judge_audit", "judge_card_table",
-                "results_browser", "stability", *FIT_REPORTS, *VERDICT_REPORTS}
+                "results_browser", "stability", *FIT_REPORTS, *VERDICT_REPORTS, "resolution_describe", *RESOLUTION}
     assert rules == expected, rules
 
 
@@ -142,7 +145,7 @@ def test_receding_horizon_change_reruns_rollouts_not_training(smoke_run):
     proc = snakemake(smoke_run.workdir, "-n", overrides=["rollout.horizon.execute=4"])
     jobs = planned_jobs(proc.stdout)
     rollouts = {(wc["arm"], wc["policy"]) for rule, wc in jobs if rule == "rollout"}
-    assert rollouts == {(arm, p) for arm in ("real", "sim") for p in SMOKE_LINE_UP}, rollouts
+    assert rollouts == {(arm, p) for arm in ("real", "sim") for p in (*SMOKE_LINE_UP, *SWEEP)}, rollouts
     assert not {rule for rule, _ in jobs} & {"train", "teleop", "ingest", "replay", "rollout_inits"}
 
 
@@ -218,8 +221,9 @@ def test_vlm_requests_for_smoke_rollouts_carry_no_outcome_cue(smoke_run, tmp_pat
 
     from tests.helpers.chat_server import ChatServer
 
+    # act and its planted variant of the line-up (the resolution sweep's levels, act.<kind>.<i>, left out)
     rollouts = sorted((smoke_run.workdir / "results" / "rollout" / "sim").glob("act*"))
-    episodes = load_episodes([str(d) for d in rollouts if d.is_dir()])
+    episodes = load_episodes([str(d) for d in rollouts if d.is_dir() and "." not in d.name])
     assert len(episodes) == 24 and episodes["length"].nunique() > 1  # lengths differ, requests must not
     for video_input in ("frames", "video"):
         with ChatServer() as server:
@@ -286,6 +290,19 @@ def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_
     assert (card["variant"], card["clean"]) == ("act_hesitant", "act") and card["n_pair_verdicts"] == 30
     assert card["n_pairs"] >= 1 and "bt_separated" in card and "success_overlap" in card
     assert "act\\_hesitant vs act" in (smoke_run.workdir / "reports" / "judge_card_table.tex").read_text()
+    # The resolution sweep: every level paired with act's run from each of its 6 inits, per judge.
+    for judge in ("kinematic", "video"):
+        card = json.loads((results / "resolution" / f"{judge}.json").read_text())
+        assert [(r["kind"], r["level"]) for r in card["levels"]] == [("jitter", 1), ("jitter", 2), ("fumbling", 1),
+                                                                    ("fumbling", 2)]
+        assert card["comparisons"] == 24 and set(card["kinds"]) == {"jitter", "fumbling"}
+        for row in card["levels"]:
+            same, other = row["same_outcome"]["n_pairs"], row["different_outcome"]["n_pairs"]
+            assert same + other == 6 and row["success"]["sim"]["changed"]["trials"] == 6
+            assert row["success"]["real"]["clean"]["trials"] == 6
+    table = (smoke_run.workdir / "reports" / "judge_resolution_table.tex").read_text()
+    assert "fumble.open\\_steps" in table and "action\\_noise\\_std" in table
+    assert (smoke_run.workdir / "reports" / "judge_resolution.png").stat().st_size > 0
     summary = json.loads((results / "stability" / "summary.json").read_text())
     assert summary["repetitions"] == 2 and summary["inits_per_repetition_and_task"] == 3
     assert set(summary["evaluations"]) == {"real 1", "real 3", "kinematic", "video"}

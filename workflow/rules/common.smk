@@ -1,6 +1,7 @@
 # Compose the Hydra configuration once and expose per-rule slices as plain JSON params.
 import json
 import logging
+import re
 import sys
 from pathlib import Path
 
@@ -8,6 +9,7 @@ from pathlib import Path
 # Snakemake's messages twice; the root keeps the handlers it had.
 _ROOT_HANDLERS = list(logging.getLogger().handlers)
 from r2s_eval.calib.camera_plan import camera_plan
+from r2s_eval.compare.resolution import sweep_levels
 from r2s_eval.config import compose_config, missing_inputs, select, stop_before_running, to_json
 from r2s_eval.errors import R2SError
 from r2s_eval.policy_sources import (
@@ -76,6 +78,13 @@ POLICIES = sorted(CFG["policies"])
 # A variant runs another candidate's weights with an execution change (planted quality): never trained.
 VARIANT_CFG = {p: validate_variant_cfg(CFG["policies"][p], p) for p in POLICIES if is_variant(CFG["policies"][p])}
 VARIANTS = {p: cfg["of"] for p, cfg in VARIANT_CFG.items()}
+# The judges' resolution sweep (conf/resolution, workflow/rules/resolution.smk): each level a
+# variant of resolution.policy, rolled out like the line-up's variants but never ranked with them.
+SWEEP = [] if LIBERO else sweep_levels(CFG["resolution"])
+SWEEP_CFG = {lv.policy: validate_variant_cfg(lv.variant(CFG["resolution"]["policy"]), lv.policy) for lv in SWEEP}
+# Every variant's entry, the line-up's and the sweep's, and the candidate whose weights it runs.
+EXECUTIONS = {**VARIANT_CFG, **SWEEP_CFG}
+BASE_OF = {p: cfg["of"] for p, cfg in EXECUTIONS.items()}
 # A snapshot runs the weights a training here saved on the way ({name: (its training, step)}).
 SNAPSHOTS = {p: (cfg["of"], cfg["step"]) for p in POLICIES
              if is_snapshot(CFG["policies"][p]) for cfg in [validate_snapshot_cfg(CFG["policies"][p], p)]}
@@ -87,14 +96,14 @@ EXTERNAL = {p: validate_source_cfg(CFG["policies"][p], p) for p in POLICIES if i
 def weights_of(policy):
     """The candidate whose training or source holds the weights `policy` runs: its own, a
     variant's base's, a snapshot's training's."""
-    policy = VARIANTS.get(policy, policy)
+    policy = BASE_OF.get(policy, policy)
     return SNAPSHOTS[policy][0] if policy in SNAPSHOTS else policy
 
 
 def weights_dir(policy, arm):
     """The checkpoint folder `policy` runs on `arm` when its weights are trained here: the
     training's folder, or the snapshot's in it."""
-    policy = VARIANTS.get(policy, policy)
+    policy = BASE_OF.get(policy, policy)
     if policy in SNAPSHOTS:
         return str(snapshot_folder(f"results/train/{arm}/{SNAPSHOTS[policy][0]}", SNAPSHOTS[policy][1]))
     return f"results/train/{arm}/{policy}"
@@ -137,7 +146,7 @@ ASSETS = str(Path(workflow.basedir) / "assets")
 
 
 wildcard_constraints:
-    policy="|".join(POLICIES),
+    policy="|".join(re.escape(p) for p in [*POLICIES, *SWEEP_CFG]),
     judge="|".join(JUDGES),
     arm="real|sim",
 
@@ -189,9 +198,9 @@ CHECKPOINT_HASH_MEMO = "results/.cache/checkpoint_hashes.json"
 def candidate_identity(policy, arm):
     """What decides a candidate's rollouts: its type, or a checkpoint's content, or a server's
     config without its address; a variant's: its base's and its execution change."""
-    if policy in VARIANTS:
-        return {"type": "variant", "of": VARIANTS[policy], "weights": candidate_identity(VARIANTS[policy], arm),
-                "execution": VARIANT_CFG[policy]["execution"]}
+    if policy in BASE_OF:
+        return {"type": "variant", "of": BASE_OF[policy], "weights": candidate_identity(BASE_OF[policy], arm),
+                "execution": EXECUTIONS[policy]["execution"]}
     if policy in SNAPSHOTS:
         of, step = SNAPSHOTS[policy]
         return {"type": "snapshot", "of": of, "step": step, "weights": candidate_identity(of, arm)}

@@ -43,6 +43,10 @@ else:
 STABILITY = TWIN and CFG["stability"]["repetitions"] >= 2
 if STABILITY:
     REPORTS += ["reports/stability_table.tex", *expand("reports/stability.{ext}", ext=FIGURE_EXTS)]
+# Each judge's resolution over the planted kinds (conf/resolution; workflow/rules/resolution.smk).
+SWEEP_RUNS = [CFG["resolution"]["policy"], *SWEEP_CFG] if SWEEP else []
+if SWEEP:
+    REPORTS += ["reports/judge_resolution_table.tex", *expand("reports/judge_resolution.{ext}", ext=FIGURE_EXTS)]
 
 
 rule reports:

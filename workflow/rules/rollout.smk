@@ -39,6 +39,8 @@ def rollout_cfg_json(arm, policy, trained_on=None):
     """The rollout stage's --cfg for `policy` on `arm`; `trained_on`: the arm whose data trained
     the checkpoint, where it is the other one (fidelity.smk's cross-evaluations)."""
     provided = {} if trained_on is None else {"trained_on": trained_on}
+    if policy in SWEEP_CFG and CFG["resolution"]["tasks"] is not None:  # the sweep's levels run on its tasks
+        provided["tasks"] = CFG["resolution"]["tasks"]
     cfg = stage_cfg("rollout", arm=arm, policy=policy, policy_cfg=candidate_identity(policy, arm), **provided)
     # real_inits_per_task and real_video_size are read by the real arm only, video_size by the
     # sim arm only: a change must not rerun the other arm's rollouts.

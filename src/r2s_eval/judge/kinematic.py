@@ -12,14 +12,26 @@ Describe (per rollout, from the trajectory only):
   * action continuity: fraction of idle steps mid-task, stop-and-go pauses per 10 s,
     end-effector direction reversals per second;
   * task progress: max and final progress, label "successful" (final progress reaches
-    ``success_progress``), "partially successful" (max progress >= ``partial_min_progress``)
-    or "failed". The episode table's success column is never read, and the description states
-    neither the episode's duration nor when it reached completion;
+    ``success_progress``: the simulator's staged progress is 1 exactly when the task's success
+    rule holds, so the goal holds at the end; reached once and lost again is not a success),
+    "partially successful" (max progress >= ``partial_min_progress``) or "failed". The episode
+    table's success column is never read, and the description states neither the episode's
+    duration nor when it reached completion;
   * force/effort control: peak contact force, mean force while in contact, impacts (force
     rises of more than ``impact_jump_n`` within one step).
 
+Every scored number is on an absolute, physical scale (m/s^3, rad/s^3, rad per step, shares of
+steps, per second, N), never divided by the run's own motion level, so jitter on top of any
+motion raises it. A gripper command reaching the gripper late leaves no number here: the
+trajectory records each command as it reached the robot, so the lag from command to measured
+opening is the gripper's own response whatever the delay (on the scripted operator with its
+gripper 0, 1 or 2 steps late: the same lag, and the arm as still when the gripper closes).
+
 Compare (from the two descriptions alone, deterministic, no position bias):
-  1. outcome label: successful > partially successful > failed;
+  1. success before style, the outcome label: successful > partially successful > failed. A
+     careful person prefers the run that completes the task to one that does not, however it
+     moved; partially successful ranks above failed too, because progress here is measured (the
+     staged signal), not estimated from pixels;
   2. final progress, then max progress, when they differ by more than ``progress_margin``;
   3. weighted behaviour score: each criterion score is the geometric mean over its evidence
      numbers x of 1 / (1 + x / ref[x]) (1 = perfect, 0.5 = at the reference level); the

@@ -2,44 +2,67 @@
 
 This judge is NOT a vision-language model, but unlike the kinematic judge it sees only what a VLM
 judge sees: the rollout's video and the task instruction. It never opens the trajectory or the
-episode table. It decodes the video, measures motion from frame differences and segments the
+episode table. It decodes the video (and reads its frame rate from the file, the same for every
+rollout of a run), measures motion from optical flow and frame differences and segments the
 task's objects by colour (the HSV segmenter of ``r2s_eval.calib.segment``; the instruction is
 mapped to a task of ``r2s_eval.sim.tasks`` by word overlap, as a VLM would know what a cup and a
 plate look like), and writes the same four-criterion description, with the numbers behind it.
 
 Describe (per rollout, from pixels only):
+  * motion smoothness, on an absolute scale: dense optical flow (OpenCV's DIS) between consecutive
+    grey frames downscaled to ``flow_side_px`` on the long side, averaged over square cells of
+    ``flow_cell_px``, in image fractions (of the long side) per second. ``flow_reversals_per_s``:
+    how often a moving patch of the image turns back, i.e. the (cell, frame step)s whose
+    consecutive flows point against each other (negative dot product), both faster than
+    ``reversal_min_speed``, per second of moving-cell time. Jitter shakes the arm back and forth
+    and raises it whatever the run's motion level; smooth motion turns back only where the task
+    does (down to a grasp and up again). ``flow_speed_rms`` and ``moving_cell_share`` say how
+    much moves (not scored). (The flow's RMS second difference does not tell jittered from clean
+    runs at 5 fps: the arm's own accelerations swamp the jitter's; it is left out.) A still
+    scene (no moving frame, below) has no smoothness number;
   * motion energy per frame: share of pixels whose luminance changed by more than
     ``diff_threshold`` (0..255) since the previous frame (after a ``blur_px`` blur, which keeps
     sensor noise out); a frame is moving when its energy exceeds ``moving_energy``;
-  * motion smoothness: ``energy_jerk`` = RMS second difference of the energy signal over the
-    active span (first to last moving frame) / mean energy there, and ``energy_spike_share`` =
-    share of active frames whose energy exceeds ``spike_factor`` x the median active energy;
-  * action continuity: ``idle_fraction`` = share of still frames within the active span (a robot
-    that never moves counts 1.0), ``pauses_per_100_frames`` = still runs of at least
-    ``min_pause_frames`` followed by motion, per 100 active frames;
-  * task progress: object masks per frame; the goal relation of the task in the final
-    ``end_frames`` frames ("on"/"in"/"cover": the moved object's centroid within ``near_max``
-    target radii of the target's; "stack": within ``stack_near_max``; "out": at least ``out_min``
-    radii away; "upright": mask height/width >= ``upright_aspect``), the moved object at rest
-    (centroid speed <= ``rest_speed`` radii/frame). ``goal_gap`` is how far the end is from that
-    relation (0 = met), ``goal_closure`` the share of the starting gap closed, ``max_move`` the
-    largest displacement of the manipulated object from its start (its radii).
-    Label: "successful" when the relation holds at rest; else ``progress_score`` =
-    min(0.9, 0.5 x goal_closure + 0.5 x min(1, max_move / ``move_ref``)), "partially successful"
+  * action continuity: ``idle_fraction`` = share of still frames within the active span (first to
+    last moving frame; a robot that never moves counts 1.0), ``pauses_per_100_frames`` = still
+    runs of at least ``min_pause_frames`` followed by motion, per 100 active frames;
+  * task progress: object masks per frame; the goal relation of the task in the frames of the
+    final ``end_s`` seconds (at least one; "on"/"in"/"cover": the moved object's centroid within
+    ``near_max`` target radii of the target's; "stack": within ``stack_near_max``; "out": at least ``out_min``
+    radii away; "upright": mask height/width >= ``upright_aspect``). ``goal_gap`` is how far the
+    end is from that relation (the largest of those frames' gaps: 0 where it holds in each), ``goal_closure`` the share of the
+    starting gap closed, ``max_move`` the largest displacement of the manipulated object from its
+    start (its radii). No rest is asked of the object: a rollout ends a few control steps after
+    its task succeeds (less than a frame apart at 5 fps), a dropped ball still rolls in its box,
+    and the segmenter's centroid shifts as the gripper lets go; an object carried past its goal
+    is told apart by the relation having to hold in every one of those frames.
+    Label: "successful" when the moved object has moved (``max_move`` >= ``move_ref``/2) and the
+    relation holds in each of the final frames it is seen in; ``goal_reached_s`` is then when it
+    began to hold for good (seconds from the video's start, read from the frames, never from the
+    video's length) and its score 1 / (1 + goal_reached_s / ref): of two successes the one that
+    got there sooner made more progress per second. Else ``progress_score`` = min(0.9, 0.5 x
+    goal_closure + 0.5 x min(1, max_move / ``move_ref``)), scored as it is, "partially successful"
     when it reaches ``partial_min_score``, "failed" below;
   * force/effort control: from object centroid speeds (radii per frame, only between frames in
     which the object is well visible): ``peak_object_speed``, ``object_speed_spikes`` (steps
     faster than ``spike_speed``) and ``bystander_move`` (largest displacement of the task's other
     objects, which the robot should not shove).
 
-Compare (from the two descriptions alone, deterministic, no position bias): each criterion gets
-a score in [0, 1] (smoothness, continuity, force: geometric mean over the evidence numbers x of
-1 / (1 + x / ref[x]); task progress: its ``progress_score``); a criterion with nothing to judge
-(no robot motion for smoothness, no object motion for force) scores ``no_motion_score``, and a
-robot that never visibly moves scores 0 on continuity. The
-four scores are averaged with EQUAL weight, no criterion has priority; the higher mean wins when
-the means differ by more than ``score_tie_eps``, else the smaller description hash wins (swapping
-A and B flips the letter) and identical descriptions get a letter from a hash parity.
+Compare (from the two descriptions alone, deterministic, no position bias):
+  1. success before style: when exactly one description is labelled "successful", it wins,
+     however it moved. A careful person prefers the run that completes the task to one that does
+     not; the other criteria say how well a task was done, not whether;
+  2. otherwise (both successful, or neither) each criterion gets a score in [0, 1] (smoothness,
+     continuity, force: geometric mean over the evidence numbers x of 1 / (1 + x / ref[x]); task
+     progress: its ``progress_score``); a criterion with nothing to judge (no robot motion for
+     smoothness, no object motion for force) scores ``no_motion_score``, and a robot that never
+     visibly moves scores 0 on continuity. The four scores are averaged with equal weight and the
+     higher mean wins when the means differ by more than ``score_tie_eps``. "Partially
+     successful" and "failed" are left to these scores rather than ranked: both are runs that did
+     not reach the goal, the line between them is a threshold on a pixel estimate of progress,
+     and the continuous ``progress_score`` behind it is already one of the four scores;
+  3. exact tie: the smaller description hash wins (swapping A and B flips the letter) and
+     identical descriptions get a letter from a hash parity.
 """
 
 from __future__ import annotations
@@ -63,15 +86,23 @@ DEFAULTS: dict[str, Any] = {
     "blur_px": 3,  # Gaussian blur before frame differencing (odd; 0 = off)
     "diff_threshold": 12,  # luminance change (0..255) that counts a pixel as changed
     "moving_energy": 0.002,  # share of changed pixels above which a frame is moving
-    "spike_factor": 3.0,
+    # Optical flow: grey frames downscaled to this long side (fast; the arm spans many cells)...
+    "flow_side_px": 128,
+    "flow_cell_px": 8,  # ...and averaged over cells this size, which keeps single-pixel noise out
+    # Image fractions per second below which a cell counts as still: about half a pixel per
+    # frame at 128 px and 5 fps; in a still scene 99 % of the cells stay below a tenth of it.
+    "reversal_min_speed": 0.02,
     "min_pause_frames": 3,
     "min_visible_share": 0.5,  # a mask counts when its area is >= this share of the object's first-frame area
-    "end_frames": 3,
+    # ...and down to this share for where an object ends up (a gripper may still cover what it set down)
+    "part_visible_share": 0.1,
+    # The end read for the goal: 0.3 s, the 3 control steps (at 10 Hz) a rollout's success must
+    # hold before it ends: 2 frames at 5 fps, 3 at 10 fps.
+    "end_s": 0.3,
     "near_max": 0.8,
     "stack_near_max": 1.2,
     "out_min": 1.5,
     "upright_aspect": 1.15,
-    "rest_speed": 0.1,
     "move_ref": 1.0,
     "partial_min_score": 0.2,
     "spike_speed": 0.5,
@@ -79,20 +110,28 @@ DEFAULTS: dict[str, Any] = {
     "score_tie_eps": 1e-9,
     # Reference levels: an evidence number equal to its reference scores 0.5.
     "ref": {
-        "energy_jerk": 1.0,
-        "energy_spike_share": 0.1,
+        # From the bundled world's rollouts (cup_on_plate, ball_in_box, cover_ball; 224 px at
+        # 5 fps; ACT and its variant with action_noise_std 0.01 rad, 60 seeds per task each):
+        # successful clean runs turn back 0.12/s (median; 90th percentile 0.41), the same runs
+        # jittered 1.21/s (10th percentile 0.87), failed clean runs (dithering near the object)
+        # 1.86/s. At 0.5 a clean success scores about 0.8 ("smooth"), a jittered one about 0.3.
+        "flow_reversals_per_s": 0.5,
         "idle_fraction": 0.2,
         "pauses_per_100_frames": 2.0,
         "peak_object_speed": 0.5,
         "object_speed_spikes": 1.0,
         "bystander_move": 0.5,
+        # When a successful run's goal began to hold for good: the demo's act gets there in 5.0 s
+        # on cup_on_plate, 4.6 s on ball_in_box, 6.8 s on cover_ball (medians at 5 fps); a run
+        # at 6 s scores 0.5, one at 12 s 0.33.
+        "goal_reached_s": 6.0,
     },
     "good_score": 0.67,
     "fair_score": 0.4,
 }
 
 SCORED: dict[str, tuple[str, ...]] = {
-    "motion_smoothness": ("energy_jerk", "energy_spike_share"),
+    "motion_smoothness": ("flow_reversals_per_s",),
     "action_continuity": ("idle_fraction", "pauses_per_100_frames"),
     "force_control": ("peak_object_speed", "object_speed_spikes", "bystander_move"),
 }
@@ -162,20 +201,89 @@ def task_from_instruction(instruction: str, tasks: Mapping[str, Any]) -> str:
 
 
 # ---------------------------------------------------------------- pixel measurements
-def motion_energy(frames: np.ndarray, blur_px: int, diff_threshold: float) -> np.ndarray:
-    """Share of pixels whose (blurred) luminance changed by more than `diff_threshold`, per frame step."""
+def video_fps(path) -> float:
+    """Frames per second of a video file, from its container: what a player of the file knows, the
+    same for every rollout of a run (needed to state motion per second)."""
+    import av
+
+    with av.open(str(path)) as container:
+        rate = container.streams.video[0].average_rate
+    if not rate or not float(rate) > 0:
+        raise DataError(f"video judge: {path} states no frame rate")
+    return float(rate)
+
+
+def grey(frames: np.ndarray) -> np.ndarray:
+    """Luminance frames (T, H, W) uint8 of RGB frames."""
     import cv2
 
-    luma = []
-    for f in frames:
-        g = cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY)
-        if blur_px:
-            g = cv2.GaussianBlur(g, (blur_px, blur_px), 0)
-        luma.append(g.astype(np.int16))
-    luma = np.stack(luma)
+    return np.stack([cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY) for f in frames])
+
+
+def shrink(luma: np.ndarray, side_px: int) -> np.ndarray:
+    """Luminance frames shrunk (area average) to `side_px` on the long side, when larger."""
+    import cv2
+
+    h, w = luma.shape[1:3]
+    scale = side_px / max(h, w)
+    if scale >= 1.0:
+        return luma
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    return np.stack([cv2.resize(g, size, interpolation=cv2.INTER_AREA) for g in luma])
+
+
+def motion_energy(luma: np.ndarray, blur_px: int, diff_threshold: float) -> np.ndarray:
+    """Share of pixels whose (blurred) luminance (`grey` frames) changed by more than
+    `diff_threshold`, per frame step."""
+    import cv2
+
+    if blur_px:
+        luma = np.stack([cv2.GaussianBlur(g, (blur_px, blur_px), 0) for g in luma])
     if len(luma) < 2:
         return np.zeros(0)
-    return (np.abs(np.diff(luma, axis=0)) > diff_threshold).mean(axis=(1, 2))
+    return (np.abs(np.diff(luma.astype(np.int16), axis=0)) > diff_threshold).mean(axis=(1, 2))
+
+
+def cell_flow(luma: np.ndarray, fps: float, side_px: int, cell_px: int) -> np.ndarray:
+    """Dense optical flow between consecutive (`grey`) frames shrunk to `side_px`, (T-1, rows,
+    cols, 2), averaged over square cells, in image fractions (of the long side) per second: an
+    absolute scale, the same for a 224 or a 448 px video of the same motion."""
+    import cv2
+
+    g = shrink(luma, side_px)
+    if len(g) < 2 or min(g.shape[1:]) < max(12, cell_px):  # DIS needs 12 px; nothing to measure
+        return np.zeros((0, 0, 0, 2))
+    # DIS (OpenCV's dense inverse-search flow), its fastest preset: on the bundled world's videos
+    # it separates jittered from clean runs as well as Farneback does, four times as fast.
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
+    flow = np.stack([dis.calc(g[t], g[t + 1], None) for t in range(len(g) - 1)])
+    rows, cols = g.shape[1] // cell_px, g.shape[2] // cell_px
+    flow = flow[:, :rows * cell_px, :cols * cell_px].reshape(len(flow), rows, cell_px, cols, cell_px, 2).mean((2, 4))
+    return flow * fps / max(g.shape[1:])
+
+
+def flow_reversals_per_s(v: np.ndarray, fps: float, min_speed: float) -> float | None:
+    """How often a moving patch of the image turns back: the cells whose flow points against
+    their flow one frame before (both faster than `min_speed`), per second of moving-cell time.
+    A count of events, so unlike a jerk divided by the run's mean motion, jitter on top of any
+    motion raises it. None when nothing moves."""
+    fast = np.linalg.norm(v, axis=-1) > min_speed
+    both = fast[:-1] & fast[1:]
+    if not both.any():
+        return None
+    back = (np.sum(v[:-1] * v[1:], axis=-1) < 0) & both
+    return float(back.sum() / both.sum() * fps)
+
+
+def smoothness(v: np.ndarray, fps: float, c: Mapping[str, Any]) -> dict[str, Any]:
+    """The motion smoothness evidence of a run's cell flow `v` (image fractions per second)."""
+    speed = np.linalg.norm(v, axis=-1)
+    fast = speed > c["reversal_min_speed"]
+    return {
+        "flow_reversals_per_s": flow_reversals_per_s(v, fps, c["reversal_min_speed"]),
+        "flow_speed_rms": float(np.sqrt(np.mean(speed[fast] ** 2))) if fast.any() else 0.0,
+        "moving_cell_share": float(fast.mean()) if fast.size else 0.0,
+    }
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -192,38 +300,30 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return out
 
 
-def smoothness_continuity(e: np.ndarray, c: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+def continuity(e: np.ndarray, c: Mapping[str, Any]) -> dict[str, Any]:
+    """Stills and pauses from the motion energy, within the active span."""
     moving = e > c["moving_energy"]
     idx = np.flatnonzero(moving)
     if len(idx) == 0:
-        smooth = {"energy_jerk": None, "energy_spike_share": None, "mean_energy": 0.0, "moving_frames_share": 0.0}
-        cont = {"idle_fraction": 1.0, "pauses_per_100_frames": 0.0, "pauses": 0, "motion_bursts": 0,
+        return {"idle_fraction": 1.0, "pauses_per_100_frames": 0.0, "pauses": 0, "motion_bursts": 0,
                 "robot_moved": False}
-        return smooth, cont
     span = e[idx[0]: idx[-1] + 1]
-    mean = float(span.mean())
-    d2 = np.diff(span, 2) if len(span) >= 3 else np.zeros(1)
-    med = float(np.median(span[span > c["moving_energy"]]))
-    smooth = {
-        "energy_jerk": float(np.sqrt(np.mean(d2 ** 2)) / mean) if mean > 0 else 0.0,
-        "energy_spike_share": float(np.mean(span > c["spike_factor"] * med)),
-        "mean_energy": mean,
-        "moving_frames_share": float(moving.mean()),
-    }
     still = span <= c["moving_energy"]
     pauses = sum(1 for s, t in _runs(still) if t - s >= c["min_pause_frames"])  # runs inside the span end in motion
-    cont = {
+    return {
         "idle_fraction": float(still.mean()),
         "pauses_per_100_frames": 100.0 * pauses / len(span),
         "pauses": int(pauses),
         "motion_bursts": len(_runs(~still)),
         "robot_moved": True,
     }
-    return smooth, cont
 
 
-def object_tracks(frames: np.ndarray, segmenter: Any, names: tuple[str, ...], min_visible_share: float):
-    """Per object: centroids (T, 2) as (row, col) with NaN where not well visible, radius (px), aspect (T,)."""
+def object_tracks(frames: np.ndarray, segmenter: Any, names: tuple[str, ...], min_visible_share: float,
+                  part_visible_share: float):
+    """Per object: centroids ``c`` (T, 2) as (row, col) with NaN where not well visible (area below
+    ``min_visible_share`` of its first frame's), ``part_c`` the same down to ``part_visible_share``
+    (an object partly hidden by the gripper), radius ``r`` (px), ``aspect`` (T,)."""
     masks = {n: [] for n in names}
     for f in frames:
         seg = segmenter.segment(f)
@@ -234,15 +334,18 @@ def object_tracks(frames: np.ndarray, segmenter: Any, names: tuple[str, ...], mi
         areas = np.array([m.sum() for m in masks[n]], float)
         ref_area = areas[0] if areas[0] > 0 else (areas.max() if areas.max() > 0 else 0.0)
         cents = np.full((len(frames), 2), np.nan)
+        part = np.full((len(frames), 2), np.nan)
         aspect = np.full(len(frames), np.nan)
         for t, m in enumerate(masks[n]):
-            if ref_area > 0 and areas[t] >= min_visible_share * ref_area:
+            if ref_area > 0 and areas[t] >= part_visible_share * ref_area and areas[t] > 0:
                 rc = np.argwhere(m)
-                cents[t] = rc.mean(0)
-                h, w = rc.max(0) - rc.min(0) + 1
-                aspect[t] = h / w
+                part[t] = rc.mean(0)
+                if areas[t] >= min_visible_share * ref_area:
+                    cents[t] = part[t]
+                    h, w = rc.max(0) - rc.min(0) + 1
+                    aspect[t] = h / w
         radius = math.sqrt(ref_area / math.pi) if ref_area > 0 else 1.0
-        tracks[n] = {"c": cents, "r": max(radius, 1.0), "aspect": aspect, "area0": float(areas[0])}
+        tracks[n] = {"c": cents, "part_c": part, "r": max(radius, 1.0), "aspect": aspect, "area0": float(areas[0])}
     return tracks
 
 
@@ -269,48 +372,84 @@ def task_objects(task) -> tuple[str, ...]:
     return tuple(n for n in (mover, target) if n)
 
 
-def progress_force(frames: np.ndarray, task, segmenter: Any, c: Mapping[str, Any]):
+def end_frame_count(end_s: float, fps: float) -> int:
+    """The frames that span the last ``end_s`` seconds of a video at ``fps``, at least one."""
+    return max(1, math.ceil(end_s * fps - 1e-9))
+
+
+def progress_force(frames: np.ndarray, fps: float, task, segmenter: Any, c: Mapping[str, Any]):
     rel, mover, target = goal_relation(task)
     names = task_objects(task)
-    tr = object_tracks(frames, segmenter, names, c["min_visible_share"])
-    k = int(c["end_frames"])
+    tr = object_tracks(frames, segmenter, names, c["min_visible_share"], c["part_visible_share"])
+    k = end_frame_count(float(c["end_s"]), fps)
     m = tr[mover]
-    start, end = _first_valid(m["c"]), _last_valid(m["c"], k)
+    start = _first_valid(m["c"])
     seen = start is not None
     disp = np.linalg.norm(m["c"] - start, axis=1) / m["r"] if seen else np.zeros(1)
     max_move = float(np.nanmax(disp)) if seen and not np.isnan(disp).all() else 0.0
-    tail = _speeds(m["c"][-(k + 1):], m["r"])
-    end_speed = float(tail.max()) if len(tail) else 0.0  # hidden at the end: nothing seen moving
 
-    def gap_at(pos: np.ndarray | None, which: str) -> float | None:
+    def gap(pos: np.ndarray | None, tpos: np.ndarray | None, aspect: float | None) -> float | None:
         if rel == "upright":
-            a = _last_valid(m["aspect"], k) if which == "end" else _first_valid(m["aspect"])
-            return None if a is None else max(0.0, c["upright_aspect"] - float(a))
-        t = tr[target]
-        tpos = _last_valid(t["c"], k) if which == "end" else _first_valid(t["c"])
-        if tpos is None:
-            tpos = _first_valid(t["c"])
+            return None if aspect is None else max(0.0, c["upright_aspect"] - float(aspect))
         if pos is None or tpos is None:
             return None
-        d = float(np.linalg.norm(pos - tpos)) / t["r"]
+        d = float(np.linalg.norm(pos - tpos)) / tr[target]["r"]
         if rel == "out":
             return max(0.0, c["out_min"] - d)
         return max(0.0, d - (c["stack_near_max"] if rel == "stack" else c["near_max"]))
 
-    g0, g1 = gap_at(start, "start"), gap_at(end, "end")
+    t0 = tend = None
+    if rel != "upright":
+        t0 = _first_valid(tr[target]["c"])
+        tend = _last_valid(tr[target]["c"], k)
+        tend = t0 if tend is None else tend
+
+    # The gap at the end: the largest over the last k frames that show the moved object, partly
+    # hidden included (the gripper that set it down may still cover it; the reference where it is
+    # seen there, else where it was last seen), 0 only where the relation holds in each of them.
+    # Where none of them shows it, the last k frames that show it whole.
+    def target_at(i: int) -> np.ndarray | None:
+        if rel == "upright" or np.isnan(tr[target]["c"][i]).any():
+            return tend
+        return tr[target]["c"][i]
+
+    n = len(frames)
+    if rel == "upright":
+        pos, at = m["c"], np.flatnonzero(~np.isnan(m["c"]).any(1))[-k:]
+    else:
+        pos, at = m["part_c"], [i for i in range(max(0, n - k), n) if not np.isnan(m["part_c"][i]).any()]
+        if not at:
+            pos, at = m["c"], np.flatnonzero(~np.isnan(m["c"]).any(1))[-k:]
+    end_gaps = [gap(pos[i], target_at(i), m["aspect"][i]) for i in at]
+
+    def reached_s() -> float:
+        """When the relation began to hold for good: the first of the frames showing the object
+        from which it holds in each to the end (seconds from the video's start)."""
+        first = at[0]
+        for i in range(first - 1, -1, -1):
+            if np.isnan(pos[i]).any():
+                continue
+            g = gap(pos[i], target_at(i), m["aspect"][i])
+            if g is None or g > 0:
+                break
+            first = i
+        return round(first / fps, 6)
+
+    g0 = gap(start, t0, _first_valid(m["aspect"]))
+    g1 = max(end_gaps) if end_gaps and None not in end_gaps else None
     if g0 is None or g1 is None:
         closure = 0.0
     else:
         closure = 1.0 if g0 <= 0 else round(float(np.clip(1.0 - g1 / g0, 0.0, 1.0)), 6)
-    at_rest = end_speed <= c["rest_speed"]
-    goal_met = bool(g1 is not None and g1 <= 0 and at_rest and max_move >= 0.5 * c["move_ref"])
+    goal_met = bool(g1 is not None and g1 <= 0 and max_move >= 0.5 * c["move_ref"])
+    goal_reached_s = reached_s() if goal_met else None
     score = 1.0 if goal_met else round(min(0.9, 0.5 * closure + 0.5 * min(1.0, max_move / c["move_ref"])), 6)
     label = ("successful" if goal_met else
              "partially successful" if score >= c["partial_min_score"] else "failed")
     prog = {
         "task": task.key, "relation": rel, "object": mover, "reference": target,
         "object_visible": seen, "goal_gap": g1, "goal_closure": closure, "max_move": max_move,
-        "end_speed": end_speed, "goal_met": goal_met, "progress_score": score,
+        "goal_met": goal_met, "goal_reached_s": goal_reached_s, "progress_score": score,
     }
 
     speeds = _speeds(m["c"], m["r"])
@@ -334,7 +473,7 @@ def progress_force(frames: np.ndarray, task, segmenter: Any, c: Mapping[str, Any
 class VideoJudge(Judge):
     """Offline pixel-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
-    prompt_version = "video-v1"
+    prompt_version = "video-v2"  # v2: smoothness from optical-flow reversals; success before style
     inputs = ("video",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -347,8 +486,13 @@ class VideoJudge(Judge):
             raise ConfigError(f"video judge: ref levels must be > 0, got {bad_ref}")
         if int(self.cfg["blur_px"]) and int(self.cfg["blur_px"]) % 2 == 0:
             raise ConfigError(f"video judge: blur_px must be odd or 0, got {self.cfg['blur_px']}")
-        if not int(self.cfg["end_frames"]) >= 1:
-            raise ConfigError(f"video judge: end_frames must be >= 1, got {self.cfg['end_frames']}")
+        if not 1 <= int(self.cfg["flow_cell_px"]) <= int(self.cfg["flow_side_px"]):
+            raise ConfigError(f"video judge: need 1 <= flow_cell_px <= flow_side_px, got "
+                              f"{self.cfg['flow_cell_px']} and {self.cfg['flow_side_px']}")
+        if not float(self.cfg["reversal_min_speed"]) > 0:
+            raise ConfigError(f"video judge: reversal_min_speed must be > 0, got {self.cfg['reversal_min_speed']}")
+        if not float(self.cfg["end_s"]) > 0:
+            raise ConfigError(f"video judge: end_s must be > 0 seconds, got {self.cfg['end_s']}")
         self._segmenters: dict[str, Any] = {}
         self._tasks: Mapping[str, Any] | None = None  # what the judge knows of the tasks (know_tasks)
 
@@ -394,27 +538,34 @@ class VideoJudge(Judge):
         c = self.cfg
         frames = read_video(rollout.video_path)
         task_key = task_from_instruction(rollout.instruction, self.tasks)
-        e = motion_energy(frames, int(c["blur_px"]), float(c["diff_threshold"]))
-        smooth, cont = smoothness_continuity(e, c)
-        prog, label, force = progress_force(frames, self.tasks[task_key], self.segmenter(task_key), c)
+        luma = grey(frames)
+        cont = continuity(motion_energy(luma, int(c["blur_px"]), float(c["diff_threshold"])), c)
+        fps = video_fps(rollout.video_path)
+        smooth = smoothness(cell_flow(luma, fps, int(c["flow_side_px"]), int(c["flow_cell_px"])), fps, c)
+        if not cont["robot_moved"]:  # a still scene: what flow there is, is noise
+            smooth["flow_reversals_per_s"] = None
+        prog, label, force = progress_force(frames, fps, self.tasks[task_key], self.segmenter(task_key), c)
 
         w = {k: self._word(k, ev) for k, ev in
              (("motion_smoothness", smooth), ("action_continuity", cont), ("force_control", force))}
+        moved = smooth["flow_reversals_per_s"] is not None
+        if moved:
+            s_text = (f"Motion is {w['motion_smoothness']}: moving parts of the image turn back "
+                      f"{fmt(smooth['flow_reversals_per_s'])} times per second (optical-flow direction "
+                      f"reversals), moving at {fmt(smooth['flow_speed_rms'])} image sizes per second (RMS).")
+        else:
+            s_text = "No robot motion is visible, so smoothness cannot be judged."
         if cont["robot_moved"]:
-            s_text = (f"Motion is {w['motion_smoothness']}: motion-energy jerk {fmt(smooth['energy_jerk'])} "
-                      f"(normalised second difference), {100 * smooth['energy_spike_share']:.0f}% of active "
-                      f"frames are sudden bursts.")
             c_text = (f"Execution is {w['action_continuity']}: still {100 * cont['idle_fraction']:.0f}% of the "
                       f"active span, {cont['pauses']} pauses, {cont['motion_bursts']} bursts of motion.")
         else:
-            s_text = "No robot motion is visible, so smoothness cannot be judged."
             c_text = "Execution is stop-and-go at its worst: the robot never visibly moves."
         gap = "unknown" if prog["goal_gap"] is None else fmt(prog["goal_gap"])
         p_text = (f"Task {label}: the {prog['object']} moved up to {fmt(prog['max_move'])} of its sizes; "
                   f"goal relation '{prog['relation']}'"
                   + (f" to the {prog['reference']}" if prog["reference"] else "")
-                  + f" {'holds' if prog['goal_met'] else 'does not hold'} at the end (gap {gap}, "
-                  f"{100 * prog['goal_closure']:.0f}% closed).")
+                  + (f" holds from {fmt(prog['goal_reached_s'])} s to the end." if prog["goal_met"] else
+                     f" does not hold at the end (gap {gap}, {100 * prog['goal_closure']:.0f}% closed)."))
         if force["object_moved"]:
             f_text = (f"Object handling is {w['force_control']}: peak object speed {fmt(force['peak_object_speed'])} "
                       f"sizes/frame, {force['object_speed_spikes']} abrupt jumps, other object displaced "
@@ -422,7 +573,7 @@ class VideoJudge(Judge):
         else:
             f_text = "No object is visibly moved, so contact force cannot be judged."
         summary = (f"Video pixel analysis (not a VLM; trajectory not read): {label}; "
-                   f"{w['motion_smoothness'] if cont['robot_moved'] else 'no visible'} motion, "
+                   f"{w['motion_smoothness'] if moved else 'no visible'} motion, "
                    f"{w['action_continuity']}, "
                    f"{w['force_control'] + ' contact' if force['object_moved'] else 'no object moved'}.")
 
@@ -436,9 +587,11 @@ class VideoJudge(Judge):
     def criterion_score(self, criterion: str, evidence: Mapping[str, Any]) -> float | None:
         """Score in [0, 1] from a criterion's evidence; None when a number is absent."""
         if criterion == "task_progress":
+            if evidence.get("goal_met") and evidence.get("goal_reached_s") is not None:  # how soon
+                return ratio_score(evidence, ("goal_reached_s",), self.cfg["ref"])
             x = evidence.get("progress_score")
             return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
-        if criterion == "motion_smoothness" and evidence.get("energy_jerk", 0) is None:
+        if criterion == "motion_smoothness" and evidence.get("flow_reversals_per_s", 0) is None:
             return float(self.cfg["no_motion_score"])
         if criterion == "action_continuity" and evidence.get("robot_moved") is False:
             return 0.0
@@ -457,11 +610,15 @@ class VideoJudge(Judge):
 
     # ---------------------------------------------------------------- compare
     def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
+        la, lb = a.progress_label, b.progress_label
+        if (la == "successful") != (lb == "successful"):  # success before style
+            return Verdict("A" if la == "successful" else "B", f"success before style: A {la}, B {lb}")
         sa, sb = self.scores(a), self.scores(b)
         both = [k for k in sa if sa[k] is not None and sb[k] is not None]
-        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # equal weights, no priority
+        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # both or neither successful: equal weights
         mb = sum(sb[k] for k in both) / len(both) if both else 0.0
         if abs(ma - mb) > float(self.cfg["score_tie_eps"]):
             parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in both)
-            return Verdict("A" if ma > mb else "B", f"equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
+            return Verdict("A" if ma > mb else "B", f"{'both' if la == 'successful' else 'neither'} successful; "
+                                                    f"equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
         return tie_break(a, b, instruction)

@@ -12,6 +12,7 @@ from r2s_eval.report.figures import (
     operator_hours,
     ranking_figure,
     save_figure,
+    resolution_figure,
     win_rate_figure,
 )
 from r2s_eval.report.video_stills import sample_frames
@@ -32,6 +33,7 @@ from r2s_eval.report.summaries import (
 from r2s_eval.report.tables import (
     bt_scores_table,
     judge_card_table,
+    resolution_table,
     latex_escape,
     libero_success_table,
     ranking_text,
@@ -60,6 +62,8 @@ __all__ = [
     "ranking_text",
     "realsim_success_table",
     "realsim_table",
+    "resolution_figure",
+    "resolution_table",
     "reference_interval",
     "sample_frames",
     "save_figure",

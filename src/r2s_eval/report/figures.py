@@ -289,3 +289,56 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     return fig
+
+
+# ------------------------------------------------------------------ judge resolution
+
+
+def resolution_figure(cards: Mapping[str, dict], opts: Mapping):
+    """One panel per kind: each judge's share of same-outcome pairs preferring the clean run
+    (points with their intervals) against the magnitude, the detection share and one half as
+    lines, and the changed run's success in both worlds (dashed, right axis)."""
+    first = next(iter(cards.values()))
+    kinds = list(first["kinds"])
+    with matplotlib.rc_context(_rc(opts)):
+        cols = min(len(kinds), int(opts["columns"]))
+        rows_n = -(-len(kinds) // cols)
+        fig = _figure(opts["panel_width_in"] * cols, opts["panel_height_in"] * rows_n)
+        axes = np.atleast_1d(fig.subplots(rows_n, cols, squeeze=False)).ravel()
+        for ax, kind in zip(axes, kinds):
+            for k, judge in enumerate(sorted(cards)):
+                rows = sorted((r for r in cards[judge]["levels"] if r["kind"] == kind), key=lambda r: r["level"])
+                x = np.arange(1, len(rows) + 1) + 0.08 * (k - (len(cards) - 1) / 2)
+                share = np.array([np.nan if r["same_outcome"]["share"] is None else 100 * r["same_outcome"]["share"]
+                                  for r in rows])
+                low = np.array([np.nan if r["same_outcome"]["ci_low"] is None else 100 * r["same_outcome"]["ci_low"]
+                                for r in rows])
+                high = np.array([np.nan if r["same_outcome"]["ci_high"] is None else 100 * r["same_outcome"]["ci_high"]
+                                 for r in rows])
+                ax.errorbar(x, share, yerr=[share - low, high - share], marker=opts["judge_markers"][k % len(opts["judge_markers"])],
+                            capsize=2, label=judge)
+            rows = sorted((r for r in first["levels"] if r["kind"] == kind), key=lambda r: r["level"])
+            ax.axhline(100 * float(first["detect_share"]), color="0.4", linewidth=0.8)
+            ax.axhline(50, color="0.7", linewidth=0.8, linestyle=":")
+            ax.set_xticks(np.arange(1, len(rows) + 1), [f"{r['magnitude']:g}" for r in rows])
+            ax.set_xlabel(rows[0]["key"] if rows else kind)
+            ax.set_ylim(0, 102)
+            ax.set_title(kind)
+            twin = ax.twinx()
+            for world, style in (("sim", "--"), ("real", ":")):
+                rates = [r["success"][world]["changed"]["rate"] if r["success"][world] else None for r in rows]
+                if any(v is not None for v in rates):
+                    twin.plot(np.arange(1, len(rows) + 1), [np.nan if v is None else 100 * v for v in rates],
+                              style, color=opts["success_color"], label=f"success ({world})")
+            twin.set_ylim(0, 102)
+            twin.tick_params(axis="y", colors=opts["success_color"])
+            if ax is axes[min(cols, len(kinds)) - 1] or kind == kinds[-1]:
+                twin.set_ylabel("changed run's success (%)", color=opts["success_color"])
+        for ax in axes[:: cols]:
+            ax.set_ylabel("prefers clean (%)")
+        for ax in axes[len(kinds):]:
+            ax.set_visible(False)
+        handles, labels = axes[0].get_legend_handles_labels()
+        extra = axes[0].figure.axes[-1].get_legend_handles_labels() if len(kinds) else ([], [])
+        fig.legend(handles + extra[0], labels + extra[1], loc="outside lower center", ncols=4, fontsize="small")
+    return fig

@@ -449,3 +449,62 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
     return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",
                                                                              *[""] * len(names)]), *flips],
                     notes=notes)
+
+
+# ------------------------------------------------------------------- judge resolution
+
+
+def magnitude_label(value: float) -> str:
+    """A planted magnitude as the tables and figures print it."""
+    return f"{value:g}"
+
+
+def _success_cell(success: Mapping, decimals: int) -> str:
+    """ "changed / clean" success in percent, the sim's then the real's."""
+    def world(w):
+        if not w or w["changed"]["rate"] is None:
+            return DASH
+        return f"{_pct(w['changed']['rate'], decimals)}/{_pct(w['clean']['rate'], decimals)}"
+    return f"{world(success['sim'])}; {world(success['real'])}"
+
+
+def resolution_table(cards: Mapping[str, dict], decimals: int = 1) -> str:
+    """Per kind and judge: the smallest level that detects the kind (its magnitude, its share of
+    same-outcome pairs preferring the clean run [CI] (pairs), success there), or, where none does,
+    "not seen" with the best share and its level; and the share preferring the successful run
+    where the outcomes differ, over all levels."""
+    body = []
+    first = next(iter(cards.values()))
+    for kind, summary in first["kinds"].items():
+        for judge in sorted(cards):
+            card = cards[judge]
+            rows = {r["level"]: r for r in card["levels"] if r["kind"] == kind}
+            seen = card["kinds"][kind]["smallest_detected"]
+            kept = card["kinds"][kind]["smallest_detected_success_kept"]
+            at = rows[seen] if seen is not None else rows.get(card["kinds"][kind]["best_level"])
+            if at is None:
+                verdict = "no same-outcome pairs"
+            elif seen is None:
+                verdict = f"not seen (best at {magnitude_label(at['magnitude'])})"
+            else:
+                verdict = magnitude_label(at["magnitude"]) + ("" if kept == seen else
+                                                           " (success moved)" if kept is None else
+                                                           f" (success kept from {magnitude_label(rows[kept]['magnitude'])})")
+            hits = sum((r["different_outcome"]["share"] or 0) * r["different_outcome"]["n_pairs"] for r in rows.values())
+            n_diff = sum(r["different_outcome"]["n_pairs"] for r in rows.values())
+            body.append(_row([
+                latex_escape(kind), latex_escape(judge), latex_escape(summary["key"]), latex_escape(verdict),
+                _share_cell(at["same_outcome"] if at else None, decimals),
+                _success_cell(at["success"], decimals) if at else DASH,
+                f"{_pct(hits / n_diff, decimals)} ({n_diff})" if n_diff else DASH,
+            ]))
+    header = [_row(["Kind", "Judge", "Magnitude key", "Smallest seen", r"Prefers clean$\uparrow$",
+                    "Success sim; real", r"Success first$\uparrow$"])]
+    share = 100 * float(first["detect_share"])
+    notes = [
+        rf"Smallest seen: the smallest magnitude at which the judge prefers the clean run on $\geq${share:g}\% of the",
+        r"same-outcome pairs with the interval above 50\%; prefers clean: that share [95\% CI] (pairs), or the best",
+        r"level's where none is seen. Success: the changed run's / the clean run's, in \%, sim; real. Success first:",
+        r"verdicts preferring the run that succeeded where one did, over all levels (pairs).",
+    ]
+    return _tabular("llllccc", header, body, notes=notes)

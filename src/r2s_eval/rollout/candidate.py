@@ -88,7 +88,7 @@ def video_size(rollout: dict, arm: str) -> tuple[int, int] | None:
 
 def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict, world: dict, policy_cfg: dict,
                   inits: str, world_params: str | None = None, trained_on: str | None = None,
-                  trained_dir: str | None = None,
+                  trained_dir: str | None = None, tasks: list[str] | None = None,
                   transport: dict | None = None, batch_episodes: int = 1, threads: int = 1) -> pd.DataFrame:
     """Roll out candidate ``policy`` from every init of ``inits`` (a parquet of rollout_inits)
     on ``arm``, in the world ``world_params`` (a world-parameter JSON: the calibrated sim's, or the
@@ -96,6 +96,7 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     ``r2s_eval.twin.reality.make_world_env``; ``None``: nominal), into ``out``; returns the
     episode table. ``trained_on``: the arm
     whose data trained the checkpoint, where it is not ``arm`` (a cross-evaluation: its rows say so).
+    ``tasks``: only these tasks' inits (the judges' resolution sweep, ``resolution.tasks``); None: all.
 
     ``rollout``, ``world``: those config groups; ``seed``: the experiment's seed;
     ``policy_cfg``: what decides the candidate's rollouts (a variant's: its base's under `weights`
@@ -109,14 +110,25 @@ def run_candidate(out: Path, *, policy: str, arm: str, seed: int, rollout: dict,
     cfg = {"arm": arm, "policy": policy, "policy_cfg": policy_cfg, "rollout": rollout, "seed": seed, "world": world}
     if trained_on is not None:
         cfg["trained_on"] = trained_on
+    if tasks is not None:
+        cfg["tasks"] = list(tasks)
     params = load_world_params(world_params) if world_params else None
     reality = load_reality_effects(world_params) if world_params else None
     table = select_inits(pd.read_parquet(inits), arm, rollout.get("real_inits_per_task"))
+    if tasks is not None:
+        table = table[table["task"].isin(tasks)]
     weights_cfg, execution_cfg = unwrap_variant(policy_cfg)
     robot = world_robot(world)
-    execution = None if execution_cfg is None else Execution.from_config(
-        execution_cfg, joints=[i for i, f in enumerate(robot.features) if f.joint is not None],
-        grippers=[i for i, f in enumerate(robot.features) if f.joint is None])
+    execution = None
+    if execution_cfg is not None:
+        grippers = [i for i, f in enumerate(robot.features) if f.joint is None]
+        # Each gripper's open and closed commands (closing 0 and 1) in the action's units: a fumble opens it.
+        home = robot.home_targets()
+        gripper_open, gripper_closed = (robot.from_model({arm: (q, closing) for arm, (q, _) in home.items()})[grippers]
+                                        for closing in (0.0, 1.0))
+        execution = Execution.from_config(
+            execution_cfg, joints=[i for i, f in enumerate(robot.features) if f.joint is not None], grippers=grippers,
+            gripper_open=gripper_open, gripper_closed=gripper_closed)
     source = {**weights_cfg, **(transport or {})}
     model = open_policy(source, policy, trained_dir=trained_dir, device=rollout.get("device", "cpu"),
                         call_batch=rollout["model_batch"])

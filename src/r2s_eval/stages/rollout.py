@@ -17,7 +17,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.utils.numerics import deterministic_torch
 
 READS = ("rollout", "world", "seed")  # config paths the --cfg slice holds (see _reads.py)
-PROVIDED = ("arm", "policy", "policy_cfg", "trained_on")  # keys the rule adds for this job
+PROVIDED = ("arm", "policy", "policy_cfg", "trained_on", "tasks")  # keys the rule adds for this job
 
 
 def main(args) -> None:
@@ -30,7 +30,8 @@ def main(args) -> None:
     # not make Snakemake rerun the stage.
     run_candidate(Path(args.out), policy=cfg["policy"], arm=cfg["arm"], seed=cfg["seed"],
                   rollout=cfg["rollout"], world=cfg["world"], policy_cfg=cfg["policy_cfg"], inits=args.inits,
-                  world_params=args.world_params, trained_on=cfg.get("trained_on"), trained_dir=args.policy, transport=json.loads(args.transport or "{}"),
+                  world_params=args.world_params, trained_on=cfg.get("trained_on"), trained_dir=args.policy,
+                  tasks=cfg.get("tasks"), transport=json.loads(args.transport or "{}"),
                   batch_episodes=args.batch_episodes, threads=args.threads)
 
 

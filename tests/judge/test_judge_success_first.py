@@ -1,0 +1,41 @@
+"""Success before style: no built-in judge prefers the run that fails the task to one that
+completes it, however either moved; asked in both orders."""
+
+from __future__ import annotations
+
+import pytest
+
+from r2s_eval.judge import RolloutInput, make_judge
+from tests.helpers.worlds import bundled_tasks
+
+# The words each judge's verdict uses for the rule.
+RULE = {"kinematic": "outcome:", "video": "success before style"}
+
+
+def _judge(backend: str):
+    judge = make_judge({"backend": backend})
+    judge.know_tasks(bundled_tasks())
+    return judge
+
+
+def _describe(judge, run: dict):
+    return judge.describe(RolloutInput(run["instruction"], video_path=run["video_path"],
+                                       trajectory_path=run["trajectory_path"]))
+
+
+@pytest.mark.parametrize("backend", ["kinematic", "video"])
+def test_a_shaky_success_beats_a_smooth_failure_in_both_orders(operator_runs, backend):
+    judge = _judge(backend)
+    shaky_run, smooth_run = operator_runs["jittery"], operator_runs["open_gripper"]
+    assert shaky_run["success"] and not smooth_run["success"]
+    shaky, smooth = _describe(judge, shaky_run), _describe(judge, smooth_run)
+    # The success is read unambiguously, the failure is not taken for one...
+    assert shaky.progress_label == "successful" and smooth.progress_label != "successful"
+    # ...and the failure is the smoother run: the rule decides, not the motion.
+    smoothness = [judge.criterion_score("motion_smoothness", d.criteria["motion_smoothness"].evidence)
+                  for d in (shaky, smooth)]
+    assert smoothness[1] > smoothness[0] + 0.1
+    instruction = shaky_run["instruction"]
+    first, second = judge.compare(shaky, smooth, instruction), judge.compare(smooth, shaky, instruction)
+    assert (first.letter, second.letter) == ("A", "B")
+    assert RULE[backend] in first.rationale and RULE[backend] in second.rationale

@@ -250,3 +250,25 @@ def test_judge_video_reads_the_goal_over_the_last_fraction_of_a_second():
     assert end_frame_count(0.01, 5) == 1
     with pytest.raises(ValueError, match="end_s"):
         make_judge({"backend": "video", "end_s": 0})
+
+
+def test_judge_video_prefers_the_success_that_got_there_sooner(operator_runs, tmp_path):
+    """The same successful run started two seconds later (still frames before the first motion,
+    outside the active span continuity is measured on): the goal holds from two seconds later,
+    every other number is the same, and the judge prefers the run that got there sooner."""
+    from r2s_eval.rollout.mp4 import read_video, write_video
+
+    run = operator_runs["clean"]
+    frames = read_video(run["video_5fps_path"])
+    late = tmp_path / "late.mp4"
+    write_video(late, np.concatenate([np.repeat(frames[:1], 10, axis=0), frames]), fps=5)
+    judge = video_judge()
+    soon, later = (judge.describe(RolloutInput(run["instruction"], video_path=p)) for p in (run["video_5fps_path"], late))
+    assert soon.progress_label == later.progress_label == "successful"
+    t_soon = soon.criteria["task_progress"].evidence["goal_reached_s"]
+    t_late = later.criteria["task_progress"].evidence["goal_reached_s"]
+    assert t_late == pytest.approx(t_soon + 2.0)
+    assert "holds from" in soon.criteria["task_progress"].text
+    assert judge.scores(soon)["task_progress"] > judge.scores(later)["task_progress"]
+    assert judge.compare(soon, later, run["instruction"]).letter == "A"
+    assert judge.compare(later, soon, run["instruction"]).letter == "B"

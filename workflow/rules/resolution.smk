@@ -1,8 +1,8 @@
 # Each judge's resolution (conf/resolution): every level of every planted kind is a variant of
 # resolution.policy, rolled out in both worlds by the `rollout` rule from the experiment's inits;
 # each judge compares the clean run with every level's run from the same init.
-# (SWEEP_RUNS and RESOLUTION_REPORTS: workflow/rules/report.smk.) Real rollouts need the twin; with a
-# lab's own trials the card gives the sim's success alone.
+# (SWEEP_RUNS, and the card among REPORTS: workflow/rules/report.smk.) Real rollouts need the twin;
+# with a lab's own trials the card gives the sim's success alone.
 
 
 # The sweep's own describe jobs (the line-up's describe rule runs only where the allocation is

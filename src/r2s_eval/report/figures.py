@@ -21,6 +21,7 @@ from matplotlib.ticker import MaxNLocator
 
 from r2s_eval.errors import DataError
 from r2s_eval.report.summaries import fit_interval
+from r2s_eval.report.tables import magnitude_label
 from r2s_eval.stats import spearman
 from r2s_eval.utils.io import atomic_path, provenance_line
 
@@ -309,18 +310,14 @@ def resolution_figure(cards: Mapping[str, dict], opts: Mapping):
             for k, judge in enumerate(sorted(cards)):
                 rows = sorted((r for r in cards[judge]["levels"] if r["kind"] == kind), key=lambda r: r["level"])
                 x = np.arange(1, len(rows) + 1) + 0.08 * (k - (len(cards) - 1) / 2)
-                share = np.array([np.nan if r["same_outcome"]["share"] is None else 100 * r["same_outcome"]["share"]
-                                  for r in rows])
-                low = np.array([np.nan if r["same_outcome"]["ci_low"] is None else 100 * r["same_outcome"]["ci_low"]
-                                for r in rows])
-                high = np.array([np.nan if r["same_outcome"]["ci_high"] is None else 100 * r["same_outcome"]["ci_high"]
-                                 for r in rows])
+                share, low, high = (np.array([np.nan if r["same_outcome"][key] is None else 100 * r["same_outcome"][key]
+                                              for r in rows]) for key in ("share", "ci_low", "ci_high"))
                 ax.errorbar(x, share, yerr=[share - low, high - share], marker=opts["judge_markers"][k % len(opts["judge_markers"])],
                             capsize=2, label=judge)
             rows = sorted((r for r in first["levels"] if r["kind"] == kind), key=lambda r: r["level"])
             ax.axhline(100 * float(first["detect_share"]), color="0.4", linewidth=0.8)
             ax.axhline(50, color="0.7", linewidth=0.8, linestyle=":")
-            ax.set_xticks(np.arange(1, len(rows) + 1), [f"{r['magnitude']:g}" for r in rows])
+            ax.set_xticks(np.arange(1, len(rows) + 1), [magnitude_label(r["magnitude"]) for r in rows])
             ax.set_xlabel(rows[0]["key"] if rows else kind)
             ax.set_ylim(0, 102)
             ax.set_title(kind)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 
+import numpy as np
 import pandas as pd
 
 from r2s_eval.compare.resolution import SweepLevel
@@ -56,10 +57,9 @@ def level_rows(verdicts: pd.DataFrame, sim: pd.DataFrame, real: pd.DataFrame | N
     rows = []
     for lv in levels:
         v = verdicts[(verdicts["kind"] == lv.kind) & (verdicts["level"] == lv.level)]
-        ok_clean = success.loc[[a if s == "A" else b for a, b, s in
-                                zip(v["episode_a"], v["episode_b"], v["clean_side"])]].to_numpy()
-        ok_changed = success.loc[[b if s == "A" else a for a, b, s in
-                                  zip(v["episode_a"], v["episode_b"], v["clean_side"])]].to_numpy()
+        clean_is_a = (v["clean_side"] == "A").to_numpy()
+        ok_a, ok_b = success.loc[v["episode_a"]].to_numpy(), success.loc[v["episode_b"]].to_numpy()
+        ok_clean, ok_changed = np.where(clean_is_a, ok_a, ok_b), np.where(clean_is_a, ok_b, ok_a)
         clean_won = (v["winner"] == clean).to_numpy()
         units = list(zip(v["task"], v["init_id"]))
         same = ok_clean == ok_changed

@@ -161,7 +161,8 @@ class ChangedOperator:
         return action
 
 
-OPERATOR_RUNS = {"clean": {}, "jittery": {"jitter_rad": 0.01}, "open_gripper": {"open_gripper": True}}
+OPERATOR_RUNS = {"clean": {}, "jittery": {"jitter_rad": 0.01}, "open_gripper": {"open_gripper": True},
+                 "open_gripper_jittery": {"jitter_rad": 0.01, "open_gripper": True}}
 
 
 @pytest.fixture(scope="session")
@@ -169,7 +170,8 @@ def operator_runs(tmp_path_factory) -> dict[str, dict]:
     """Real simulator episodes of cup_on_plate from the same initial poses (as
     ``tests.helpers.videos.render_sim_episodes`` renders them: 128 px head_left, 10 fps): the
     scripted operator (``clean``, succeeds), the same with jittered arm commands (``jittery``,
-    succeeds) and with its grippers held open (``open_gripper``, fails smoothly). Per name:
+    succeeds), with its grippers held open (``open_gripper``, fails smoothly) and both
+    (``open_gripper_jittery``, fails as far, shaking). Per name:
     ``instruction``, ``video_path`` (a frame per control step), ``video_5fps_path`` (every second
     frame, as the rollout stage records at its default ``video_fps: 5``), ``trajectory_path`` and
     the episode's ``success``."""

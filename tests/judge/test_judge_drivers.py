@@ -176,6 +176,23 @@ def test_judge_pairs_cache_resume_and_wins(episodes, tmp_path):
     assert wins[:, 0, 1].tolist() == checkpoints and wins[:, 1, 0].tolist() == [0, 0, 0]
 
 
+def test_a_new_compare_rule_asks_every_comparison_anew_and_keeps_the_descriptions(episodes, tmp_path):
+    df, root = episodes
+    desc = describe_rollouts(df, root, CountingJudge(), tmp_path / "cache")
+    pairs = sample_pairs(df, ["GoodPolicyAlpha", "BadPolicyBeta"], [4], seed=2)
+    before = judge_pairs(pairs, desc, CountingJudge(), tmp_path / "cache")
+
+    class NewRule(CountingJudge):
+        compare_version = CountingJudge.compare_version + "-next"
+
+    judge = NewRule()
+    again = describe_rollouts(df, root, judge, tmp_path / "cache")
+    assert judge.describe_calls == 0 and again["cache_key"].tolist() == desc["cache_key"].tolist()
+    after = judge_pairs(pairs, desc, judge, tmp_path / "cache")
+    assert judge.compare_calls == after["cache_key"].nunique() > 0
+    assert not set(after["cache_key"]) & set(before["cache_key"])
+
+
 def test_judge_pairs_errors_name_the_pair(episodes, tmp_path):
     df, root = episodes
     desc = describe_rollouts(df, root, CountingJudge(), tmp_path / "cache")

@@ -158,7 +158,8 @@ def test_retry_after_past_a_limit_fails_at_once_saying_so(rollouts, tmp_path, st
     with ChatServer(faults=[(status, {"Retry-After": retry_after})]) as server:
         with pytest.raises(JudgeError, match=r"episode \S+: .*" + match):
             describe_rollouts(episodes.head(1), ".", make_judge(judge_cfg(server.url, **limit)), tmp_path / "c")
-    assert len(server.log) == 1 and time.monotonic() - t0 < 3
+    # At once: well under the 30 s a wait would take at the least, on a loaded or slow machine too.
+    assert len(server.log) == 1 and time.monotonic() - t0 < 15
 
 
 # ------------------------------------------------------------------ hung requests, deadline
@@ -169,7 +170,8 @@ def test_hung_request_times_out_and_is_retried(rollouts, tmp_path):
         out = describe_rollouts(episodes.head(1), ".", make_judge(judge_cfg(server.url, timeout_s=0.5)),
                                 tmp_path / "c")
     assert out.attrs["stats"]["retries"] == 1 and out["missing"].item() == ""
-    assert [e["status"] for e in server.log] == ["hang", 200] and time.monotonic() - t0 < 4
+    # Under the server's 10 s hang, with room for a loaded or slow machine.
+    assert [e["status"] for e in server.log] == ["hang", 200] and time.monotonic() - t0 < 9
 
 
 def test_hung_requests_end_at_the_call_deadline_naming_the_pair(rollouts, tmp_path):
@@ -184,7 +186,7 @@ def test_hung_requests_end_at_the_call_deadline_naming_the_pair(rollouts, tmp_pa
                                              r"call_deadline_s \(1 s\)"):
             judge_pairs(pairs, None, make_judge(cfg), tmp_path / "c", episodes_df=episodes, episodes_dir=".")
         took = time.monotonic() - t0
-    assert 1.0 <= took < 3.0
+    assert 1.0 <= took < 9.0  # the deadline, not the server's 10 s hang (room for a slow machine)
 
 
 def test_defaults_bound_one_call_and_stay_out_of_the_cache_identity():

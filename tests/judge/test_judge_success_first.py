@@ -1,5 +1,6 @@
 """Success before style: no built-in judge prefers the run that fails the task to one that
-completes it, however either moved; asked in both orders."""
+completes it, however either moved, and between two failures how far each got decides, never
+how it moved; asked in both orders."""
 
 from __future__ import annotations
 
@@ -39,3 +40,26 @@ def test_a_shaky_success_beats_a_smooth_failure_in_both_orders(operator_runs, ba
     first, second = judge.compare(shaky, smooth, instruction), judge.compare(smooth, shaky, instruction)
     assert (first.letter, second.letter) == ("A", "B")
     assert RULE[backend] in first.rationale and RULE[backend] in second.rationale
+
+
+@pytest.mark.parametrize("backend", ["kinematic", "video"])
+def test_between_two_failures_that_got_as_far_the_motion_does_not_decide(operator_runs, backend):
+    judge = _judge(backend)
+    smooth_run, shaky_run = operator_runs["open_gripper"], operator_runs["open_gripper_jittery"]
+    assert not smooth_run["success"] and not shaky_run["success"]
+    smooth, shaky = _describe(judge, smooth_run), _describe(judge, shaky_run)
+    assert "successful" not in (smooth.progress_label, shaky.progress_label)
+    smoothness = [judge.criterion_score("motion_smoothness", d.criteria["motion_smoothness"].evidence)
+                  for d in (smooth, shaky)]
+    assert smoothness[0] > smoothness[1] + 0.1  # the jitter is seen...
+    instruction = smooth_run["instruction"]
+    first, second = judge.compare(smooth, shaky, instruction), judge.compare(shaky, smooth, instruction)
+    winner = {first.letter == "A", second.letter == "B"}
+    assert len(winner) == 1  # the same run wins in both orders...
+    if backend == "kinematic":  # ...and never by motion: the staged progress is the same, a tie
+        assert "tie" in first.rationale and "tie" in second.rationale
+    else:  # ...by the task-progress score alone, or a tie where it is equal
+        progress = [judge.criterion_score("task_progress", d.criteria["task_progress"].evidence) for d in (smooth, shaky)]
+        assert all(r.startswith(("neither successful; task progress", "exact tie")) for r in (first.rationale, second.rationale))
+        if progress[0] != progress[1]:
+            assert winner == {progress[0] > progress[1]}

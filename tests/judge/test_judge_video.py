@@ -124,15 +124,20 @@ def test_judge_video_success_before_style():
         assert verdict.letter == "B" and "success before style" in verdict.rationale
 
 
-def test_judge_video_partial_and_failed_are_left_to_the_scores():
-    """Neither reached the goal: the four scores decide (progress among them), so a clean run
-    labelled failed can beat a poor one labelled partially successful."""
+def test_judge_video_two_failures_are_compared_by_progress_alone():
+    """Neither reached the goal: the task-progress score decides, not the labels and not how the
+    runs moved, so a shaky run that got further beats a clean one that got less far, labelled
+    partially successful or failed."""
     judge = VideoJudge(CFG)
     poor = _scored(judge, 0.3, "partially successful", reversals=50.0, idle=5.0, speed=50.0)
     clean = _scored(judge, 0.15, "failed", reversals=0.0, idle=0.0, speed=0.0)
-    assert judge.compare(poor, clean, "Stack the Two Blocks").letter == "B"
+    assert judge.compare(poor, clean, "Stack the Two Blocks").letter == "A"
     verdict = judge.compare(clean, poor, "Stack the Two Blocks")
-    assert verdict.letter == "A" and "neither successful" in verdict.rationale
+    assert verdict.letter == "B" and verdict.rationale.startswith("neither successful; task progress")
+    # The labels do not rank: a run labelled failed that got further wins too.
+    further = _scored(judge, 0.18, "failed", reversals=50.0, idle=5.0, speed=50.0)
+    less_far = _scored(judge, 0.16, "failed", reversals=0.0, idle=0.0, speed=0.0)
+    assert judge.compare(less_far, further, "Stack the Two Blocks").letter == "B"
     # Both successful: the scores decide too.
     shaky, calm = (_scored(judge, 1.0, "successful", reversals=r, idle=0.0, speed=0.1) for r in (3.0, 0.1))
     assert judge.compare(shaky, calm, "Stack the Two Blocks").letter == "B"

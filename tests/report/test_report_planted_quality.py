@@ -26,9 +26,10 @@ def _verdicts(prefers_clean: list[bool], outcomes: list[tuple[bool, bool]]):
     return pd.DataFrame(rows), success
 
 
-def test_the_share_counts_same_outcome_pairs_only_and_says_what_it_rests_on():
-    prefers = [True] * 9 + [False] * 3 + [False] * 4
-    outcomes = [(True, True)] * 6 + [(False, False)] * 6 + [(True, False)] * 4  # the last four: mixed
+def test_the_share_counts_pairs_that_both_succeeded_only_and_says_what_it_rests_on():
+    # Two failures are compared by how far each got, not how it moved: they are not quality evidence.
+    prefers = [True] * 8 + [False] * 2 + [False] * 6 + [False] * 4
+    outcomes = [(True, True)] * 10 + [(False, False)] * 6 + [(True, False)] * 4  # the last four: mixed
     verdicts, success = _verdicts(prefers, outcomes)
     fit = pd.DataFrame({"checkpoint": [16] * 3, "policy": ["act", "act_shaky", "act_weak"],
                         "score": [60.0, 30.0, 10.0], "ci_low": [50.0, 22.0, 5.0], "ci_high": [70.0, 41.0, 15.0]})
@@ -36,8 +37,8 @@ def test_the_share_counts_same_outcome_pairs_only_and_says_what_it_rests_on():
                              reference_ci={"act": (0.30, 0.50), "act_shaky": (0.28, 0.47)},
                              n_boot=500, level=0.95, seed=1)
     assert (card["variant"], card["clean"]) == ("act_shaky", "act")
-    assert card["n_pairs"] == 12 and card["n_units"] == 12 and card["n_pair_verdicts"] == 16
-    assert card["share"] == 9 / 12 and card["ci_low"] < 0.75 < card["ci_high"] <= 1.0
+    assert card["n_pairs"] == 10 and card["n_units"] == 10 and card["n_pair_verdicts"] == 20
+    assert card["share"] == 8 / 10 and card["ci_low"] < 0.8 < card["ci_high"] <= 1.0
     assert card["bt_separated"] is True and card["success_overlap"] is True
     # Apart in BT only when the clean interval lies above the variant's.
     fit.loc[fit["policy"] == "act_shaky", "ci_high"] = 55.0

@@ -1,4 +1,4 @@
-"""A judge's resolution per level: the clean-preferred share on same-outcome pairs, the successful
+"""A judge's resolution per level: the clean-preferred share on pairs that both succeeded, the successful
 run's share where outcomes differ, success in both worlds, and where each kind is first seen."""
 
 from __future__ import annotations
@@ -37,23 +37,25 @@ def test_shares_success_and_the_smallest_level_seen():
     real = _world(lambda p, i: i % 3 == 0 and p != "act.jitter.3")
     pairs = sweep_pairs(sim, "act", levels, seed=0)
     # The judge sees level 1 on half the pairs, levels 2 and 3 on all; it always prefers a success.
+    # Only pairs that both succeeded (even inits) count: two failures are compared by progress.
     def clean_wins(r):
         ok = {e: s for e, s in zip(sim["episode_id"], sim["success"])}
         clean_ep, other = (r.episode_a, r.episode_b) if r.clean_side == "A" else (r.episode_b, r.episode_a)
         if ok[clean_ep] != ok[other]:
             return ok[clean_ep]
-        return r.level > 1 or r.init_id % 2 == 0
+        return r.level > 1 or r.init_id % 4 == 0
 
     rows = level_rows(_verdicts(pairs, clean_wins), sim, real, "act", levels, detect_share=0.8, n_boot=200,
                       ci_level=0.95, seed=0)
     one, two, three = rows
-    assert one["same_outcome"]["n_pairs"] == N and one["same_outcome"]["share"] == pytest.approx(0.5)
+    assert one["both_succeeded"]["n_pairs"] == N // 2 and one["both_succeeded"]["share"] == pytest.approx(0.5)
+    assert one["both_failed"] == N // 2
     assert not one["detects"]
-    assert two["same_outcome"]["share"] == 1.0 and two["detects"] and two["success_kept"]
+    assert two["both_succeeded"]["share"] == 1.0 and two["detects"] and two["success_kept"]
     assert one["different_outcome"]["n_pairs"] == 0 and one["different_outcome"]["share"] is None
     # Level 3: half the pairs differ in outcome (the clean run succeeded), the judge took the success.
     assert three["different_outcome"]["n_pairs"] == N // 2 and three["different_outcome"]["share"] == 1.0
-    assert three["same_outcome"]["both_failed"] == N // 2 and three["same_outcome"]["both_succeeded"] == 0
+    assert three["both_failed"] == N // 2 and three["both_succeeded"]["n_pairs"] == 0
     assert three["success"]["sim"]["changed"]["rate"] == 0.0 and three["success"]["real"]["clean"]["successes"] == 14
     assert three["success_kept"] is False
     assert kind_summaries(rows) == {"jitter": {"key": "action_noise_std", "smallest_detected": 2,

@@ -61,6 +61,19 @@ def test_flip_rates_and_the_share_against_the_truth_over_repetitions():
     assert card["pairs"]["b vs c"]["flip_rate"] == 0.25 and card["pairs"]["b vs c"]["against_truth"] is None
 
 
+def test_an_error_in_most_repetitions_is_reported_as_repeated():
+    truth = {("a", "b"): 1, ("a", "c"): 1, ("b", "c"): -1}
+    biased = {("a", "b"): -1, ("a", "c"): 1, ("b", "c"): -1}  # a below b: a bias, every time
+    noisy = {("a", "b"): -1, ("a", "c"): 0, ("b", "c"): 1}
+    card = repeated([biased, biased, {**biased, ("b", "c"): 1}, noisy, truth], [truth] * 5, [("a", "b")])
+    # a vs b against the truth in 4 of 5; b vs c in 2; a vs c tied once (half an error).
+    assert card["errors"] == {"a vs b": 4.0, "b vs c": 2.0, "a vs c": 0.5}
+    assert card["repeated_errors"] == {"a vs b": 4.0}
+    # A pair the truth leaves undecided is never an error.
+    undecided = {**truth, ("b", "c"): 0}
+    assert "b vs c" not in repeated([noisy] * 5, [undecided] * 5, [])["errors"]
+
+
 def test_a_variant_sits_right_below_its_clean_candidate():
     rate = {"good": 0.6, "good_shaky": 0.62, "close": 0.58, "weak": 0.0}
     assert adjacent_pairs(rate, VARIANTS) == [("good", "good_shaky"), ("close", "good_shaky"), ("close", "weak")]
@@ -95,3 +108,33 @@ def test_a_judge_that_sees_quality_is_stable_where_a_small_real_evaluation_flips
     assert summary["behind_each_repetition"]["comparisons"]["kinematic"] == [per_block * 2 * 4] * k
     assert summary["truth"]["real_trials_per_policy"] == 2 * per_block * (k - 1)
     assert blocks(45, 4) == [range(0, 11), range(11, 22), range(22, 33), range(33, 44)]
+
+
+def test_the_sim_side_splits_a_judges_errors_into_the_sims_and_its_own():
+    # `close` succeeds more than `good` in the sim and less in the real world: a judge that follows
+    # the sim errs on that pair every time, and the sim's own success count errs with it.
+    k, per_block = 4, 10
+    real = _trials({"good": 0.6, "close": 0.3, "weak": 0.1}, inits=k * per_block)
+    sim = _trials({"good": 0.4, "close": 0.7, "weak": 0.1}, inits=k * per_block)
+    verdicts = []
+    for init in range(k * per_block):
+        for pi, pj, winner in (("close", "good", "close"), ("close", "good", "good"), ("close", "good", "close"),
+                               ("good", "weak", "good"), ("close", "weak", "close"), ("good", "weak", "weak")):
+            verdicts.append({"policy_i": pi, "policy_j": pj, "winner": winner, "task": "t1", "init_id": init})
+    summary = stability_summary(real, {"kinematic": pd.DataFrame(verdicts)}, inits_per_task=k * per_block,
+                                repetitions=k, real_trials_per_task=per_block, trials_curve=[10], truth_z=1.96,
+                                variants={}, sim=sim)
+    judge, counted = summary["evaluations"]["kinematic"], summary["evaluations"]["sim success"]
+    assert judge["repeated_errors"] == {"close vs good": 4.0} == counted["repeated_errors"]
+    # Against what the sim holds, the judge orders every decided pair right: the error is the sim's.
+    own = summary["against_sim_truth"]["kinematic"]
+    assert own["agreement"] == 1.0 and own["repeated_errors"] == {}
+    assert summary["truth"]["sim_success_all_rollouts"] == pytest.approx({"close": 0.7, "good": 0.4, "weak": 0.1})
+    # Without the sim, neither view is made.
+    plain = stability_summary(real, {"kinematic": pd.DataFrame(verdicts)}, inits_per_task=k * per_block,
+                              repetitions=k, real_trials_per_task=per_block, trials_curve=[10], truth_z=1.96, variants={})
+    assert "sim success" not in plain["evaluations"] and "against_sim_truth" not in plain
+    from r2s_eval.report.tables import stability_table
+    table = stability_table(summary)
+    assert "sim success" in table and "Against the sim's own truth" in table and "100.0" in table
+    assert "Against the sim" not in stability_table(plain)

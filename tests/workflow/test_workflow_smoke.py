@@ -288,7 +288,13 @@ def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_
     audit = json.loads((results / "audit" / "kinematic.json").read_text())
     [card] = audit["planted_quality"]
     assert (card["variant"], card["clean"]) == ("act_hesitant", "act") and card["n_pair_verdicts"] == 30
-    assert card["n_pairs"] >= 1 and "bt_separated" in card and "success_overlap" in card
+    # The share rests on the pairs of the two that both succeeded in the sim, and on those alone.
+    verdicts = pd.read_parquet(results / "judge" / "kinematic" / "verdicts.parquet")
+    ok = pd.concat([pd.read_parquet(results / "rollout" / "sim" / p / "episodes.parquet")
+                    for p in ("act", "act_hesitant")]).set_index("episode_id")["success"]
+    planted = verdicts[verdicts["policy_i"].isin(["act", "act_hesitant"]) & verdicts["policy_j"].isin(["act", "act_hesitant"])]
+    both = ok.loc[planted["episode_a"]].to_numpy() & ok.loc[planted["episode_b"]].to_numpy()
+    assert card["n_pairs"] == int(both.sum()) and "bt_separated" in card and "success_overlap" in card
     assert "act\\_hesitant vs act" in (smoke_run.workdir / "reports" / "judge_card_table.tex").read_text()
     # The resolution sweep: every level paired with act's run from each of its 6 inits, per judge.
     for judge in ("kinematic", "video"):
@@ -297,8 +303,8 @@ def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_
                                                                     ("fumbling", 2)]
         assert card["comparisons"] == 24 and set(card["kinds"]) == {"jitter", "fumbling"}
         for row in card["levels"]:
-            same, other = row["same_outcome"]["n_pairs"], row["different_outcome"]["n_pairs"]
-            assert same + other == 6 and row["success"]["sim"]["changed"]["trials"] == 6
+            both, other = row["both_succeeded"]["n_pairs"], row["different_outcome"]["n_pairs"]
+            assert both + row["both_failed"] + other == 6 and row["success"]["sim"]["changed"]["trials"] == 6
             assert row["success"]["real"]["clean"]["trials"] == 6
     table = (smoke_run.workdir / "reports" / "judge_resolution_table.tex").read_text()
     assert "fumble.open\\_steps" in table and "action\\_noise\\_std" in table

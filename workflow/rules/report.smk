@@ -305,6 +305,7 @@ if STABILITY:
     rule stability:
         input:
             real=expand("results/rollout/real/{policy}", policy=POLICIES),
+            sim=expand("results/rollout/sim/{policy}", policy=POLICIES),
             verdicts=expand("results/judge/{judge}/verdicts.parquet", judge=JUDGES),
         output:
             summary="results/stability/summary.json",
@@ -316,6 +317,6 @@ if STABILITY:
         log:
             "logs/report/stability.log",
         shell:
-            "{PY} -m r2s_eval.stages.stability --cfg {params.cfg:q} --real-rollouts {input.real}"
+            "{PY} -m r2s_eval.stages.stability --cfg {params.cfg:q} --real-rollouts {input.real} --sim-rollouts {input.sim}"
             " --verdicts {input.verdicts} --out {output.summary} --table {output.table}"
             " --pdf {output.pdf} --png {output.png} --log {log}"

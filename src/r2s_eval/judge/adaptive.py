@@ -285,7 +285,7 @@ class _LazyDescriber:
             self.parts.append(part)
             self.stats.append(part.attrs["stats"])
             self.described.update(needed)
-        return description_questions(self.table(), self.judge, self.judge.identity())
+        return description_questions(self.table(), self.judge, self.judge.compare_identity())
 
     def table(self) -> pd.DataFrame:
         """The descriptions so far, in episode-table order."""

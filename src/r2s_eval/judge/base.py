@@ -222,6 +222,9 @@ class Judge(ABC):
 
     backend: ClassVar[str] = ""
     prompt_version: ClassVar[str] = "v1"
+    # Bump it when only how two descriptions are compared changes: the compare cache keys change
+    # and the descriptions (for the video judge, minutes of optical flow per policy) are kept.
+    compare_version: ClassVar[str] = ""
     inputs: ClassVar[tuple[str, ...]] = ("video",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -261,6 +264,10 @@ class Judge(ABC):
             "config_hash": config_hash(self.cfg),
             "prompt_version": self.prompt_version,
         }
+
+    def compare_identity(self) -> dict[str, str]:
+        """The identity behind every compare cache key: ``identity`` and the compare version."""
+        return {**self.identity(), "compare_version": self.compare_version} if self.compare_version else self.identity()
 
     @abstractmethod
     def describe(self, rollout: RolloutInput) -> Description:

@@ -170,7 +170,7 @@ def judge_pairs(pairs_df: pd.DataFrame, descriptions_df: pd.DataFrame | None, ju
 def _comparisons(mode: str, judge: Judge, cache_dir: str | Path, descriptions_df: pd.DataFrame | None,
                  episodes_df: pd.DataFrame | None, episodes_dir: str | Path | None) -> tuple[Question, AnswerCache]:
     """The comparisons `mode` asks for, and the cache of their answers."""
-    identity = judge.identity()
+    identity = judge.compare_identity()
     if mode == "two_step":
         if descriptions_df is None:
             raise ConfigError(f"judge {judge.name!r} compares descriptions (mode two_step): give the descriptions table")

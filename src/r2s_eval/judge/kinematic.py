@@ -33,10 +33,14 @@ Compare (from the two descriptions alone, deterministic, no position bias):
      moved; partially successful ranks above failed too, because progress here is measured (the
      staged signal), not estimated from pixels;
   2. final progress, then max progress, when they differ by more than ``progress_margin``;
-  3. weighted behaviour score: each criterion score is the geometric mean over its evidence
-     numbers x of 1 / (1 + x / ref[x]) (1 = perfect, 0.5 = at the reference level); the
-     criterion scores are averaged with ``weights`` (criteria absent from either side are skipped);
-     the higher score wins when the scores differ by more than ``score_tie_eps``;
+  3. between two successes, the weighted behaviour score: each criterion score is the geometric
+     mean over its evidence numbers x of 1 / (1 + x / ref[x]) (1 = perfect, 0.5 = at the
+     reference level); the criterion scores are averaged with ``weights`` (criteria absent from
+     either side are skipped); the higher score wins when the scores differ by more than
+     ``score_tie_eps``. Between two failures that got equally far, how they moved does not count
+     (step 4): what a failing run's motion shows is how it failed (searching and dithering near
+     the object, or pausing), and letting it decide ranked a candidate whose extra successes came
+     with jittery motion below a smoother one that succeeds less (docs/judges.md);
   4. exact tie: the description whose canonical-JSON sha256 is smaller wins, so swapping A and B
      flips the letter; two identical descriptions get a letter from the parity of a hash of the
      description and the instruction. Neither rule favours a position.
@@ -106,6 +110,7 @@ class KinematicJudge(Judge):
     """Offline trajectory-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
     prompt_version = "kinematic-v2"  # v2: descriptions state no episode duration
+    compare_version = "kinematic-compare-v2"  # v2: two failures that got equally far are a tie
     inputs = ("trajectory",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -228,10 +233,12 @@ class KinematicJudge(Judge):
             pa, pb = self._progress(a, key), self._progress(b, key)
             if pa is not None and pb is not None and abs(pa - pb) > margin:
                 return Verdict("A" if pa > pb else "B", f"same outcome; {key.replace('_', ' ')} A {pa:.2f} vs B {pb:.2f}")
+        if la != "successful":  # two failures that got as far: how they moved while failing does not count
+            return tie_break(a, b, instruction)
 
         sa, sb = self.behaviour_scores(a, b)
         if abs(sa - sb) > float(self.cfg["score_tie_eps"]):
-            return Verdict("A" if sa > sb else "B", f"same outcome and progress; behaviour score A {sa:.3f} vs B {sb:.3f}")
+            return Verdict("A" if sa > sb else "B", f"both successful; behaviour score A {sa:.3f} vs B {sb:.3f}")
 
         return tie_break(a, b, instruction)
 

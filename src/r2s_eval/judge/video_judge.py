@@ -52,16 +52,20 @@ Compare (from the two descriptions alone, deterministic, no position bias):
   1. success before style: when exactly one description is labelled "successful", it wins,
      however it moved. A careful person prefers the run that completes the task to one that does
      not; the other criteria say how well a task was done, not whether;
-  2. otherwise (both successful, or neither) each criterion gets a score in [0, 1] (smoothness,
+  2. neither successful: the higher task-progress score (``progress_score``, below) wins; how
+     the two moved does not count. What a failing run's motion shows is how it failed (a clean
+     policy dithers near an object it cannot grasp, one that pauses dithers less), and letting
+     it decide preferred the pausing run and the smoother, weaker candidate (docs/judges.md);
+  3. both successful: each criterion gets a score in [0, 1] (smoothness,
      continuity, force: geometric mean over the evidence numbers x of 1 / (1 + x / ref[x]); task
-     progress: its ``progress_score``); a criterion with nothing to judge (no robot motion for
+     progress: the goal time's score); a criterion with nothing to judge (no robot motion for
      smoothness, no object motion for force) scores ``no_motion_score``, and a robot that never
      visibly moves scores 0 on continuity. The four scores are averaged with equal weight and the
      higher mean wins when the means differ by more than ``score_tie_eps``. "Partially
-     successful" and "failed" are left to these scores rather than ranked: both are runs that did
-     not reach the goal, the line between them is a threshold on a pixel estimate of progress,
-     and the continuous ``progress_score`` behind it is already one of the four scores;
-  3. exact tie: the smaller description hash wins (swapping A and B flips the letter) and
+     successful" and "failed" are not ranked by their labels: the line between them is a
+     threshold on a pixel estimate of progress, and the continuous ``progress_score`` behind it
+     decides in step 2;
+  4. exact tie: the smaller description hash wins (swapping A and B flips the letter) and
      identical descriptions get a letter from a hash parity.
 """
 
@@ -474,6 +478,7 @@ class VideoJudge(Judge):
     """Offline pixel-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
     prompt_version = "video-v2"  # v2: smoothness from optical-flow reversals; success before style
+    compare_version = "video-compare-v2"  # v2: two failures compared by task progress alone
     inputs = ("video",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -614,11 +619,15 @@ class VideoJudge(Judge):
         if (la == "successful") != (lb == "successful"):  # success before style
             return Verdict("A" if la == "successful" else "B", f"success before style: A {la}, B {lb}")
         sa, sb = self.scores(a), self.scores(b)
+        if la != "successful":  # neither successful: how far each got, not how it moved while failing
+            pa, pb = sa["task_progress"], sb["task_progress"]
+            if pa is not None and pb is not None and abs(pa - pb) > float(self.cfg["score_tie_eps"]):
+                return Verdict("A" if pa > pb else "B", f"neither successful; task progress A {pa:.3f} vs B {pb:.3f}")
+            return tie_break(a, b, instruction)
         both = [k for k in sa if sa[k] is not None and sb[k] is not None]
-        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # both or neither successful: equal weights
+        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # both successful: equal weights
         mb = sum(sb[k] for k in both) / len(both) if both else 0.0
         if abs(ma - mb) > float(self.cfg["score_tie_eps"]):
             parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in both)
-            return Verdict("A" if ma > mb else "B", f"{'both' if la == 'successful' else 'neither'} successful; "
-                                                    f"equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
+            return Verdict("A" if ma > mb else "B", f"both successful; equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
         return tie_break(a, b, instruction)

@@ -281,7 +281,7 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
             # Side by side around 0 (all spend no real trials), so their ranges do not overlap.
             x = 0.4 * (k - (len(judges) - 1) / 2)
             ax.errorbar([x], [avg], yerr=[[avg - lo], [hi - avg]], fmt=opts["judge_markers"][k % len(opts["judge_markers"])],
-                        capsize=3, label=f"r2s-eval, {name} judge")
+                        capsize=3, label="sim success counted" if name == "sim success" else f"r2s-eval, {name} judge")
         ax.set_xlabel("real trials per task and policy")
         ax.set_ylabel("pairs ordered as the truth (%)")
         ax.set_ylim(0, 102)
@@ -296,7 +296,7 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
 
 
 def resolution_figure(cards: Mapping[str, dict], opts: Mapping):
-    """One panel per kind: each judge's share of same-outcome pairs preferring the clean run
+    """One panel per kind: each judge's share of pairs that both succeeded preferring the clean run
     (points with their intervals) against the magnitude, the detection share and one half as
     lines, and the changed run's success in both worlds (dashed, right axis)."""
     first = next(iter(cards.values()))
@@ -310,7 +310,7 @@ def resolution_figure(cards: Mapping[str, dict], opts: Mapping):
             for k, judge in enumerate(sorted(cards)):
                 rows = sorted((r for r in cards[judge]["levels"] if r["kind"] == kind), key=lambda r: r["level"])
                 x = np.arange(1, len(rows) + 1) + 0.08 * (k - (len(cards) - 1) / 2)
-                share, low, high = (np.array([np.nan if r["same_outcome"][key] is None else 100 * r["same_outcome"][key]
+                share, low, high = (np.array([np.nan if r["both_succeeded"][key] is None else 100 * r["both_succeeded"][key]
                                               for r in rows]) for key in ("share", "ci_low", "ci_high"))
                 ax.errorbar(x, share, yerr=[share - low, high - share], marker=opts["judge_markers"][k % len(opts["judge_markers"])],
                             capsize=2, label=judge)

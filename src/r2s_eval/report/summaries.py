@@ -285,22 +285,24 @@ def planted_quality(verdicts: pd.DataFrame, success: dict[str, bool], variants: 
                     fit: pd.DataFrame | None = None, reference_ci: Mapping[str, tuple] | None = None,
                     n_boot: int, level: float, seed: int) -> list[dict]:
     """Per variant (``variants``: {variant: the candidate whose weights it runs, the clean one}),
-    on the comparisons of the two whose rollouts had the same sim outcome: the share of verdicts
-    preferring the clean run, with its unit-bootstrap interval. With ``fit`` (the judge's BT
+    on the comparisons of the two whose rollouts both succeeded in the sim: the share of verdicts
+    preferring the clean run, with its unit-bootstrap interval. Only there: the built-in judges
+    weigh how a run moved between two successes, never between two failures, which they compare
+    by how far each got (docs/judges.md, "Success before style"). With ``fit`` (the judge's BT
     table), whether the two scores' intervals at the last checkpoint are apart with the clean one
     above (``bt_separated``); with ``reference_ci`` ({policy: (low, high)}, the reference's
     success intervals), whether those overlap (``success_overlap``): a quality difference the
     judge sees where success cannot tell the two apart."""
     pi, pj = verdicts["policy_i"].astype(str).to_numpy(), verdicts["policy_j"].astype(str).to_numpy()
-    same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
-                                                               verdicts["episode_b"].astype(str))], dtype=bool)
+    both = np.array([success[a] and success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+                                                                verdicts["episode_b"].astype(str))], dtype=bool)
     winner = verdicts["winner"].astype(str).to_numpy()
     units = _units(verdicts)
     last = last_checkpoint(fit) if fit is not None else None
     out = []
     for variant, clean in sorted(variants.items()):
         pair = ((pi == variant) & (pj == clean)) | ((pi == clean) & (pj == variant))
-        keep = pair & same
+        keep = pair & both
         card = unit_share(winner[keep] == clean, [u for u, k in zip(units, keep) if k], n_boot=n_boot, level=level,
                           seed=seed)
         card.update(variant=variant, clean=clean, n_pair_verdicts=int(pair.sum()))

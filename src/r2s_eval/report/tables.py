@@ -386,7 +386,7 @@ def _yes_no(value) -> str:
 
 def planted_quality_table(audits: Mapping[str, dict], decimals: int = 1, level: str = "95\\%") -> str:
     """Per judge and variant (a candidate's weights run with an execution change): the share of
-    same-outcome verdicts preferring the clean run [CI] (pairs), whether the BT intervals put the
+    verdicts on pairs that both succeeded preferring the clean run [CI] (pairs), whether the BT intervals put the
     clean run above the variant, whether their success intervals overlap. Empty without variants."""
     body = []
     for judge in sorted(audits):
@@ -399,7 +399,7 @@ def planted_quality_table(audits: Mapping[str, dict], decimals: int = 1, level: 
     header = [_row(["Judge", "Variant vs clean", r"Prefers clean$\uparrow$", "BT apart", "Success overlap"])]
     notes = [
         rf"Planted quality: the clean candidate's weights run with an execution change; in \%, {level} CIs over",
-        r"distinct (task, init) units; parentheses: same-outcome pairs. BT apart: the clean run's interval above",
+        r"distinct (task, init) units; parentheses: pairs that both succeeded. BT apart: the clean run's interval above",
         r"the variant's; success overlap: their reference success intervals overlap.",
     ]
     return "\n" + _tabular("llccc", header, body, notes=notes)
@@ -433,7 +433,18 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         _row(["Kendall distance (pairs)", *(DASH if cards[n]["kendall_distance"] is None
                                             else f"{cards[n]['kendall_distance']:.{decimals}f}" for n in names)]),
         _row(["Pairs ordered as the truth", *(pct(cards[n]["agreement"]) for n in names)]),
+        _row(["Errors in most repetitions (pairs)", *(str(len(cards[n]["repeated_errors"])) for n in names)]),
     ]
+    against_sim = summary.get("against_sim_truth") or {}
+    if against_sim:  # the judges' own errors: against what the sim they judge holds
+        body += [
+            r"\midrule",
+            _row([r"\emph{Against the sim's own truth}", *[""] * len(names)]),
+            _row(["Pairs ordered as that truth", *(pct(against_sim[n]["agreement"]) if n in against_sim else DASH
+                                                   for n in names)]),
+            _row(["Errors in most repetitions (pairs)", *(str(len(against_sim[n]["repeated_errors"])) if n in against_sim
+                                                          else DASH for n in names)]),
+        ]
     flips = [_row([latex_escape(pair), *(pct(cards[n]["pairs"][pair]["flip_rate"]) for n in names)])
              for pair in summary["truth"]["adjacent_pairs"]]
     header = [_row(["", *(latex_escape(n if not n.startswith("real ") else f"real, {n[5:]} trials/task")
@@ -444,6 +455,10 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         rf"{behind['sim_rollouts_per_policy']} sim rollouts per policy",
         rf"(the judges) or {summary['tasks']} tasks $\times$ m real trials per policy; the truth on "
         rf"{summary['truth']['real_trials_per_policy']} other real trials per policy and the planted pairs.",
+        r"Errors in most repetitions: decided pairs ordered against the truth in more than half the repetitions.",
+        *([r"Sim success: the ranking by the success of the repetition's own sim rollouts. The sim's own truth: the planted",
+           r"pairs and the sim's success over the other repetitions' rollouts (a judge's errors that are not the sim's)."]
+          if against_sim else []),
         r"Flip rate: share of repetitions on the minority side of the pair's order (0: always the same; 50: a coin).",
     ]
     return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",
@@ -470,7 +485,7 @@ def _success_cell(success: Mapping, decimals: int) -> str:
 
 def resolution_table(cards: Mapping[str, dict], decimals: int = 1) -> str:
     """Per kind and judge: the smallest level that detects the kind (its magnitude, its share of
-    same-outcome pairs preferring the clean run [CI] (pairs), success there), or, where none does,
+    pairs that both succeeded preferring the clean run [CI] (pairs), success there), or, where none does,
     "not seen" with the best share and its level; and the share preferring the successful run
     where the outcomes differ, over all levels."""
     body = []
@@ -483,7 +498,7 @@ def resolution_table(cards: Mapping[str, dict], decimals: int = 1) -> str:
             kept = card["kinds"][kind]["smallest_detected_success_kept"]
             at = rows[seen] if seen is not None else rows.get(card["kinds"][kind]["best_level"])
             if at is None:
-                verdict = "no same-outcome pairs"
+                verdict = "no pair succeeded twice"
             elif seen is None:
                 verdict = f"not seen (best at {magnitude_label(at['magnitude'])})"
             else:
@@ -494,7 +509,7 @@ def resolution_table(cards: Mapping[str, dict], decimals: int = 1) -> str:
             n_diff = sum(r["different_outcome"]["n_pairs"] for r in rows.values())
             body.append(_row([
                 latex_escape(kind), latex_escape(judge), latex_escape(summary["key"]), latex_escape(verdict),
-                _share_cell(at["same_outcome"] if at else None, decimals),
+                _share_cell(at["both_succeeded"] if at else None, decimals),
                 _success_cell(at["success"], decimals) if at else DASH,
                 f"{_pct(hits / n_diff, decimals)} ({n_diff})" if n_diff else DASH,
             ]))
@@ -503,7 +518,7 @@ def resolution_table(cards: Mapping[str, dict], decimals: int = 1) -> str:
     share = 100 * float(first["detect_share"])
     notes = [
         rf"Smallest seen: the smallest magnitude at which the judge prefers the clean run on $\geq${share:g}\% of the",
-        r"same-outcome pairs with the interval above 50\%; prefers clean: that share [95\% CI] (pairs), or the best",
+        r"pairs that both succeeded, with the interval above 50\%; prefers clean: that share [95\% CI] (pairs), or the best",
         r"level's where none is seen. Success: the changed run's / the clean run's, in \%, sim; real. Success first:",
         r"verdicts preferring the run that succeeded where one did, over all levels (pairs).",
     ]

@@ -6,8 +6,10 @@ of the comparisons of block r's sim rollouts, and a real evaluation by the succe
 first ``stability.real_trials_per_task`` real trials per task and policy (and, for the figure,
 of its first m for each m of ``trials_curve``). The truth of repetition r: planted pairs by
 construction, every other pair by the twin's success over the real trials of the other blocks
-where it is clear (``r2s_eval.stats.stability``). Writes the summary JSON, the table and the
-figure of agreement with the truth against real trials spent.
+where it is clear (``r2s_eval.stats.stability``). With the judged sim rollouts, the ranking by
+their success and each judge against the sim's own truth split a judge's errors into the sim's
+and its own. Writes the summary JSON, the table and the figure of agreement with the truth
+against real trials spent.
 """
 
 from __future__ import annotations
@@ -32,23 +34,29 @@ def main(args) -> None:
     opts = cfg["stability"]
     real = load_episodes(args.real_rollouts)
     verdicts = {Path(path).parent.name: pd.read_parquet(path) for path in args.verdicts}  # <judge>/verdicts.parquet
+    sim = load_episodes(args.sim_rollouts) if args.sim_rollouts else None
     summary = stability_summary(
         real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
         real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
-        truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}))
+        truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim)
     write_json(args.out, summary, provenance=True)
     report = cfg["report.stability"]
     write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")
     save_figure(stability_figure(summary, report), args.pdf, args.png, dpi=report["dpi"])
     for name, card in summary["evaluations"].items():
         print(f"{name:>12}: equal to the truth {card['equal_share']}, Kendall distance {card['kendall_distance']}, "
-              f"flip rates {[round(p['flip_rate'], 2) for p in card['pairs'].values()]}")
+              f"flip rates {[round(p['flip_rate'], 2) for p in card['pairs'].values()]}, "
+              f"errors in most repetitions {card['repeated_errors']}")
+    for name, card in (summary.get("against_sim_truth") or {}).items():
+        print(f"{name:>12} against the sim's own truth: {card['agreement']}, errors in most repetitions "
+              f"{card['repeated_errors']}")
 
 
 if __name__ == "__main__":
     p = _cli.parser(__doc__)
     p.add_argument("--real-rollouts", nargs="+", required=True, help="real-side rollout folders, one per policy")
     p.add_argument("--verdicts", nargs="+", required=True, help="verdicts per judge (results/judge/<judge>/verdicts.parquet)")
+    p.add_argument("--sim-rollouts", nargs="*", default=[], help="the judged sim rollout folders, one per policy")
     p.add_argument("--out", required=True)
     p.add_argument("--table", required=True)
     p.add_argument("--pdf", required=True)

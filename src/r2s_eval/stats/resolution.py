@@ -3,9 +3,11 @@
 Per level of a kind (r2s_eval.compare.resolution), from the judge's verdicts on the clean run
 against the changed one from the same (task, init):
 
-* ``same_outcome``: the pairs whose two runs ended alike (both met the task's success check in
-  the sim, or neither): the share on which the judge preferred the clean run, with a bootstrap
-  interval over the pairs (each pair its own two rollouts, so each is new evidence);
+* ``both_succeeded``: the pairs whose two runs both met the task's success check in the sim:
+  the share on which the judge preferred the clean run, with a bootstrap interval over the pairs
+  (each pair its own two rollouts, so each is new evidence). Only those: the built-in judges
+  weigh how a run moved between two successes and compare two failures by how far each got
+  (docs/judges.md, "Success before style"); ``both_failed`` counts the pairs left out;
 * ``different_outcome``: the pairs where one run succeeded: the share on which the judge
   preferred the successful one (success before style);
 * ``success``: the clean run's and the level's success in the sim and in the real world (the
@@ -63,8 +65,9 @@ def level_rows(verdicts: pd.DataFrame, sim: pd.DataFrame, real: pd.DataFrame | N
         clean_won = (v["winner"] == clean).to_numpy()
         units = list(zip(v["task"], v["init_id"]))
         same = ok_clean == ok_changed
+        both = same & ok_clean
         stats = {"n_boot": n_boot, "level": ci_level, "seed": seed}
-        preferred = unit_share(clean_won[same], [u for u, s in zip(units, same) if s], **stats)
+        preferred = unit_share(clean_won[both], [u for u, b in zip(units, both) if b], **stats)
         # On different outcomes the judge is right when it prefers whichever run succeeded.
         succeeded_won = clean_won[~same] == ok_clean[~same]
         success_first = unit_share(succeeded_won, [u for u, s in zip(units, same) if not s], **stats)
@@ -74,8 +77,7 @@ def level_rows(verdicts: pd.DataFrame, sim: pd.DataFrame, real: pd.DataFrame | N
         share, low = preferred["share"], preferred["ci_low"]
         rows.append({
             "kind": lv.kind, "level": lv.level, "key": lv.key, "magnitude": lv.magnitude, "policy": lv.policy,
-            "same_outcome": {**preferred, "both_succeeded": int((same & ok_clean).sum()),
-                             "both_failed": int((same & ~ok_clean).sum())},
+            "both_succeeded": preferred, "both_failed": int((same & ~ok_clean).sum()),
             "different_outcome": success_first,
             "detects": bool(share is not None and share >= detect_share and low > 0.5),
             "success": {"sim": {"clean": clean_sim, "changed": sim_rate},
@@ -93,8 +95,8 @@ def kind_summaries(rows: Sequence[Mapping]) -> dict[str, dict]:
         mine = sorted((r for r in rows if r["kind"] == kind), key=lambda r: r["level"])
         detected = [r for r in mine if r["detects"]]
         kept = [r for r in detected if r["success_kept"]]
-        scored = [r for r in mine if r["same_outcome"]["share"] is not None]
-        best = max(scored, key=lambda r: r["same_outcome"]["share"]) if scored else None
+        scored = [r for r in mine if r["both_succeeded"]["share"] is not None]
+        best = max(scored, key=lambda r: r["both_succeeded"]["share"]) if scored else None
         out[kind] = {
             "key": mine[0]["key"],
             "smallest_detected": detected[0]["level"] if detected else None,

@@ -110,7 +110,9 @@ def repeated(orders: Sequence[Order], truths: Sequence[Order], pairs: Sequence[P
     equals the truth, the mean Kendall distance and agreement share, and per pair of ``pairs``
     its flip rate (the share of repetitions on the minority side of that pair's order, a tie
     counting half to each: 0 = always the same order, 0.5 = a coin) and the share of
-    repetitions ordering it against the truth (where the truth decides it; a tie counts half)."""
+    repetitions ordering it against the truth (where the truth decides it; a tie counts half);
+    ``errors``: every decided pair's errors over the repetitions, ``repeated_errors`` those
+    against the truth in more than half of them."""
     if len(orders) != len(truths) or not orders:
         raise StatsError("one truth per repetition, at least one repetition")
     cards = [agreement(o, t) for o, t in zip(orders, truths)]
@@ -119,7 +121,8 @@ def repeated(orders: Sequence[Order], truths: Sequence[Order], pairs: Sequence[P
            "equal_share": float(np.mean([c["equal"] for c in judged])) if judged else None,
            "kendall_distance": float(np.mean([c["kendall_distance"] for c in judged])) if judged else None,
            "agreement": float(np.mean([c["share"] for c in judged])) if judged else None,
-           "per_repetition": cards, "pairs": {}}
+           "per_repetition": cards, "errors": errors_by_pair(orders, truths), "pairs": {}}
+    out["repeated_errors"] = {pair: n for pair, n in out["errors"].items() if n > len(orders) / 2}
     for pair in pairs:
         signs = np.array([o[pair] for o in orders], dtype=float)
         above = float(np.sum(signs > 0) + 0.5 * np.sum(signs == 0))
@@ -131,6 +134,19 @@ def repeated(orders: Sequence[Order], truths: Sequence[Order], pairs: Sequence[P
     return out
 
 
+def errors_by_pair(orders: Sequence[Order], truths: Sequence[Order]) -> dict[str, float]:
+    """Per pair the truth decides in some repetition: in how many repetitions the ranking orders it
+    against the truth (a tie counts half), pairs never against it left out. An error that comes
+    back in most repetitions is a bias of the evaluation, not noise: more repetitions repeat it."""
+    counts: dict[str, float] = {}
+    for order, truth in zip(orders, truths):
+        for pair, sign in truth.items():
+            if sign and order[pair] != sign:
+                counts[f"{pair[0]} vs {pair[1]}"] = counts.get(f"{pair[0]} vs {pair[1]}", 0.0) + (
+                    1.0 if order[pair] == -sign else 0.5)
+    return dict(sorted(counts.items(), key=lambda item: (-item[1], item[0])))
+
+
 def blocks(inits_per_task: int, repetitions: int) -> list[range]:
     """Each repetition's init ids: k disjoint blocks of inits_per_task // k (the rest unused)."""
     size = inits_per_task // repetitions
@@ -139,9 +155,15 @@ def blocks(inits_per_task: int, repetitions: int) -> list[range]:
 
 def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, inits_per_task: int,
                       repetitions: int, real_trials_per_task: int, trials_curve, truth_z: float,
-                      variants: dict[str, str]) -> dict:
+                      variants: dict[str, str], sim: pd.DataFrame | None = None) -> dict:
     """``real``: every real trial (policy, task, init_id, success); ``verdicts``: per judge its
-    verdicts (policy_i, policy_j, winner, task, init_id)."""
+    verdicts (policy_i, policy_j, winner, task, init_id).
+
+    With ``sim`` (the judged sim rollouts: policy, task, init_id, success) two more views split a
+    judge's errors into the sim's and its own: ``sim success``, the ranking by the success of each
+    repetition's own sim rollouts (what a judge that only read outcomes would give), against the
+    real truth; and ``against_sim_truth``, each judge against the truth the sim itself holds (the
+    planted pairs, the others by the sim's success over the other repetitions' rollouts)."""
     policies = sorted(real["policy"].astype(str).unique())
     parts = blocks(inits_per_task, repetitions)
     size = len(parts[0])
@@ -151,11 +173,16 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     all_rate, _ = success_rates(real)
     pairs = adjacent_pairs(all_rate.to_dict(), variants)
     truths, real_orders = [], {m: [] for m in sorted({*trials_curve, real_trials_per_task})}
+    sim_truths, sim_orders = [], []
     judge_orders = {judge: [] for judge in verdicts}
     comparisons = {judge: [] for judge in verdicts}
     for part in parts:
         inside = real["init_id"].isin(part)
         truths.append(truth_order(real[~inside], variants, policies, truth_z))
+        if sim is not None:
+            in_sim = sim["init_id"].isin(part)
+            sim_truths.append(truth_order(sim[~in_sim], variants, policies, truth_z))
+            sim_orders.append(order_of(success_rates(sim[in_sim])[0].to_dict()))
         for m in real_orders:
             first = real[real["init_id"].isin(part[:m])]
             real_orders[m].append(order_of(success_rates(first)[0].to_dict()))
@@ -166,9 +193,11 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
             judge_orders[judge].append(bt_order(own, policies)[0])
             comparisons[judge].append(len(own))
     evaluations = {f"real {m}": repeated(orders, truths, pairs) for m, orders in real_orders.items()}
+    if sim is not None:
+        evaluations["sim success"] = repeated(sim_orders, truths, pairs)
     evaluations.update({judge: repeated(orders, truths, pairs) for judge, orders in judge_orders.items()})
     tasks = int(real["task"].nunique())
-    return {
+    out = {
         "repetitions": repetitions, "inits_per_repetition_and_task": size, "tasks": tasks, "policies": policies,
         "variants": variants, "real_trials_per_task": real_trials_per_task,
         "truth": {"definition": "planted pairs by construction; others by the twin's success over the other "
@@ -182,3 +211,7 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
                                    "comparisons": {j: [int(n) for n in c] for j, c in comparisons.items()}},
         "evaluations": evaluations,
     }
+    if sim is not None:
+        out["against_sim_truth"] = {judge: repeated(orders, sim_truths, pairs) for judge, orders in judge_orders.items()}
+        out["truth"]["sim_success_all_rollouts"] = {p: float(r) for p, r in success_rates(sim)[0].items()}
+    return out

@@ -311,7 +311,8 @@ def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_
     assert (smoke_run.workdir / "reports" / "judge_resolution.png").stat().st_size > 0
     summary = json.loads((results / "stability" / "summary.json").read_text())
     assert summary["repetitions"] == 2 and summary["inits_per_repetition_and_task"] == 3
-    assert set(summary["evaluations"]) == {"real 1", "real 3", "kinematic", "video"}
+    assert set(summary["evaluations"]) == {"real 1", "real 3", "sim success", "kinematic", "video"}
+    assert set(summary["against_sim_truth"]) == {"kinematic", "video"}  # the judges' own errors, apart from the sim's
     assert summary["behind_each_repetition"]["sim_rollouts_per_policy"] == 3
     assert "act vs act_hesitant" in summary["truth"]["adjacent_pairs"]
     assert (smoke_run.workdir / "reports" / "stability.png").stat().st_size > 0

@@ -418,12 +418,10 @@ def progress_force(frames: np.ndarray, fps: float, task, segmenter: Any, c: Mapp
         return tr[target]["c"][i]
 
     n = len(frames)
-    if rel == "upright":
-        pos, at = m["c"], np.flatnonzero(~np.isnan(m["c"]).any(1))[-k:]
-    else:
-        pos, at = m["part_c"], [i for i in range(max(0, n - k), n) if not np.isnan(m["part_c"][i]).any()]
-        if not at:
-            pos, at = m["c"], np.flatnonzero(~np.isnan(m["c"]).any(1))[-k:]
+    pos, at = m["c"], np.flatnonzero(~np.isnan(m["c"]).any(1))[-k:]  # the last k frames showing it whole
+    partly = [i for i in range(max(0, n - k), n) if not np.isnan(m["part_c"][i]).any()]
+    if rel != "upright" and partly:
+        pos, at = m["part_c"], partly
     end_gaps = [gap(pos[i], target_at(i), m["aspect"][i]) for i in at]
 
     def reached_s() -> float:

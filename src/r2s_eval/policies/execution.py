@@ -203,11 +203,10 @@ class ExecutedCommands:
             action[joints] = self._overshoot(action[joints])
         if ex.action_noise_std and joints:
             action[joints] += self._rng.normal(0.0, ex.action_noise_std, len(joints))
-        if ex.fumble is not None and ex.grippers:
-            grippers = list(ex.grippers)
+        grippers = list(ex.grippers)
+        if ex.fumble is not None and grippers:
             action[grippers] = self._fumble(action[grippers])
-        if ex.gripper_delay_steps and ex.grippers:
-            grippers = list(ex.grippers)
+        if ex.gripper_delay_steps and grippers:
             self._grippers.append(action[grippers].copy())
             if len(self._grippers) > ex.gripper_delay_steps:
                 action[grippers] = self._grippers.popleft()

@@ -81,6 +81,16 @@ def bt_order(verdicts: pd.DataFrame, policies: Sequence[str]) -> tuple[Order, di
     return order_of(scores), scores
 
 
+def error_weight(sign: int, truth: int) -> float:
+    """How far an order's ``sign`` for a pair the truth decides goes against the truth's: 1 the
+    other way, 0.5 a tie, 0 the same way."""
+    return 1.0 if sign == -truth else 0.5 if sign == 0 else 0.0
+
+
+def pair_label(pair: Pair) -> str:
+    return f"{pair[0]} vs {pair[1]}"
+
+
 def agreement(order: Order, truth: Order) -> dict:
     """How ``order`` stands against ``truth`` on the pairs the truth decides: the share ordered
     as the truth (a tie counts half), the Kendall distance (pairs against it, a tie a half) and
@@ -88,7 +98,7 @@ def agreement(order: Order, truth: Order) -> dict:
     decided = [pair for pair, sign in truth.items() if sign]
     if not decided:
         return {"decided_pairs": 0, "share": None, "kendall_distance": None, "equal": None}
-    against = sum(1.0 if order[p] == -truth[p] else 0.5 if order[p] == 0 else 0.0 for p in decided)
+    against = sum(error_weight(order[p], truth[p]) for p in decided)
     return {"decided_pairs": len(decided), "share": 1 - against / len(decided), "kendall_distance": against,
             "equal": against == 0}
 
@@ -127,8 +137,8 @@ def repeated(orders: Sequence[Order], truths: Sequence[Order], pairs: Sequence[P
         signs = np.array([o[pair] for o in orders], dtype=float)
         above = float(np.sum(signs > 0) + 0.5 * np.sum(signs == 0))
         decided = [(o[pair], t[pair]) for o, t in zip(orders, truths) if t[pair]]
-        wrong = (float(np.mean([1.0 if s == -t else 0.5 if s == 0 else 0.0 for s, t in decided])) if decided else None)
-        out["pairs"][f"{pair[0]} vs {pair[1]}"] = {
+        wrong = float(np.mean([error_weight(s, t) for s, t in decided])) if decided else None
+        out["pairs"][pair_label(pair)] = {
             "flip_rate": min(above, len(orders) - above) / len(orders), "against_truth": wrong,
             "truth_decided": len(decided), "first_above": above}
     return out
@@ -142,8 +152,7 @@ def errors_by_pair(orders: Sequence[Order], truths: Sequence[Order]) -> dict[str
     for order, truth in zip(orders, truths):
         for pair, sign in truth.items():
             if sign and order[pair] != sign:
-                counts[f"{pair[0]} vs {pair[1]}"] = counts.get(f"{pair[0]} vs {pair[1]}", 0.0) + (
-                    1.0 if order[pair] == -sign else 0.5)
+                counts[pair_label(pair)] = counts.get(pair_label(pair), 0.0) + error_weight(order[pair], sign)
     return dict(sorted(counts.items(), key=lambda item: (-item[1], item[0])))
 
 
@@ -205,7 +214,7 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
                   "real_trials_per_policy": tasks * size * (repetitions - 1),
                   "success_all_trials": {p: float(all_rate[p]) for p in policies},
                   "decided_pairs": [sum(1 for s in t.values() if s) for t in truths],
-                  "adjacent_pairs": [f"{a} vs {b}" for a, b in pairs]},
+                  "adjacent_pairs": [pair_label(pair) for pair in pairs]},
         "behind_each_repetition": {"sim_rollouts_per_policy": tasks * size,
                                    "real_trials_per_policy": {m: tasks * m for m in real_orders},
                                    "comparisons": {j: [int(n) for n in c] for j, c in comparisons.items()}},

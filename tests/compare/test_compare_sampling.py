@@ -76,6 +76,18 @@ def test_compare_same_init_for_both_sides(pairs, episodes):
     assert pairs["init_id"].nunique() > 1  # inits are drawn, not fixed
 
 
+def test_compare_each_shared_init_once_before_any_twice(pairs):
+    # 50 comparisons over 3 tasks of 5 inits: per pair and task, the inits come in rounds of all
+    # five (a repeat of the same rollout pair adds no evidence until every other one is compared).
+    for _, g in pairs.groupby(["policy_i", "policy_j", "task"]):
+        inits = g.sort_values("pair_index")["init_id"].tolist()
+        for start in range(0, len(inits), 5):
+            one_round = inits[start:start + 5]
+            assert len(set(one_round)) == len(one_round)
+            if len(one_round) == 5:
+                assert set(one_round) == set(range(5))
+
+
 def test_compare_checkpoints_are_nested_prefixes(pairs, episodes):
     small = sample_pairs(episodes, POLICIES, [5], seed=7)
     pd.testing.assert_frame_equal(

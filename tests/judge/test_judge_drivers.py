@@ -193,6 +193,27 @@ def test_a_new_compare_rule_asks_every_comparison_anew_and_keeps_the_description
     assert not set(after["cache_key"]) & set(before["cache_key"])
 
 
+@pytest.mark.parametrize("backend, compare_only, describing", [
+    ("kinematic", {"failures": "progress", "progress_margin": 0.2}, {"ref": {"impacts": 2.0}}),
+    ("video", {"failures": "tie", "progress_margin": 0.1, "style_margin": 0.0}, {"end_s": 0.5}),
+])
+def test_a_compare_key_keeps_the_descriptions_and_asks_comparisons_anew(backend, compare_only, describing):
+    from r2s_eval.judge import make_judge
+    from tests.helpers.worlds import bundled_tasks
+
+    def judge(**cfg):
+        made = make_judge({"backend": backend, **cfg})
+        made.know_tasks(bundled_tasks())
+        return made
+
+    base = judge()
+    for key, value in compare_only.items():
+        other = judge(**{key: value})
+        assert other.identity() == base.identity()  # the descriptions' keys
+        assert other.compare_identity() != base.compare_identity()
+    assert judge(**describing).identity() != base.identity()
+
+
 def test_judge_pairs_errors_name_the_pair(episodes, tmp_path):
     df, root = episodes
     desc = describe_rollouts(df, root, CountingJudge(), tmp_path / "cache")

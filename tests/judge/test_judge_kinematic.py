@@ -88,7 +88,20 @@ def test_judge_success_before_style(judge, traj_factory):
         assert smooth.progress_label == label
         assert judge.behaviour_scores(smooth, worst)[0] > judge.behaviour_scores(smooth, worst)[1]
         assert_prefers(judge, worst, smooth)
-        assert judge.compare(smooth, worst, "task").rationale.startswith("outcome:")
+        assert judge.compare(smooth, worst, "task").rationale.startswith("success before style:")
+
+
+def test_judge_two_failures_tie_unless_failures_progress(judge, traj_factory):
+    """A run that stalls late and one that never gets anywhere: by default a tie (the letter from
+    the description hashes, the same run in both orders); with failures: progress the one that
+    got further wins."""
+    further, nowhere = describe(judge, traj_factory(stall_at=0.6)), describe(judge, traj_factory(stall_at=0.05))
+    assert (further.progress_label, nowhere.progress_label) == ("partially successful", "failed")
+    first, second = judge.compare(further, nowhere, "task"), judge.compare(nowhere, further, "task")
+    assert (first.letter == "A") == (second.letter == "B") == (further.sha256() < nowhere.sha256())
+    assert "a tie" in first.rationale
+    by_progress = KinematicJudge({"failures": "progress"})
+    assert_prefers(by_progress, further, nowhere)
 
 
 def test_judge_successful_means_the_goal_holds_at_the_end(judge, traj_factory, tmp_path):

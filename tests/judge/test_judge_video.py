@@ -124,23 +124,66 @@ def test_judge_video_success_before_style():
         assert verdict.letter == "B" and "success before style" in verdict.rationale
 
 
-def test_judge_video_two_failures_are_compared_by_progress_alone():
-    """Neither reached the goal: the task-progress score decides, not the labels and not how the
-    runs moved, so a shaky run that got further beats a clean one that got less far, labelled
-    partially successful or failed."""
+def test_judge_video_two_failures_are_compared_by_progress_alone_or_a_tie():
+    """Neither reached the goal: the task-progress score decides where it differs by more than
+    progress_margin, not the labels and not how the runs moved, so a shaky run that got plainly
+    further beats a clean one that got less far, labelled partially successful or failed; a
+    smaller difference, or failures: tie, is a tie (the letter from the description hashes, the
+    same run in both orders)."""
+    poor_cfg = dict(reversals=50.0, idle=5.0, speed=50.0)
+    clean_cfg = dict(reversals=0.0, idle=0.0, speed=0.0)
+    tie = VideoJudge({**CFG, "failures": "tie"})
+    poor = _scored(tie, 0.6, "partially successful", **poor_cfg)
+    clean = _scored(tie, 0.15, "failed", **clean_cfg)
+    first, second = tie.compare(poor, clean, "Stack the Two Blocks"), tie.compare(clean, poor, "Stack the Two Blocks")
+    assert (first.letter == "A") == (second.letter == "B") == (poor.sha256() < clean.sha256())
+    assert "a tie" in first.rationale
+
     judge = VideoJudge(CFG)
-    poor = _scored(judge, 0.3, "partially successful", reversals=50.0, idle=5.0, speed=50.0)
-    clean = _scored(judge, 0.15, "failed", reversals=0.0, idle=0.0, speed=0.0)
+    assert judge.cfg["failures"] == "progress"
+    poor = _scored(judge, 0.6, "partially successful", **poor_cfg)
+    clean = _scored(judge, 0.15, "failed", **clean_cfg)
     assert judge.compare(poor, clean, "Stack the Two Blocks").letter == "A"
     verdict = judge.compare(clean, poor, "Stack the Two Blocks")
     assert verdict.letter == "B" and verdict.rationale.startswith("neither successful; task progress")
-    # The labels do not rank: a run labelled failed that got further wins too.
-    further = _scored(judge, 0.18, "failed", reversals=50.0, idle=5.0, speed=50.0)
-    less_far = _scored(judge, 0.16, "failed", reversals=0.0, idle=0.0, speed=0.0)
-    assert judge.compare(less_far, further, "Stack the Two Blocks").letter == "B"
+    # The labels do not rank: a run labelled failed that got plainly further wins too...
+    exact = VideoJudge({**CFG, "progress_margin": 0.0})
+    further = _scored(exact, 0.18, "failed", reversals=50.0, idle=5.0, speed=50.0)
+    less_far = _scored(exact, 0.16, "failed", reversals=0.0, idle=0.0, speed=0.0)
+    assert exact.compare(less_far, further, "Stack the Two Blocks").letter == "B"
+    # ...and within the margin the difference is a tie.
+    within = judge.compare(less_far, further, "Stack the Two Blocks")
+    assert within.rationale.startswith("exact tie") and (within.letter == "A") == (less_far.sha256() < further.sha256())
     # Both successful: the scores decide too.
     shaky, calm = (_scored(judge, 1.0, "successful", reversals=r, idle=0.0, speed=0.1) for r in (3.0, 0.1))
     assert judge.compare(shaky, calm, "Stack the Two Blocks").letter == "B"
+
+
+def test_judge_video_style_counts_beyond_its_margin_the_goal_time_always():
+    """Two successes: a smoothness difference within style_margin is noise and does not outvote
+    a later goal; one beyond it counts."""
+    from r2s_eval.judge import CriterionNote, Description
+
+    judge = VideoJudge(CFG)
+
+    def success(reversals: float, reached_s: float) -> Description:
+        d = _scored(judge, 1.0, "successful", reversals=reversals, idle=0.0, speed=0.1)
+        d.criteria["task_progress"] = CriterionNote("p", {"progress_score": 1.0, "goal_met": True,
+                                                          "goal_reached_s": reached_s}, "successful")
+        return d
+
+    smoothness = lambda r: judge.criterion_score("motion_smoothness", {"flow_reversals_per_s": r})
+    prompt, slow = success(0.55, 5.0), success(0.45, 7.0)  # slightly less smooth, reached 2 s sooner
+    assert 0 < smoothness(0.45) - smoothness(0.55) < judge.cfg["style_margin"]
+    assert judge.compare(prompt, slow, "Stack the Two Blocks").letter == "A"
+    assert judge.compare(slow, prompt, "Stack the Two Blocks").letter == "B"
+    shaky = success(3.0, 5.0)  # plainly jerkier, as prompt
+    assert smoothness(0.45) - smoothness(3.0) > judge.cfg["style_margin"]
+    assert judge.compare(shaky, slow, "Stack the Two Blocks").letter == "B"
+    # With no margin the small smoothness difference counts again (and here outweighs the goal time).
+    exact = VideoJudge({**CFG, "style_margin": 0.0})
+    a, b = success(1.5, 5.0), success(0.1, 5.6)
+    assert exact.compare(a, b, "Stack the Two Blocks").letter == "B"
 
 
 def _moving_square(side: int, shake_px: float) -> np.ndarray:

@@ -240,14 +240,14 @@ def test_judge_card_outcome_and_planted_order_agreement(verdicts, sim_episodes):
     outcome = audit["outcome_agreement"]
     assert outcome["share"] == pytest.approx(0.75) and outcome["n_pairs"] == 4 and outcome["n_units"] == 2
     assert outcome["ci_low"] <= 0.75 <= outcome["ci_high"]
-    # Same-outcome pairs: a1 over b1 and b2 over c2, both following a > b > c.
+    # Pairs that both succeeded: a1 over b1, following a > b > c (b2 over c2, two failures, is not counted).
     planted = audit["planted_order_agreement"]
-    assert planted["share"] == 1.0 and planted["n_pairs"] == 2 and planted["n_unranked_pairs"] == 0
+    assert planted["share"] == 1.0 and planted["n_pairs"] == 1 and planted["n_unranked_pairs"] == 0
     reverse = judge_audit(verdicts, sim_episodes, planted_order=["c", "b", "a"], n_boot=200, shuffled_permutations=0, **STATS)
     assert reverse["planted_order_agreement"]["share"] == 0.0
     partial = judge_audit(verdicts, sim_episodes, planted_order=["a", "c"], n_boot=200, shuffled_permutations=0, **STATS)
     assert partial["planted_order_agreement"]["share"] is None
-    assert partial["planted_order_agreement"]["n_unranked_pairs"] == 2
+    assert partial["planted_order_agreement"]["n_unranked_pairs"] == 1
     assert audit["shuffled_label_control"] is None
 
 

@@ -110,18 +110,24 @@ def test_a_judge_that_sees_quality_is_stable_where_a_small_real_evaluation_flips
     assert blocks(45, 4) == [range(0, 11), range(11, 22), range(22, 33), range(33, 44)]
 
 
+def _close_above_good(inits: int) -> pd.DataFrame:
+    """A judge's verdicts that put `close` above `good` (two of three) and both above `weak`."""
+    verdicts = []
+    for init in range(inits):
+        for pi, pj, winner in (("close", "good", "close"), ("close", "good", "good"), ("close", "good", "close"),
+                               ("good", "weak", "good"), ("close", "weak", "close"), ("good", "weak", "weak")):
+            verdicts.append({"policy_i": pi, "policy_j": pj, "winner": winner, "task": "t1", "init_id": init})
+    return pd.DataFrame(verdicts)
+
+
 def test_the_sim_side_splits_a_judges_errors_into_the_sims_and_its_own():
     # `close` succeeds more than `good` in the sim and less in the real world: a judge that follows
     # the sim errs on that pair every time, and the sim's own success count errs with it.
     k, per_block = 4, 10
     real = _trials({"good": 0.6, "close": 0.3, "weak": 0.1}, inits=k * per_block)
     sim = _trials({"good": 0.4, "close": 0.7, "weak": 0.1}, inits=k * per_block)
-    verdicts = []
-    for init in range(k * per_block):
-        for pi, pj, winner in (("close", "good", "close"), ("close", "good", "good"), ("close", "good", "close"),
-                               ("good", "weak", "good"), ("close", "weak", "close"), ("good", "weak", "weak")):
-            verdicts.append({"policy_i": pi, "policy_j": pj, "winner": winner, "task": "t1", "init_id": init})
-    summary = stability_summary(real, {"kinematic": pd.DataFrame(verdicts)}, inits_per_task=k * per_block,
+    verdicts = _close_above_good(k * per_block)
+    summary = stability_summary(real, {"kinematic": verdicts}, inits_per_task=k * per_block,
                                 repetitions=k, real_trials_per_task=per_block, trials_curve=[10], truth_z=1.96,
                                 variants={}, sim=sim)
     judge, counted = summary["evaluations"]["kinematic"], summary["evaluations"]["sim success"]
@@ -131,10 +137,39 @@ def test_the_sim_side_splits_a_judges_errors_into_the_sims_and_its_own():
     assert own["agreement"] == 1.0 and own["repeated_errors"] == {}
     assert summary["truth"]["sim_success_all_rollouts"] == pytest.approx({"close": 0.7, "good": 0.4, "weak": 0.1})
     # Without the sim, neither view is made.
-    plain = stability_summary(real, {"kinematic": pd.DataFrame(verdicts)}, inits_per_task=k * per_block,
+    plain = stability_summary(real, {"kinematic": verdicts}, inits_per_task=k * per_block,
                               repetitions=k, real_trials_per_task=per_block, trials_curve=[10], truth_z=1.96, variants={})
     assert "sim success" not in plain["evaluations"] and "against_sim_truth" not in plain
     from r2s_eval.report.tables import stability_table
     table = stability_table(summary)
     assert "sim success" in table and "Against the sim's own truth" in table and "100.0" in table
     assert "Against the sim" not in stability_table(plain)
+
+
+def test_the_networks_ranked_in_the_twin_split_the_training_from_the_sim_and_the_judges():
+    # The sim ranks pi^S, the real truth is pi^R's: `close`'s pi^S is the better network in both
+    # worlds, its pi^R the worse. Against the twin's success of the networks ranked, the sim's
+    # count and the judge order every decided pair right: the error is the training's.
+    k, per_block = 4, 10
+    real = _trials({"good": 0.6, "close": 0.3, "weak": 0.1}, inits=k * per_block)
+    sim = _trials({"good": 0.4, "close": 0.7, "weak": 0.1}, inits=k * per_block)
+    in_twin = _trials({"good": 0.4, "close": 0.8, "weak": 0.0}, inits=k * per_block)
+    verdicts = _close_above_good(k * per_block)
+    args = dict(inits_per_task=k * per_block, repetitions=k, real_trials_per_task=per_block, trials_curve=[10],
+                truth_z=1.96, variants={}, sim=sim)
+    summary = stability_summary(real, {"kinematic": verdicts}, networks_in_twin=in_twin, **args)
+    assert summary["evaluations"]["kinematic"]["repeated_errors"] == {"close vs good": 4.0}
+    for name in ("kinematic", "sim success"):
+        view = summary["against_networks_in_twin"][name]
+        assert view["agreement"] == 1.0 and view["repeated_errors"] == {}
+    assert summary["truth"]["networks_in_twin_success_all_rollouts"] == pytest.approx(
+        {"close": 0.8, "good": 0.4, "weak": 0.0})
+    from r2s_eval.report.tables import stability_table
+    assert "Against the twin's truth of the networks ranked" in stability_table(summary)
+    # A candidate whose weights come from elsewhere has no rollouts there: its pairs stay undecided.
+    partial = stability_summary(real, {"kinematic": verdicts},
+                                networks_in_twin=in_twin[in_twin["policy"] != "weak"], **args)
+    assert partial["truth"]["networks_in_twin_left_out"] == ["weak"]
+    assert summary["truth"]["networks_in_twin_left_out"] == []
+    assert partial["against_networks_in_twin"]["kinematic"]["pairs"]["close vs weak"]["truth_decided"] == 0
+    assert summary["against_networks_in_twin"]["kinematic"]["pairs"]["close vs weak"]["truth_decided"] == k

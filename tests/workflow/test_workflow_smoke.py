@@ -313,6 +313,10 @@ def test_a_planted_variant_runs_its_bases_weights_and_the_repetitions_rank_from_
     assert summary["repetitions"] == 2 and summary["inits_per_repetition_and_task"] == 3
     assert set(summary["evaluations"]) == {"real 1", "real 3", "sim success", "kinematic", "video"}
     assert set(summary["against_sim_truth"]) == {"kinematic", "video"}  # the judges' own errors, apart from the sim's
+    # ...and the sim's and the judges' rankings against the twin's success of the networks they rank
+    assert set(summary["against_networks_in_twin"]) == {"sim success", "kinematic", "video"}
+    assert set(summary["truth"]["networks_in_twin_success_all_rollouts"]) == set(summary["policies"])
+    assert (results / "cross" / "real" / "act_hesitant" / "episodes.parquet").exists()  # a variant crossed too
     assert summary["behind_each_repetition"]["sim_rollouts_per_policy"] == 3
     assert "act vs act_hesitant" in summary["truth"]["adjacent_pairs"]
     assert (smoke_run.workdir / "reports" / "stability.png").stat().st_size > 0

@@ -41,23 +41,30 @@ def seed_rollout_params(wildcards):
     return rollout_cfg_json(wildcards.arm, wildcards.policy)
 
 
+# Every candidate whose weights are trained here crosses: a variant or a snapshot runs its
+# training's other checkpoint (the variant with its execution change; the stability report's
+# truth of the networks ranked, stability.networks_in_twin).
+CROSSED = [p for p in POLICIES if weights_of(p) in TRAINED]
+
+
 rule cross_rollout:
     wildcard_constraints:
-        policy="|".join(TRAINED) or "(?!)",
+        policy="|".join(CROSSED) or "(?!)",
     input:
         inits="results/rollout/inits.parquet",
         world=lambda w: WORLD_PARAMS[w.arm],
-        policy=lambda w: f"results/train/{OTHER_ARM[w.arm]}/{w.policy}",
+        policy=lambda w: f"results/train/{OTHER_ARM[w.arm]}/{weights_of(w.policy)}",
     output:
         directory("results/cross/{arm}/{policy}"),
     params:
         cfg=cross_rollout_params,
+        weights=lambda w: weights_dir(w.policy, OTHER_ARM[w.arm]),
         batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
     threads: 1
     log:
         "logs/cross/{arm}/{policy}.log",
     shell:
-        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {input.policy}"
+        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {params.weights}"
         " --inits {input.inits} --world-params {input.world} --batch-episodes {params.batch_episodes}"
         " --threads {threads} --out {output} --log {log}"
 

@@ -307,6 +307,10 @@ if STABILITY:
             real=expand("results/rollout/real/{policy}", policy=POLICIES),
             sim=expand("results/rollout/sim/{policy}", policy=POLICIES),
             verdicts=expand("results/judge/{judge}/verdicts.parquet", judge=JUDGES),
+            # stability.networks_in_twin: the checkpoints the sim ranks, rolled out in the twin
+            # (those trained here; a candidate from elsewhere is left out of that view)
+            networks=expand("results/cross/real/{policy}", policy=[p for p in POLICIES if weights_of(p) in TRAINED]
+                            if CFG["stability"]["networks_in_twin"] else []),
         output:
             summary="results/stability/summary.json",
             table="reports/stability_table.tex",
@@ -318,5 +322,5 @@ if STABILITY:
             "logs/report/stability.log",
         shell:
             "{PY} -m r2s_eval.stages.stability --cfg {params.cfg:q} --real-rollouts {input.real} --sim-rollouts {input.sim}"
-            " --verdicts {input.verdicts} --out {output.summary} --table {output.table}"
+            " --networks-in-twin {input.networks} --verdicts {input.verdicts} --out {output.summary} --table {output.table}"
             " --pdf {output.pdf} --png {output.png} --log {log}"

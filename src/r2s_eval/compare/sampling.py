@@ -4,8 +4,10 @@ For every unordered policy pair one sequence of ``max(checkpoints)`` comparisons
 
 * tasks come in shuffled blocks holding every task once, so in EVERY prefix the per-task counts
   differ by at most one;
-* both sides of a comparison start from the same initial configuration (``init_id``), drawn with
-  replacement from the inits both policies have for that task;
+* both sides of a comparison start from the same initial configuration (``init_id``), drawn from
+  the inits both policies have for that task in shuffled rounds: every shared init once before
+  any init a second time. A comparison of the same rollout pair again is no new evidence, so a
+  checkpoint as large as the pair's shared inits compares each of them exactly once;
 * sides come in shuffled blocks of two (policy i as A once, as B once), so in every prefix
   policy i is A half of the time, +-1/2;
 * when a policy has several episodes for one (task, init), one is drawn at random.
@@ -115,14 +117,16 @@ def sample_pairs(
         # Draws happen in sequence order, so a longer sequence extends a shorter one with the
         # same seed (checkpoints can be added later without re-judging anything).
         rows, task_block, side_block = [], [], np.zeros(0, dtype=bool)
+        init_rounds: dict[str, list[int]] = {}  # per task, the inits left in its current round
         for k in range(n):
             if k % len(tasks) == 0:  # task-balanced: a new shuffled block holding every task once
                 task_block = [tasks[t] for t in rng.permutation(len(tasks))]
             if k % 2 == 0:  # side-balanced: a new shuffled block (first-named policy as A, as B)
                 side_block = rng.permutation([True, False])
             task, fa = task_block[k % len(tasks)], bool(side_block[k % 2])
-            inits = common[task]
-            init = inits[int(rng.integers(len(inits)))]
+            if not init_rounds.get(task):  # a new shuffled round of the task's shared inits
+                init_rounds[task] = [common[task][i] for i in rng.permutation(len(common[task]))]
+            init = init_rounds[task].pop()
             pa, pb = (first, second) if fa else (second, first)
             ea_pool, eb_pool = episodes[(pa, task)][init], episodes[(pb, task)][init]
             ea = ea_pool[int(rng.integers(len(ea_pool)))]

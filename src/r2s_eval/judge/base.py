@@ -225,6 +225,9 @@ class Judge(ABC):
     # Bump it when only how two descriptions are compared changes: the compare cache keys change
     # and the descriptions (for the video judge, minutes of optical flow per policy) are kept.
     compare_version: ClassVar[str] = ""
+    # Config keys that change only how two descriptions are compared: out of ``identity`` (the
+    # descriptions are kept when they change), in ``compare_identity``.
+    compare_keys: ClassVar[tuple[str, ...]] = ()
     inputs: ClassVar[tuple[str, ...]] = ("video",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -261,13 +264,19 @@ class Judge(ABC):
         return {
             "name": self.name,
             "backend": self.backend,
-            "config_hash": config_hash(self.cfg),
+            "config_hash": config_hash({k: v for k, v in self.cfg.items() if k not in self.compare_keys}),
             "prompt_version": self.prompt_version,
         }
 
     def compare_identity(self) -> dict[str, str]:
-        """The identity behind every compare cache key: ``identity`` and the compare version."""
-        return {**self.identity(), "compare_version": self.compare_version} if self.compare_version else self.identity()
+        """The identity behind every compare cache key: ``identity``, the compare version and the
+        compare keys' values."""
+        out = self.identity()
+        if self.compare_version:
+            out["compare_version"] = self.compare_version
+        if self.compare_keys:
+            out["compare_config_hash"] = config_hash({k: self.cfg.get(k) for k in self.compare_keys})
+        return out
 
     @abstractmethod
     def describe(self, rollout: RolloutInput) -> Description:

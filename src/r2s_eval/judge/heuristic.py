@@ -1,5 +1,5 @@
 """Pieces shared by the offline heuristic judges (`kinematic`, `video`): config merging, evidence
-rounding, reference-ratio scores and the four-criterion description."""
+rounding, reference-ratio scores, the four-criterion description and the rule between failures."""
 
 from __future__ import annotations
 
@@ -11,7 +11,12 @@ from typing import Any
 import numpy as np
 
 from r2s_eval.errors import ConfigError
-from r2s_eval.judge.base import CriterionNote, Description
+from r2s_eval.judge.base import CriterionNote, Description, Verdict, tie_break
+
+# How a built-in judge compares two runs that both failed (its `failures` key): "tie", neither
+# completed the task, so neither is preferred (the letter comes from tie_break, no position
+# wins); "progress", the one that got further, as the success_first prompt asks of a VLM judge.
+FAILURE_RULES = ("tie", "progress")
 
 
 def merge_config(judge: str, defaults: dict[str, Any], cfg: Mapping[str, Any], nested: Iterable[str]) -> dict[str, Any]:
@@ -69,3 +74,14 @@ def description(texts: Mapping[str, str], evidence: Mapping[str, Mapping[str, An
         for name in ("motion_smoothness", "action_continuity", "task_progress", "force_control")
     }
     return Description(criteria=criteria, summary=summary, judge=judge)
+
+
+def check_failure_rule(judge: str, rule: Any) -> None:
+    if rule not in FAILURE_RULES:
+        raise ConfigError(f"{judge} judge: failures must be one of {list(FAILURE_RULES)}, got {rule!r}")
+
+
+def failures_tie(a: Description, b: Description, instruction: str) -> Verdict:
+    """Two failures under the `tie` rule: tie_break's letter, with the reason in the rationale."""
+    return Verdict(tie_break(a, b, instruction).letter,
+                   f"neither successful (A {a.progress_label}, B {b.progress_label}): a tie, the letter from the description hashes")

@@ -28,19 +28,21 @@ opening is the gripper's own response whatever the delay (on the scripted operat
 gripper 0, 1 or 2 steps late: the same lag, and the arm as still when the gripper closes).
 
 Compare (from the two descriptions alone, deterministic, no position bias):
-  1. success before style, the outcome label: successful > partially successful > failed. A
-     careful person prefers the run that completes the task to one that does not, however it
-     moved; partially successful ranks above failed too, because progress here is measured (the
-     staged signal), not estimated from pixels;
-  2. final progress, then max progress, when they differ by more than ``progress_margin``;
+  1. success before style: a run labelled "successful" wins over one that is not, however it
+     moved. A careful person prefers the run that completes the task to one that does not;
+  2. neither successful (``failures``): "tie" (the default) prefers neither, however far each got
+     or how it moved, and the letter comes from step 4. How far a failing run got measured the
+     wrong way between candidates: the jittery act's failures ended a stage earlier than those of
+     act_short, which succeeds a third as often, and ranking failures by progress put it below
+     act_short in 3 to 4 of 5 stability repetitions (docs/judges.md, "Success before style").
+     "progress" does what the success_first prompt asks of a VLM judge: partially successful >
+     failed, then final progress, then max progress when they differ by more than
+     ``progress_margin``;
   3. between two successes, the weighted behaviour score: each criterion score is the geometric
      mean over its evidence numbers x of 1 / (1 + x / ref[x]) (1 = perfect, 0.5 = at the
      reference level); the criterion scores are averaged with ``weights`` (criteria absent from
      either side are skipped); the higher score wins when the scores differ by more than
-     ``score_tie_eps``. Between two failures that got equally far, how they moved does not count
-     (step 4): what a failing run's motion shows is how it failed (searching and dithering near
-     the object, or pausing), and letting it decide ranked a candidate whose extra successes came
-     with jittery motion below a smoother one that succeeds less (docs/judges.md);
+     ``score_tie_eps``;
   4. exact tie: the description whose canonical-JSON sha256 is smaller wins, so swapping A and B
      flips the letter; two identical descriptions get a letter from the parity of a hash of the
      description and the instruction. Neither rule favours a position.
@@ -56,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from r2s_eval.errors import ConfigError, DataError
-from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
+from r2s_eval.judge.heuristic import check_failure_rule, description, failures_tie, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge, tie_break
 from r2s_eval.judge import trajectory as T
 
@@ -71,7 +73,8 @@ DEFAULTS: dict[str, Any] = {
     "impact_jump_n": 15.0,
     "success_progress": 1.0,
     "partial_min_progress": 0.1,
-    "progress_margin": 0.05,
+    "failures": "tie",  # two failed runs: "tie" or "progress" (heuristic.FAILURE_RULES)
+    "progress_margin": 0.05,  # failures: progress, the smallest progress difference that counts
     "score_tie_eps": 1e-9,
     # Reference levels: an evidence number equal to its reference scores 0.5.
     "ref": {
@@ -102,7 +105,7 @@ _WORDS = {
     "action_continuity": ("continuous", "hesitant at times", "stop-and-go"),
     "force_control": ("gentle", "firm", "forceful"),
 }
-_OUTCOME_RANK = {"successful": 2, "partially successful": 1, "failed": 0}
+_FAILURE_RANK = {"partially successful": 1, "failed": 0}  # failures: progress
 
 
 @register_judge("kinematic")
@@ -110,7 +113,8 @@ class KinematicJudge(Judge):
     """Offline trajectory-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
     prompt_version = "kinematic-v2"  # v2: descriptions state no episode duration
-    compare_version = "kinematic-compare-v2"  # v2: two failures that got equally far are a tie
+    compare_version = "kinematic-compare-v3"  # v3: two failures are a tie unless failures: progress
+    compare_keys = ("failures", "progress_margin")
     inputs = ("trajectory",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -119,6 +123,7 @@ class KinematicJudge(Judge):
         self.cfg = merge_config('kinematic', DEFAULTS, self.cfg, nested=[k for k, v in DEFAULTS.items() if isinstance(v, dict)])
         if self.cfg["backend"] != "kinematic":
             raise ValueError(f"kinematic judge built with backend {self.cfg['backend']!r}")
+        check_failure_rule("kinematic", self.cfg["failures"])
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
         if bad_ref:
             raise ConfigError(f"kinematic judge: ref levels must be > 0, got {bad_ref}")
@@ -224,22 +229,28 @@ class KinematicJudge(Judge):
     # ---------------------------------------------------------------- compare
     def compare(self, a: Description, b: Description, instruction: str) -> Verdict:
         la, lb = a.progress_label, b.progress_label
-        if la is not None and lb is not None and la != lb:
-            win = "A" if _OUTCOME_RANK[la] > _OUTCOME_RANK[lb] else "B"
-            return Verdict(win, f"outcome: A {la}, B {lb}")
-
-        margin = float(self.cfg["progress_margin"])
-        for key in ("final_progress", "max_progress"):
-            pa, pb = self._progress(a, key), self._progress(b, key)
-            if pa is not None and pb is not None and abs(pa - pb) > margin:
-                return Verdict("A" if pa > pb else "B", f"same outcome; {key.replace('_', ' ')} A {pa:.2f} vs B {pb:.2f}")
-        if la != "successful":  # two failures that got as far: how they moved while failing does not count
-            return tie_break(a, b, instruction)
+        if (la == "successful") != (lb == "successful"):  # success before style
+            return Verdict("A" if la == "successful" else "B", f"success before style: A {la}, B {lb}")
+        if la != "successful":
+            if self.cfg["failures"] == "tie":
+                return failures_tie(a, b, instruction)
+            return self._further(a, b, instruction)
 
         sa, sb = self.behaviour_scores(a, b)
         if abs(sa - sb) > float(self.cfg["score_tie_eps"]):
             return Verdict("A" if sa > sb else "B", f"both successful; behaviour score A {sa:.3f} vs B {sb:.3f}")
+        return tie_break(a, b, instruction)
 
+    def _further(self, a: Description, b: Description, instruction: str) -> Verdict:
+        """Two failures under ``failures: progress``: the label, then final and max progress."""
+        la, lb = a.progress_label, b.progress_label
+        if la is not None and lb is not None and la != lb:
+            return Verdict("A" if _FAILURE_RANK[la] > _FAILURE_RANK[lb] else "B", f"neither successful; A {la}, B {lb}")
+        margin = float(self.cfg["progress_margin"])
+        for key in ("final_progress", "max_progress"):
+            pa, pb = self._progress(a, key), self._progress(b, key)
+            if pa is not None and pb is not None and abs(pa - pb) > margin:
+                return Verdict("A" if pa > pb else "B", f"neither successful; {key.replace('_', ' ')} A {pa:.2f} vs B {pb:.2f}")
         return tie_break(a, b, instruction)
 
     @staticmethod

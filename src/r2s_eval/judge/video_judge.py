@@ -52,19 +52,28 @@ Compare (from the two descriptions alone, deterministic, no position bias):
   1. success before style: when exactly one description is labelled "successful", it wins,
      however it moved. A careful person prefers the run that completes the task to one that does
      not; the other criteria say how well a task was done, not whether;
-  2. neither successful: the higher task-progress score (``progress_score``, below) wins; how
-     the two moved does not count. What a failing run's motion shows is how it failed (a clean
-     policy dithers near an object it cannot grasp, one that pauses dithers less), and letting
-     it decide preferred the pausing run and the smoother, weaker candidate (docs/judges.md);
+  2. neither successful (``failures``): "progress" (the default, as the success_first prompt asks
+     of a VLM judge): the higher task-progress score (``progress_score``, below) wins where the two
+     differ by more than ``progress_margin``, else a tie (step 4); how the two moved never counts.
+     What a failing run's motion shows is how it failed (a clean policy dithers near an object it
+     cannot grasp, one that pauses dithers less). The margin keeps pixel noise out and keeps what
+     the score is good for here: a success the end frames did not show (the object hidden, the
+     relation just short), read as a failure near the goal, still beats a run that got nowhere
+     (docs/judges.md, "Success before style"). "Partially successful" and "failed" are never
+     ranked by their labels: the line between them is a threshold on that pixel estimate. "tie":
+     two failures are a tie;
   3. both successful: each criterion gets a score in [0, 1] (smoothness,
      continuity, force: geometric mean over the evidence numbers x of 1 / (1 + x / ref[x]); task
      progress: the goal time's score); a criterion with nothing to judge (no robot motion for
      smoothness, no object motion for force) scores ``no_motion_score``, and a robot that never
-     visibly moves scores 0 on continuity. The four scores are averaged with equal weight and the
-     higher mean wins when the means differ by more than ``score_tie_eps``. "Partially
-     successful" and "failed" are not ranked by their labels: the line between them is a
-     threshold on a pixel estimate of progress, and the continuous ``progress_score`` behind it
-     decides in step 2;
+     visibly moves scores 0 on continuity. A style criterion (smoothness, continuity, force)
+     counts only where the two scores differ by more than ``style_margin``, the goal time always
+     (it is read to a frame): runs a person cannot tell apart differ by noise in the style scores
+     (the clean act and its one-step-late gripper, 190 pairs of successes of the validation run:
+     smoothness more than 0.13 apart in a tenth of them, force more than 0.04, the goal time's
+     score at most 0.03 in nine of ten), and without the margin that noise outvoted the goal
+     time, the one view a 5 fps video gives of short stops. The counted scores are averaged with
+     equal weight and the higher mean wins when the means differ by more than ``score_tie_eps``;
   4. exact tie: the smaller description hash wins (swapping A and B flips the letter) and
      identical descriptions get a letter from a hash parity.
 """
@@ -80,7 +89,7 @@ import numpy as np
 
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.judge.cache import cache_key
-from r2s_eval.judge.heuristic import description, fmt, merge_config, ratio_score
+from r2s_eval.judge.heuristic import check_failure_rule, description, failures_tie, fmt, merge_config, ratio_score
 from r2s_eval.judge.base import Description, Judge, RolloutInput, Verdict, register_judge, tie_break
 
 DEFAULTS: dict[str, Any] = {
@@ -111,6 +120,10 @@ DEFAULTS: dict[str, Any] = {
     "partial_min_score": 0.2,
     "spike_speed": 0.5,
     "no_motion_score": 0.5,
+    "failures": "progress",  # two failed runs: "progress" or "tie" (heuristic.FAILURE_RULES)
+    "progress_margin": 0.25,  # failures: progress, the smallest progress-score difference that counts
+    # Two successes: a style criterion's scores must differ by more than this to count (step 3).
+    "style_margin": 0.1,
     "score_tie_eps": 1e-9,
     # Reference levels: an evidence number equal to its reference scores 0.5.
     "ref": {
@@ -476,7 +489,8 @@ class VideoJudge(Judge):
     """Offline pixel-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
     prompt_version = "video-v2"  # v2: smoothness from optical-flow reversals; success before style
-    compare_version = "video-compare-v2"  # v2: two failures compared by task progress alone
+    compare_version = "video-compare-v3"  # v3: failures and style differences count beyond a margin
+    compare_keys = ("failures", "progress_margin", "style_margin")
     inputs = ("video",)
 
     def __init__(self, cfg: Mapping[str, Any] | None = None):
@@ -484,6 +498,9 @@ class VideoJudge(Judge):
         self.cfg = merge_config('video', DEFAULTS, self.cfg, nested=["ref"])
         if self.cfg["backend"] != "video":
             raise ValueError(f"video judge built with backend {self.cfg['backend']!r}")
+        check_failure_rule("video", self.cfg["failures"])
+        if not float(self.cfg["style_margin"]) >= 0:
+            raise ConfigError(f"video judge: style_margin must be >= 0, got {self.cfg['style_margin']}")
         bad_ref = {k: v for k, v in self.cfg["ref"].items() if not float(v) > 0}
         if bad_ref:
             raise ConfigError(f"video judge: ref levels must be > 0, got {bad_ref}")
@@ -617,15 +634,19 @@ class VideoJudge(Judge):
         if (la == "successful") != (lb == "successful"):  # success before style
             return Verdict("A" if la == "successful" else "B", f"success before style: A {la}, B {lb}")
         sa, sb = self.scores(a), self.scores(b)
-        if la != "successful":  # neither successful: how far each got, not how it moved while failing
+        if la != "successful":  # neither successful
+            if self.cfg["failures"] == "tie":
+                return failures_tie(a, b, instruction)
             pa, pb = sa["task_progress"], sb["task_progress"]
-            if pa is not None and pb is not None and abs(pa - pb) > float(self.cfg["score_tie_eps"]):
+            if pa is not None and pb is not None and abs(pa - pb) > float(self.cfg["progress_margin"]):
                 return Verdict("A" if pa > pb else "B", f"neither successful; task progress A {pa:.3f} vs B {pb:.3f}")
             return tie_break(a, b, instruction)
-        both = [k for k in sa if sa[k] is not None and sb[k] is not None]
-        ma = sum(sa[k] for k in both) / len(both) if both else 0.0  # both successful: equal weights
-        mb = sum(sb[k] for k in both) / len(both) if both else 0.0
+        margin = float(self.cfg["style_margin"])
+        counted = [k for k in sa if sa[k] is not None and sb[k] is not None
+                   and (k == "task_progress" or abs(sa[k] - sb[k]) > margin)]
+        ma = sum(sa[k] for k in counted) / len(counted) if counted else 0.0  # equal weights
+        mb = sum(sb[k] for k in counted) / len(counted) if counted else 0.0
         if abs(ma - mb) > float(self.cfg["score_tie_eps"]):
-            parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in both)
+            parts = ", ".join(f"{k.replace('_', ' ')} {sa[k]:.2f}/{sb[k]:.2f}" for k in counted)
             return Verdict("A" if ma > mb else "B", f"both successful; equal-weight mean A {ma:.3f} vs B {mb:.3f} ({parts})")
         return tie_break(a, b, instruction)

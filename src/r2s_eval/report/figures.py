@@ -260,7 +260,9 @@ def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[f
 def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
     """Agreement with the truth against the real trials an evaluation spends (per task and
     policy, after the teleop data): real evaluations at m trials (a line; the repetitions' mean,
-    their range as a band) and each judge's sim ranking at none (a marker with its range)."""
+    their range as a band) and each judge's sim ranking at none (a marker with its range); where
+    the summary holds it, the same ranking against the twin's truth of the networks it ranks
+    (a hollow marker beside it)."""
     cards = summary["evaluations"]
     real = sorted((int(name.split()[1]), card) for name, card in cards.items() if name.startswith("real "))
     judges = [(name, card) for name, card in cards.items() if not name.startswith("real ")]
@@ -276,12 +278,19 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
         mean, low, high = (np.array(v) for v in zip(*(spread(card) for _, card in real))) if real else ([],) * 3
         ax.plot(m, mean, "o-", color=opts["real_color"], label="real evaluation")
         ax.fill_between(m, low, high, color=opts["real_color"], alpha=0.2, linewidth=0)
+        in_twin = summary.get("against_networks_in_twin") or {}
         for k, (name, card) in enumerate(judges):
             avg, lo, hi = spread(card)
             # Side by side around 0 (all spend no real trials), so their ranges do not overlap.
             x = 0.4 * (k - (len(judges) - 1) / 2)
-            ax.errorbar([x], [avg], yerr=[[avg - lo], [hi - avg]], fmt=opts["judge_markers"][k % len(opts["judge_markers"])],
-                        capsize=3, label="sim success counted" if name == "sim success" else f"r2s-eval, {name} judge")
+            marker = opts["judge_markers"][k % len(opts["judge_markers"])]
+            bar = ax.errorbar([x], [avg], yerr=[[avg - lo], [hi - avg]], fmt=marker, capsize=3,
+                              label="sim success counted" if name == "sim success" else f"r2s-eval, {name} judge")
+            if name in in_twin:
+                avg, lo, hi = spread(in_twin[name])
+                ax.errorbar([x + 0.15], [avg], yerr=[[avg - lo], [hi - avg]], fmt=marker, capsize=3,
+                            color=bar.lines[0].get_color(), markerfacecolor="none",
+                            label="hollow: against the twin's truth of the networks ranked" if k == 0 else None)
         ax.set_xlabel("real trials per task and policy")
         ax.set_ylabel("pairs ordered as the truth (%)")
         ax.set_ylim(0, 102)

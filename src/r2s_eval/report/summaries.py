@@ -261,15 +261,16 @@ def outcome_agreement(verdicts: pd.DataFrame, success: dict[str, bool], *, n_boo
 
 def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], planted_order: Sequence[str] | None,
                             *, n_boot: int, level: float, seed: int) -> dict | None:
-    """On pairs with the same outcome (both succeeded or both failed) between two policies of
-    ``planted_order`` (best first): the share of verdicts preferring the policy placed
-    earlier, with its unit-bootstrap interval. None when no order is given."""
+    """On pairs that both succeeded in the sim between two policies of ``planted_order`` (best
+    first): the share of verdicts preferring the policy placed earlier, with its unit-bootstrap
+    interval. Only there: between two failures a built-in judge may call a tie (docs/judges.md,
+    "Success before style"). None when no order is given."""
     if not planted_order:
         return None
     rank = {str(p): k for k, p in enumerate(planted_order)}
     pi, pj = verdicts["policy_i"].astype(str).to_numpy(), verdicts["policy_j"].astype(str).to_numpy()
-    same = np.array([success[a] == success[b] for a, b in zip(verdicts["episode_a"].astype(str),
-                                                               verdicts["episode_b"].astype(str))], dtype=bool)
+    same = np.array([success[a] and success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+                                                                verdicts["episode_b"].astype(str))], dtype=bool)
     ranked = np.array([a in rank and b in rank for a, b in zip(pi, pj)], dtype=bool)
     keep = same & ranked
     better = np.array([a if rank.get(a, 0) < rank.get(b, 0) else b for a, b in zip(pi, pj)])
@@ -277,7 +278,7 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
     units = [u for u, k in zip(_units(verdicts), keep) if k]
     out = unit_share(hits, units, n_boot=n_boot, level=level, seed=seed)
     out["planted_order"] = [str(p) for p in planted_order]
-    out["n_unranked_pairs"] = int((same & ~ranked).sum())  # same-outcome pairs with a policy outside the order
+    out["n_unranked_pairs"] = int((same & ~ranked).sum())  # such pairs with a policy outside the order
     return out
 
 
@@ -287,8 +288,8 @@ def planted_quality(verdicts: pd.DataFrame, success: dict[str, bool], variants: 
     """Per variant (``variants``: {variant: the candidate whose weights it runs, the clean one}),
     on the comparisons of the two whose rollouts both succeeded in the sim: the share of verdicts
     preferring the clean run, with its unit-bootstrap interval. Only there: the built-in judges
-    weigh how a run moved between two successes, never between two failures, which they compare
-    by how far each got (docs/judges.md, "Success before style"). With ``fit`` (the judge's BT
+    weigh how a run moved between two successes, never between two failures, which they call a
+    tie or compare by how far each got (docs/judges.md, "Success before style"). With ``fit`` (the judge's BT
     table), whether the two scores' intervals at the last checkpoint are apart with the clean one
     above (``bt_separated``); with ``reference_ci`` ({policy: (low, high)}, the reference's
     success intervals), whether those overlap (``success_overlap``): a quality difference the

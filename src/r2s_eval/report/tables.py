@@ -345,8 +345,8 @@ def _rate_cell(value, n, decimals: int) -> str:
 
 def judge_card_table(audits: Mapping[str, dict], decimals: int = 1) -> str:
     """Per judge, its report card (the judge-audit JSON): agreement with the sim outcome on
-    mixed-outcome pairs [CI] (pairs), agreement with the planted policy order on same-outcome
-    pairs [CI] (pairs), the share of A answers on same-outcome pairs (pairs), order-swap
+    mixed-outcome pairs [CI] (pairs), agreement with the planted policy order on pairs that
+    both succeeded [CI] (pairs), the share of A answers on same-outcome pairs (pairs), order-swap
     consistency (swapped pairs), and the share of shuffled-label fits that come out flat.
     All in percent; a missing quantity shows a dash."""
     body = []
@@ -374,7 +374,7 @@ def judge_card_table(audits: Mapping[str, dict], decimals: int = 1) -> str:
     notes = [
         rf"In \%; brackets: {level} CIs, distinct (task, init) units resampled; parentheses: pairs.",
         r"Outcome agr.: verdicts preferring the successful rollout where one succeeded and one failed.",
-        r"Planted order: verdicts following the line-up's built-in order where both had the same outcome.",
+        r"Planted order: verdicts following the line-up's built-in order where both succeeded.",
         r"Shuffled flat: share of label-permuted BT fits whose CIs all contain 100/$n$ (permutations).",
     ]
     return _tabular("l" + "c" * 5, header, body, notes=notes) + planted_quality_table(audits, decimals, level)
@@ -435,16 +435,22 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         _row(["Pairs ordered as the truth", *(pct(cards[n]["agreement"]) for n in names)]),
         _row(["Errors in most repetitions (pairs)", *(str(len(cards[n]["repeated_errors"])) for n in names)]),
     ]
+    def other_truth(title: str, view: Mapping) -> list[str]:
+        """The evaluations in ``view`` held against another truth: a title row and two more."""
+        return [
+            r"\midrule",
+            _row([rf"\emph{{{title}}}", *[""] * len(names)]),
+            _row(["Pairs ordered as that truth", *(pct(view[n]["agreement"]) if n in view else DASH for n in names)]),
+            _row(["Errors in most repetitions (pairs)", *(str(len(view[n]["repeated_errors"])) if n in view else DASH
+                                                          for n in names)]),
+        ]
+
     against_sim = summary.get("against_sim_truth") or {}
     if against_sim:  # the judges' own errors: against what the sim they judge holds
-        body += [
-            r"\midrule",
-            _row([r"\emph{Against the sim's own truth}", *[""] * len(names)]),
-            _row(["Pairs ordered as that truth", *(pct(against_sim[n]["agreement"]) if n in against_sim else DASH
-                                                   for n in names)]),
-            _row(["Errors in most repetitions (pairs)", *(str(len(against_sim[n]["repeated_errors"])) if n in against_sim
-                                                          else DASH for n in names)]),
-        ]
+        body += other_truth("Against the sim's own truth", against_sim)
+    in_twin = summary.get("against_networks_in_twin") or {}
+    if in_twin:  # the sim and the judges against the twin's success of the checkpoints they rank
+        body += other_truth("Against the twin's truth of the networks ranked", in_twin)
     flips = [_row([latex_escape(pair), *(pct(cards[n]["pairs"][pair]["flip_rate"]) for n in names)])
              for pair in summary["truth"]["adjacent_pairs"]]
     header = [_row(["", *(latex_escape(n if not n.startswith("real ") else f"real, {n[5:]} trials/task")
@@ -459,6 +465,9 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         *([r"Sim success: the ranking by the success of the repetition's own sim rollouts. The sim's own truth: the planted",
            r"pairs and the sim's success over the other repetitions' rollouts (a judge's errors that are not the sim's)."]
           if against_sim else []),
+        *([r"The twin's truth of the networks ranked: the planted pairs and the twin's success of the checkpoints the sim",
+           r"ranks (pi$^S$), over the other repetitions' inits; the real truth is pi$^R$'s, trained on the real data."]
+          if in_twin else []),
         r"Flip rate: share of repetitions on the minority side of the pair's order (0: always the same; 50: a coin).",
     ]
     return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",

@@ -4,7 +4,7 @@ Position bias (share of A answers, overall and on same-outcome pairs), order-swa
 consistency where the verdicts carry swapped answers, and agreement with human annotators
 where an annotations CSV is configured (majority vote, unanimous share, Fleiss' kappa, and
 the judge's agreement with the majority, by outcome category); the report card: agreement with the sim outcomes on
-mixed-outcome pairs, with a planted policy order on same-outcome pairs, planted quality (each
+mixed-outcome pairs, with a planted policy order on pairs that both succeeded, planted quality (each
 variant against the candidate whose weights it runs, on pairs that both succeeded; with the judge's
 BT fit and the reference's success intervals where given), and the shuffled-label control of
 the BT fit. Quantities without data are null.

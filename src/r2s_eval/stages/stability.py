@@ -8,8 +8,11 @@ of its first m for each m of ``trials_curve``). The truth of repetition r: plant
 construction, every other pair by the twin's success over the real trials of the other blocks
 where it is clear (``r2s_eval.stats.stability``). With the judged sim rollouts, the ranking by
 their success and each judge against the sim's own truth split a judge's errors into the sim's
-and its own. Writes the summary JSON, the table and the figure of agreement with the truth
-against real trials spent.
+and its own. With the same checkpoints rolled out in the twin (``stability.networks_in_twin``:
+pi^S on the real side), the sim's and each judge's ranking against the twin's truth of the
+networks they rank, which splits the sim and the judges from what training on other data
+changes. Writes the summary JSON, the table and the figure of agreement with the truth against
+real trials spent.
 """
 
 from __future__ import annotations
@@ -35,10 +38,12 @@ def main(args) -> None:
     real = load_episodes(args.real_rollouts)
     verdicts = {Path(path).parent.name: pd.read_parquet(path) for path in args.verdicts}  # <judge>/verdicts.parquet
     sim = load_episodes(args.sim_rollouts) if args.sim_rollouts else None
+    networks = load_episodes(args.networks_in_twin) if args.networks_in_twin else None
     summary = stability_summary(
         real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
         real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
-        truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim)
+        truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim,
+        networks_in_twin=networks)
     write_json(args.out, summary, provenance=True)
     report = cfg["report.stability"]
     write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")
@@ -47,9 +52,11 @@ def main(args) -> None:
         print(f"{name:>12}: equal to the truth {card['equal_share']}, Kendall distance {card['kendall_distance']}, "
               f"flip rates {[round(p['flip_rate'], 2) for p in card['pairs'].values()]}, "
               f"errors in most repetitions {card['repeated_errors']}")
-    for name, card in (summary.get("against_sim_truth") or {}).items():
-        print(f"{name:>12} against the sim's own truth: {card['agreement']}, errors in most repetitions "
-              f"{card['repeated_errors']}")
+    for view, label in (("against_sim_truth", "the sim's own truth"),
+                        ("against_networks_in_twin", "the twin's truth of the networks ranked")):
+        for name, card in (summary.get(view) or {}).items():
+            print(f"{name:>12} against {label}: {card['agreement']}, errors in most repetitions "
+                  f"{card['repeated_errors']}")
 
 
 if __name__ == "__main__":
@@ -57,6 +64,8 @@ if __name__ == "__main__":
     p.add_argument("--real-rollouts", nargs="+", required=True, help="real-side rollout folders, one per policy")
     p.add_argument("--verdicts", nargs="+", required=True, help="verdicts per judge (results/judge/<judge>/verdicts.parquet)")
     p.add_argument("--sim-rollouts", nargs="*", default=[], help="the judged sim rollout folders, one per policy")
+    p.add_argument("--networks-in-twin", nargs="*", default=[],
+                   help="the judged checkpoints' rollouts in the twin (results/cross/real/<policy>), one per policy")
     p.add_argument("--out", required=True)
     p.add_argument("--table", required=True)
     p.add_argument("--pdf", required=True)

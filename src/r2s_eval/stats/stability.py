@@ -164,7 +164,8 @@ def blocks(inits_per_task: int, repetitions: int) -> list[range]:
 
 def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, inits_per_task: int,
                       repetitions: int, real_trials_per_task: int, trials_curve, truth_z: float,
-                      variants: dict[str, str], sim: pd.DataFrame | None = None) -> dict:
+                      variants: dict[str, str], sim: pd.DataFrame | None = None,
+                      networks_in_twin: pd.DataFrame | None = None) -> dict:
     """``real``: every real trial (policy, task, init_id, success); ``verdicts``: per judge its
     verdicts (policy_i, policy_j, winner, task, init_id).
 
@@ -172,17 +173,26 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     judge's errors into the sim's and its own: ``sim success``, the ranking by the success of each
     repetition's own sim rollouts (what a judge that only read outcomes would give), against the
     real truth; and ``against_sim_truth``, each judge against the truth the sim itself holds (the
-    planted pairs, the others by the sim's success over the other repetitions' rollouts)."""
+    planted pairs, the others by the sim's success over the other repetitions' rollouts).
+
+    With ``networks_in_twin`` (the same checkpoints the sim ranks, pi^S, rolled out in the twin
+    from the same inits: policy, task, init_id, success) ``against_networks_in_twin`` holds the
+    sim's success ranking and each judge against the twin's truth of those networks (the planted
+    pairs, the others by their twin success over the other repetitions' inits; a candidate without
+    rollouts there, one whose weights come from elsewhere, leaves its pairs undecided in that
+    view). The real truth is pi^R's, another checkpoint per candidate trained on other data; where the two truths part,
+    the candidates' order is the training's, which no sim or judge of pi^S can see."""
     policies = sorted(real["policy"].astype(str).unique())
     parts = blocks(inits_per_task, repetitions)
     size = len(parts[0])
     if real_trials_per_task > size or max(trials_curve) > size:
         raise DataError(f"a repetition has {size} inits per task, fewer than the real trials asked "
                         f"({real_trials_per_task}, curve up to {max(trials_curve)})")
+    crossed = [] if networks_in_twin is None else [p for p in policies if p in set(networks_in_twin["policy"].astype(str))]
     all_rate, _ = success_rates(real)
     pairs = adjacent_pairs(all_rate.to_dict(), variants)
     truths, real_orders = [], {m: [] for m in sorted({*trials_curve, real_trials_per_task})}
-    sim_truths, sim_orders = [], []
+    sim_truths, sim_orders, twin_truths = [], [], []
     judge_orders = {judge: [] for judge in verdicts}
     comparisons = {judge: [] for judge in verdicts}
     for part in parts:
@@ -192,6 +202,9 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
             in_sim = sim["init_id"].isin(part)
             sim_truths.append(truth_order(sim[~in_sim], variants, policies, truth_z))
             sim_orders.append(order_of(success_rates(sim[in_sim])[0].to_dict()))
+        if networks_in_twin is not None:  # pairs with a candidate not crossed stay undecided there
+            known = truth_order(networks_in_twin[~networks_in_twin["init_id"].isin(part)], variants, crossed, truth_z)
+            twin_truths.append({pair: known.get(pair, 0) for pair in pairs_of(policies)})
         for m in real_orders:
             first = real[real["init_id"].isin(part[:m])]
             real_orders[m].append(order_of(success_rates(first)[0].to_dict()))
@@ -223,4 +236,10 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     if sim is not None:
         out["against_sim_truth"] = {judge: repeated(orders, sim_truths, pairs) for judge, orders in judge_orders.items()}
         out["truth"]["sim_success_all_rollouts"] = {p: float(r) for p, r in success_rates(sim)[0].items()}
+    if networks_in_twin is not None:
+        rankings = {**({"sim success": sim_orders} if sim is not None else {}), **judge_orders}
+        out["against_networks_in_twin"] = {name: repeated(orders, twin_truths, pairs) for name, orders in rankings.items()}
+        out["truth"]["networks_in_twin_success_all_rollouts"] = {
+            p: float(r) for p, r in success_rates(networks_in_twin)[0].items()}
+        out["truth"]["networks_in_twin_left_out"] = [p for p in policies if p not in crossed]
     return out

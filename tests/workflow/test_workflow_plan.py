@@ -148,6 +148,9 @@ def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
     assert (jobs["rollout"], jobs["train"], jobs["stability"], jobs["describe"]) == ("14", "8", "1", "14"), jobs
     trained = {wc["policy"] for rule, wc in planned_jobs(proc.stdout) if rule == "train"}
     assert trained == {"act", "act_close", "act_short", "act_weak"}
+    # stability.networks_in_twin: pi^S of every candidate in the twin, the variants' included.
+    in_twin = {wc["policy"] for rule, wc in planned_jobs(proc.stdout) if rule == "cross_rollout" and wc["arm"] == "real"}
+    assert in_twin == {"act", "act_close", "act_short", "act_weak", "act_jitter", "act_hesitant", "act_lategrip"}
 
 
 def test_the_unmodelled_fidelity_experiment_plans_as_the_docs_show_it(tmp_path):

@@ -934,7 +934,6 @@ def _stability_problems(cfg: dict) -> list[Problem]:
     per_block = cfg["rollout"]["inits_per_task"] // k
     wanted = max(cfg["stability"]["real_trials_per_task"], *cfg["stability"]["trials_curve"])
     problems = []
-
     if per_block < wanted:
         problems.append(Problem("stability.repetitions", f"{k} repetitions of rollout.inits_per_task "
                                                          f"{cfg['rollout']['inits_per_task']} leave {per_block} inits per "

@@ -100,6 +100,11 @@ def weights_of(policy):
     return SNAPSHOTS[policy][0] if policy in SNAPSHOTS else policy
 
 
+# Candidates whose weights are trained here, a variant's or a snapshot's included: each crosses into
+# the other world (fidelity.smk's cross_rollout; the stability report's truth of the networks ranked).
+CROSSED = [p for p in POLICIES if weights_of(p) in TRAINED]
+
+
 def weights_dir(policy, arm):
     """The checkpoint folder `policy` runs on `arm` when its weights are trained here: the
     training's folder, or the snapshot's in it."""

@@ -41,12 +41,8 @@ def seed_rollout_params(wildcards):
     return rollout_cfg_json(wildcards.arm, wildcards.policy)
 
 
-# Every candidate whose weights are trained here crosses: a variant or a snapshot runs its
-# training's other checkpoint (the variant with its execution change; the stability report's
-# truth of the networks ranked, stability.networks_in_twin).
-CROSSED = [p for p in POLICIES if weights_of(p) in TRAINED]
-
-
+# A variant or a snapshot (common.smk's CROSSED) runs its training's other checkpoint, the variant
+# with its execution change.
 rule cross_rollout:
     wildcard_constraints:
         policy="|".join(CROSSED) or "(?!)",

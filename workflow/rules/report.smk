@@ -309,8 +309,7 @@ if STABILITY:
             verdicts=expand("results/judge/{judge}/verdicts.parquet", judge=JUDGES),
             # stability.networks_in_twin: the checkpoints the sim ranks, rolled out in the twin
             # (those trained here; a candidate from elsewhere is left out of that view)
-            networks=expand("results/cross/real/{policy}", policy=[p for p in POLICIES if weights_of(p) in TRAINED]
-                            if CFG["stability"]["networks_in_twin"] else []),
+            networks=expand("results/cross/real/{policy}", policy=CROSSED if CFG["stability"]["networks_in_twin"] else []),
         output:
             summary="results/stability/summary.json",
             table="reports/stability_table.tex",

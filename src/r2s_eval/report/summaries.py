@@ -269,16 +269,16 @@ def planted_order_agreement(verdicts: pd.DataFrame, success: dict[str, bool], pl
         return None
     rank = {str(p): k for k, p in enumerate(planted_order)}
     pi, pj = verdicts["policy_i"].astype(str).to_numpy(), verdicts["policy_j"].astype(str).to_numpy()
-    same = np.array([success[a] and success[b] for a, b in zip(verdicts["episode_a"].astype(str),
+    both = np.array([success[a] and success[b] for a, b in zip(verdicts["episode_a"].astype(str),
                                                                 verdicts["episode_b"].astype(str))], dtype=bool)
     ranked = np.array([a in rank and b in rank for a, b in zip(pi, pj)], dtype=bool)
-    keep = same & ranked
+    keep = both & ranked
     better = np.array([a if rank.get(a, 0) < rank.get(b, 0) else b for a, b in zip(pi, pj)])
     hits = (verdicts["winner"].astype(str).to_numpy() == better)[keep]
     units = [u for u, k in zip(_units(verdicts), keep) if k]
     out = unit_share(hits, units, n_boot=n_boot, level=level, seed=seed)
     out["planted_order"] = [str(p) for p in planted_order]
-    out["n_unranked_pairs"] = int((same & ~ranked).sum())  # such pairs with a policy outside the order
+    out["n_unranked_pairs"] = int((both & ~ranked).sum())  # such pairs with a policy outside the order
     return out
 
 

@@ -180,15 +180,17 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     sim's success ranking and each judge against the twin's truth of those networks (the planted
     pairs, the others by their twin success over the other repetitions' inits; a candidate without
     rollouts there, one whose weights come from elsewhere, leaves its pairs undecided in that
-    view). The real truth is pi^R's, another checkpoint per candidate trained on other data; where the two truths part,
-    the candidates' order is the training's, which no sim or judge of pi^S can see."""
+    view). The real truth is pi^R's, another checkpoint per candidate trained on other data;
+    where the two truths part, the candidates' order is the training's, which no sim or judge of
+    pi^S can see."""
     policies = sorted(real["policy"].astype(str).unique())
     parts = blocks(inits_per_task, repetitions)
     size = len(parts[0])
     if real_trials_per_task > size or max(trials_curve) > size:
         raise DataError(f"a repetition has {size} inits per task, fewer than the real trials asked "
                         f"({real_trials_per_task}, curve up to {max(trials_curve)})")
-    crossed = [] if networks_in_twin is None else [p for p in policies if p in set(networks_in_twin["policy"].astype(str))]
+    in_twin = set() if networks_in_twin is None else set(networks_in_twin["policy"].astype(str))
+    crossed = [p for p in policies if p in in_twin]
     all_rate, _ = success_rates(real)
     pairs = adjacent_pairs(all_rate.to_dict(), variants)
     truths, real_orders = [], {m: [] for m in sorted({*trials_curve, real_trials_per_task})}

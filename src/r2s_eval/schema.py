@@ -268,6 +268,7 @@ class CalibAppearance:
     fit: bool
     frames_per_task: PositiveInt
     prior: NonNegative
+    shadows: bool
 
 
 @dataclass
@@ -892,7 +893,7 @@ def _cross_problems(cfg: dict) -> list[Problem]:
 
 # Each answer a sim variant takes away, and the calibration setting that gives the sim that answer.
 _ANSWER_SETTINGS = {"lens": "calib.cameras.board.intrinsics", "background": "calib.background.fit",
-                    "latency": "calib.joints.latency"}
+                    "latency": "calib.joints.latency", "shadows": "calib.appearance.shadows"}
 
 
 def _fidelity_sim_problems(cfg: dict) -> list[Problem]:

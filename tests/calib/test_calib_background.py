@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from r2s_eval.calib.background import fit_plates, plate_errors, write_plates
+from r2s_eval.calib.background import fit_plates, plate_errors, shadow_agreement, write_plates
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import check_world_params
@@ -82,6 +82,21 @@ def test_the_plate_brings_the_sims_first_frames_to_the_recorded_room(recording, 
     assert head["with_plate"] < 0.25 * head["without_plate"], head
 
 
+def test_the_sims_shadows_fall_where_the_recordings_are_darker_than_the_plate(recording, plates):
+    # The twin's key light casts shadows (ROOM); the sim's (calib.appearance.shadows), the same
+    # light here, darkens its plate where its arm and objects shade the room mid-episode.
+    path, truth = recording
+    paths, _ = plates
+    args = (str(path), index_of(truth), estimates_of(truth), world())
+    assert shadow_agreement(*args, WorldParams(background_plates=paths), {"frames_per_task": 4}) == {}
+    head = shadow_agreement(*args, WorldParams(background_plates=paths, shadows=True), {"frames_per_task": 4})["head_left"]
+    print(head)
+    assert head["frames"] == 12 and head["pixels"] > 100
+    assert head["recorded"] < head["unshaded_recorded"] - 0.1
+    assert abs(head["recorded"] - head["sim"]) < 0.1
+    assert 0.95 < head["unshaded_recorded"] < 1.05
+
+
 def test_recordings_that_never_move_the_arm_away_are_refused(recording):
     path, truth = recording
     at_home = {**BACKGROUND, "stride": 10_000}  # each episode's first frame only: the arms at home
@@ -131,3 +146,10 @@ def test_the_world_report_states_the_plates_errors():
               "background": {"head_left": {"with_plate": 4.6, "without_plate": 35.3, "frames": 4}}}
     assert ("background head_left: mean colour error of 4 first frames 35.3 with the sim's own surroundings, 4.6 "
             "over the plate from the recordings (0-255)") in camera_lines(report)
+    shadows = {"pixels": 11549, "recorded": 0.629, "sim": 0.617, "unshaded_recorded": 1.006, "frames": 12}
+    report["background"]["head_left"]["shadows"] = shadows
+    report["appearance"] = {"fitted": False, "shadows": True, "twin_shadows": True, "key_light_deg": 2.34}
+    lines = camera_lines(report)
+    assert ("shadows head_left: where the sim shades the room (11549 px of 12 frames) the recordings are at 63 % of "
+            "the plate, the sim at 62 %; elsewhere the recordings at 101 %") in lines
+    assert "shadows: sim on, twin on; the key light 2.3 deg from the twin's" in lines

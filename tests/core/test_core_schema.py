@@ -294,6 +294,7 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
      r"fidelity.sims\[1\] .*'without_lens' takes away an answer the calibration does not give "
      r"\(calib.cameras.board.intrinsics is off\)"),
     (["fidelity.sims=[without_background]"], r"fidelity.sims\[0\].*\(calib.background.fit is off\)"),
+    (["fidelity.sims=[without_shadows]"], r"fidelity.sims\[0\].*\(calib.appearance.shadows is off\)"),
     (["fidelity.ablation.alone=[lens]", "fidelity.ablation.policies=[]"], r"fidelity.ablation.alone .*needs fidelity.ablation.policies"),
     (["fidelity.ablation.alone=[focus]"], r"fidelity.ablation.alone\[0\].*must be one of"),
     (["fidelity.ablation.alone=[lens]", "fidelity.ablation.policies=[act]"],

@@ -304,7 +304,9 @@ def test_the_scene_magnitudes_draw_the_room_round_trip_the_record_and_the_sim_ne
     assert fewer == dataclasses.replace(reality, distractors=reality.distractors[:2])
     assert bundled_reality(reality_rng(2), TwinMagnitudes(**SCENE_MAGNITUDES).scaled(0.0)) == RealityEffects()
     for family, fields in SCENE_FAMILIES.items():
-        assert REALITY_FAMILIES[family] == fields and PERTURBATION_FAMILIES[family] == ()
+        # Taken away, the twin's shadows are the sim's answer's (WorldParams.shadows); the rest has none.
+        assert REALITY_FAMILIES[family] == fields and PERTURBATION_FAMILIES[family] == (
+            ("shadows",) if family == "shadows" else ())
         assert reality_without_family(reality, family) == dataclasses.replace(
             reality, **{f: getattr(RealityEffects(), f) for f in fields})
     # The calibrated sim is built from world parameters alone: none of the room's textures or geoms.

@@ -155,7 +155,7 @@ def test_the_validation_experiment_plans_as_the_docs_show_it(tmp_path):
 
 def test_the_unmodelled_fidelity_experiment_plans_as_the_docs_show_it(tmp_path):
     # The one-off run behind "The crossing in three sims" (about 70 minutes from a finished
-    # unmodelled run): its command as written plans the two trained candidates in five further sims
+    # unmodelled run): its command as written plans the two trained candidates in six further sims
     # on both arms, pi^S of act in the twin with each of twelve effects alone and with none, and
     # the repetitions' job.
     proc = plan_as_written(tmp_path, "snakemake -j 2 reports/fidelity_sims_table.tex reports/fidelity_alone_table.tex "
@@ -165,7 +165,7 @@ def test_the_unmodelled_fidelity_experiment_plans_as_the_docs_show_it(tmp_path):
     plan = planned_jobs(proc.stdout)
     in_sims = {(w["sim"], w["trained_on"], w["policy"]) for rule, w in plan if rule == "sim_variant_rollout"}
     assert in_sims == {(s, arm, p) for s in ("nominal", "without_answers", "without_lens", "without_background",
-                                             "without_latency") for arm in ("real", "sim") for p in ("act", "act_close")}
+                                             "without_latency", "without_shadows") for arm in ("real", "sim") for p in ("act", "act_close")}
     alone = {w["effect"] for rule, w in plan if rule == "alone_rollout"}
     assert len(alone) == 13 and "none" in alone and "shapes" in alone
     assert {rule for rule, _ in plan} >= {"stability", "twin_alone", "sim_variant", "board_take", "calib_background"}

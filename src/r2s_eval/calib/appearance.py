@@ -20,6 +20,11 @@ object (each region shrunk by a pixel, so an edge a fraction of a pixel off does
 with a weak pull of every parameter towards the nominal world (``prior``), which keeps
 parameters that no frame constrains (an object no first frame shows well) where they were.
 Reported: the mean absolute colour error (0-255) over those pixels before and after.
+
+Shadows (``shadows``): the recordings show the arm's and the objects' shadows, which the world
+file's lights do not cast. With it the calibrated sim's key light casts them (``WorldParams.shadows``),
+and the fit renders them too: a first frame's objects cast their shadows on the table, which
+pins the light's direction where the table's shading alone leaves it loose.
 """
 
 from __future__ import annotations
@@ -177,9 +182,10 @@ def calibrate_appearance(index: pd.DataFrame, frames_dir: str, estimates: pd.Dat
                          params: WorldParams, cfg: Mapping, camera: str) -> tuple[WorldParams, dict]:
     """``params`` (cameras, joints calibrated) with the fitted light and colours, and the fit's
     report; ``cfg``: ``calib.appearance``; ``camera``: the one the first frames are from."""
+    params = dataclasses.replace(params, shadows=bool(cfg["shadows"]))
     if not cfg["fit"]:
         log.info("calib.appearance.fit is false: the calibrated sim keeps the model's light and colours")
-        return params, {"fitted": False}
+        return params, {"fitted": False, "shadows": params.shadows}
     frames = appearance_frames(index, frames_dir, estimates, dataset, int(cfg["frames_per_task"]))
     model = AppearanceModel(frames, world, params, camera)
     try:
@@ -190,4 +196,4 @@ def calibrate_appearance(index: pd.DataFrame, frames_dir: str, estimates: pd.Dat
              "direction %+.3f %+.3f %+.3f, table %+.3f %+.3f %+.3f", report["residual_before"],
              report["residual_after"], report["pixels"], len(frames), fitted.light_intensity_scale,
              *fitted.light_dir_offset, *fitted.table_rgb_offset)
-    return fitted, {"fitted": True, **report}
+    return fitted, {"fitted": True, "shadows": fitted.shadows, **report}

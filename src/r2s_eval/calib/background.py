@@ -236,3 +236,62 @@ def plate_errors(dataset: str, index, estimates, world: Mapping, params: WorldPa
             for env in pair:
                 env.close()
     return {cam: {key: float(np.mean(v)) for key, v in e.items()} | {"frames": len(chosen)} for cam, e in errors.items()}
+
+
+SHADED = 0.85  # a room pixel the sim darkens below this share of its plate is in the sim's shadow
+SHADOW_FRAMES = (0.25, 0.5, 0.75)  # where in each episode the shadows are compared (share of its frames)
+
+
+def shadow_agreement(dataset: str, index, estimates, world: Mapping, params: WorldParams, appearance_cfg: Mapping) -> dict:
+    """Whether the recordings are dark where the calibrated sim (with ``params.shadows``) casts its
+    shadows over a plate: per plated camera, over the frames at ``SHADOW_FRAMES`` of the episodes the
+    appearance fit reads, the sim posed at each frame's recorded joints (the objects where the
+    estimate put them at the start: one that has moved since counts as room, a little noise), the
+    room's pixels split by the sim's shade (``TabletopEnv.shadow_shade``, below ``SHADED``: in its
+    shadow). Returns {camera: {"pixels": shaded pixels, "recorded": the recorded frames' brightness
+    over the plate's there, "sim": the sim's shade there, "unshaded_recorded": the recorded over the
+    plate's where the sim casts none, "frames"}}; {} without shadows or plates."""
+    cameras = sorted(params.background_plates)
+    if not params.shadows or not cameras:
+        return {}
+    meta = read_metadata(dataset)
+    per_task = int(appearance_cfg["frames_per_task"])
+    chosen = [int(e) for _, rows in index.groupby("task", sort=True) for e in rows.head(per_task)["episode_index"]]
+    task_of = dict(zip(index["episode_index"].astype(int), index["task"]))
+    sums = {cam: np.zeros(5) for cam in cameras}  # recorded, plate, shade where shaded; recorded, plate elsewhere
+    counts = {cam: 0 for cam in cameras}
+    frames, envs = [], {}
+    try:
+        for episode in chosen:
+            states = np.stack(episode_rows(meta, episode, [STATE_KEY])[STATE_KEY].to_numpy()).astype(float)
+            frames += [(episode, int(share * (len(states) - 1)), states[int(share * (len(states) - 1))])
+                       for share in SHADOW_FRAMES]
+        images = read_frames(meta, [(e, f) for e, f, _ in frames], cameras)
+        for episode, frame, state in frames:
+            task = task_of[episode]
+            env = envs.get(task) or envs.setdefault(task, make_env(task, world, params, cameras=()))
+            rows = estimates[estimates["episode_index"] == episode]
+            env.reset({r.object: (r.x_m, r.y_m, r.yaw_rad) for r in rows.itertuples()}, settle=False, observe=False)
+            env.pose_robot(state)
+            for cam in cameras:
+                real = images[episode, frame, cam].astype(np.float32).mean(axis=-1)
+                size_hw = real.shape[:2]
+                drawn = env.foreground_mask(cam, size_hw)
+                shade = env.shadow_shade(cam, size_hw, env.render(cam, size=size_hw), drawn)
+                shade = env.lens_image(shade, cam).astype(np.float32).mean(axis=-1) / 255.0
+                room = env.lens_image((~drawn).astype(np.uint8) * 255, cam) > 254
+                plate = env.background_plate(cam, size_hw).mean(axis=-1)
+                shaded, lit = room & (shade < SHADED), room & (shade >= SHADED)
+                sums[cam] += (real[shaded].sum(), plate[shaded].sum(), shade[shaded].sum(), real[lit].sum(),
+                              plate[lit].sum())
+                counts[cam] += int(shaded.sum())
+    finally:
+        for env in envs.values():
+            env.close()
+    out = {}
+    for cam in cameras:
+        recorded, plate, shade, lit_recorded, lit_plate = sums[cam]
+        n = counts[cam]
+        out[cam] = {"pixels": n, "recorded": float(recorded / plate) if n else None, "sim": float(shade / n) if n else None,
+                    "unshaded_recorded": float(lit_recorded / max(lit_plate, 1.0)), "frames": len(frames)}
+    return out

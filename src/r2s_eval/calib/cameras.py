@@ -31,7 +31,7 @@ from r2s_eval.sim import TabletopEnv, WorldParams
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.assembly import ee_site
 from r2s_eval.sim.build import make_env
-from r2s_eval.sim.render_params import mounted_pose
+from r2s_eval.sim.render_params import key_light, mounted_pose
 from r2s_eval.sim.robot import world_robot
 from r2s_eval.utils.io import read_json
 
@@ -201,6 +201,22 @@ def camera_errors(estimated: WorldParams, truth: WorldParams, world: Mapping, ta
         env.close()
 
 
+def key_light_error_deg(estimated: WorldParams, truth: WorldParams, world: Mapping, tasks: Sequence[str]) -> float:
+    """The angle (deg) between the key light's direction (``r2s_eval.sim.render_params.key_light``)
+    in the world of ``estimated`` and in the world of ``truth`` (their ``light_dir_offset``)."""
+    env = nominal_env(world, tasks)
+    try:
+        base = env.model.light_dir.copy()
+        key = key_light(env.model.light_diffuse)
+    finally:
+        env.close()
+    if key is None:
+        return float("nan")
+    directions = [base[key] + np.asarray(p.light_dir_offset, float) for p in (estimated, truth)]
+    a, b = (d / np.linalg.norm(d) for d in directions)
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+
+
 LENS_GRID_POINTS = (64, 48)  # pixels the lens errors are averaged over: a grid spanning the image
 
 
@@ -241,14 +257,17 @@ def lens_errors(record: Mapping, true_lenses: Mapping[str, Sequence[float]], wor
 
 
 def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth: WorldParams, world: Mapping,
-                      tasks: Sequence[str], true_lenses: Mapping[str, Sequence[float]] | None = None) -> dict:
+                      tasks: Sequence[str], true_lenses: Mapping[str, Sequence[float]] | None = None,
+                      true_shadows: bool | None = None) -> dict:
     """Each camera estimate (``{method: cameras record}``) and the model's own poses against the
     twin's true cameras (``truth``: its world parameters), which estimate the calibrated sim
     (``calibrated``: its world parameters file) used, and its appearance fit's colour error before
     and after (with background plates, each plated camera's first-frame colour error with its plate
     and without, ``background``); with an estimate that fitted the cameras' lenses, each lens against the twin's true
     one (``true_lenses``: its reality record's ``lens_distortion``; None: pinholes) (``lens``:
-    ``lens_errors``)."""
+    ``lens_errors``); with ``true_shadows`` (the twin's reality record: whether its key light casts
+    them), the sim's shadows beside it and the angle between the two key lights (``appearance``:
+    ``shadows``, ``twin_shadows``, ``key_light_deg``)."""
     cameras = sorted({c for record in estimates.values() for c in record["cameras"]}) or list(world["cameras"])
     scored = {"model": camera_errors(WorldParams(), truth, world, tasks, cameras)}
     for method, record in estimates.items():
@@ -256,6 +275,11 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
     appearance = calibrated.get("appearance") or {}
     report = {"cameras": scored, "used": (calibrated.get("cameras") or {}).get("method", "none"),
               "appearance": {k: appearance.get(k) for k in ("fitted", "residual_before", "residual_after")}}
+    if true_shadows is not None:  # the twin's shadows, and the key light that casts them, against the sim's
+        sim = WorldParams(light_dir_offset=tuple(calibrated["params"].get("light_dir_offset", (0.0, 0.0, 0.0))))
+        report["appearance"].update(shadows=bool(calibrated["params"].get("shadows", False)),
+                                    twin_shadows=bool(true_shadows),
+                                    key_light_deg=key_light_error_deg(sim, truth, world, tasks))
     lenses = {method: lens_errors(record, true_lenses or {}, world, tasks) for method, record in estimates.items()
               if any("intrinsics" in fit for fit in record["cameras"].values())}
     if lenses:  # only where a lens was fitted: without one the report is what it was

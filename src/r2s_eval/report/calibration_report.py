@@ -210,10 +210,19 @@ def camera_lines(calibration: dict) -> list[str]:
     for cam, e in sorted((calibration.get("background") or {}).items()):
         lines.append(f"background {cam}: mean colour error of {e['frames']} first frames {e['without_plate']:.1f} with "
                      f"the sim's own surroundings, {e['with_plate']:.1f} over the plate from the recordings (0-255)")
+        s = e.get("shadows") or {}
+        if s.get("pixels"):
+            lines.append(f"shadows {cam}: where the sim shades the room ({s['pixels']} px of {s['frames']} frames) the "
+                         f"recordings are at {100 * s['recorded']:.0f} % of the plate, the sim at {100 * s['sim']:.0f} %; "
+                         f"elsewhere the recordings at {100 * s['unshaded_recorded']:.0f} %")
     appearance = calibration.get("appearance") or {}
     if appearance.get("fitted"):
         lines.append(f"appearance: mean colour error of the first frames {appearance['residual_before']:.1f} -> "
                      f"{appearance['residual_after']:.1f} (0-255) with the fitted light and colours")
+    if "key_light_deg" in appearance:
+        lines.append(f"shadows: sim {'on' if appearance['shadows'] else 'off'}, twin "
+                     f"{'on' if appearance['twin_shadows'] else 'off'}; the key light "
+                     f"{appearance['key_light_deg']:.1f} deg from the twin's")
     return lines
 
 

@@ -59,6 +59,7 @@ from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _ENCODER_STREAM = 2**31 - 1  # the encoders' noise stream; the cameras' are their rig indices
+_HIDDEN_GROUP = 5  # the geom group plate_shadows_image moves what it leaves out to
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
 
 
@@ -103,6 +104,7 @@ class TabletopEnv:
         self.steps = 0  # control steps since reset
         self._pending_commands: deque[np.ndarray] = deque()  # sent, not yet at the servos (latency)
         self._plates: dict = {}  # background plates read, by (camera, size)
+        self._still_images: dict = {}  # the room with a plate's shadows (shadow_shade), by (camera, size)
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
@@ -178,15 +180,7 @@ class TabletopEnv:
         self._noise_key = (int(self.params.noise_seed), 0 if seed is None else int(seed))
         self.steps = 0
         mujoco.mj_resetData(m, d)
-        for name, arm in self.robot.arms.items():
-            d.qpos[self._arm_qpos_adr[name]] = arm.home
-            d.ctrl[self._arm_act[name]] = arm.home
-            d.qpos[self._grip_qpos_adr[name]] = arm.gripper.position_open
-            d.ctrl[self._grip_act[name]] = arm.gripper.ctrl_open
-            for act, adr, finger in self._finger_adr[name]:
-                d.qpos[adr], d.ctrl[act] = finger.position_open, finger.ctrl_open
-            for adr, ratio in self._coupled_adr[name]:
-                d.qpos[adr] = ratio * arm.gripper.position_open
+        self._robot_home(d)
         self._pending_commands.clear()  # a command of the last episode never arrives in this one
         missing = set(self.task.object_names) - set(object_poses)
         if missing:
@@ -362,19 +356,90 @@ class TabletopEnv:
                        noise_rng: np.random.Generator | None = None) -> np.ndarray:
         """What the world's camera records now: the pinhole image through the world's lens
         (``lens_image``), composited over the camera's background plate where the world has one
-        (``background_plate``: the plate wherever the lensed ``foreground_mask`` is not), then its
+        (``background_plate``: the plate wherever the lensed ``foreground_mask`` is not; with the
+        world's ``shadows``, the plate darkened by the sim's shadows, ``shadow_shade``), then its
         pixel noise (``params.image_noise_std``) from ``noise_rng``
         (default: ``noise_rng(camera)``)."""
-        rgb = self.lens_image(self.pinhole_image(camera, size_hw), camera)
+        pinhole = self.pinhole_image(camera, size_hw)
+        rgb = self.lens_image(pinhole, camera)
         plate = self.background_plate(camera, size_hw)
         if plate is not None:  # the sim's robot and objects over the room the recordings show
-            foreground = self.lens_image(self.foreground_mask(camera, size_hw).astype(np.uint8) * 255, camera)
+            drawn = self.foreground_mask(camera, size_hw)
+            foreground = self.lens_image(drawn.astype(np.uint8) * 255, camera)
             alpha = foreground[..., None].astype(np.float32) / 255.0
+            if self.params.shadows:
+                shade = self.lens_image(self.shadow_shade(camera, size_hw, pinhole, drawn), camera)
+                plate = plate * (shade.astype(np.float32) / 255.0)
             rgb = (alpha * rgb + (1.0 - alpha) * plate).round().astype(np.uint8)
         std = float(self.params.image_noise_std)
         if std <= 0:
             return rgb
         return add_image_noise(rgb, self.noise_rng(camera) if noise_rng is None else noise_rng, std)
+
+    def _robot_home(self, d: mujoco.MjData) -> None:
+        """Every arm of ``d`` at home, its gripper open, commanded to stay there."""
+        for name, arm in self.robot.arms.items():
+            d.qpos[self._arm_qpos_adr[name]] = arm.home
+            d.ctrl[self._arm_act[name]] = arm.home
+            d.qpos[self._grip_qpos_adr[name]] = arm.gripper.position_open
+            d.ctrl[self._grip_act[name]] = arm.gripper.ctrl_open
+            for act, adr, finger in self._finger_adr[name]:
+                d.qpos[adr], d.ctrl[act] = finger.position_open, finger.ctrl_open
+            for adr, ratio in self._coupled_adr[name]:
+                d.qpos[adr] = ratio * arm.gripper.position_open
+
+    def shadow_shade(self, camera: str, size_hw: tuple[int, int], pinhole: np.ndarray, drawn: np.ndarray) -> np.ndarray:
+        """uint8[H, W, 3]: how much the shadows of what moves (the arms, the objects) darken each
+        pixel of ``camera``'s ``pinhole`` image that is room (not ``drawn``, the foreground mask),
+        255 = not at all: the image over the room's render with the shadows a plate holds already
+        (``plate_shadows_image``), clipped at 255 (where the plate holds a shadow the robot has
+        left, the plate is kept as it is)."""
+        still = self.plate_shadows_image(camera, size_hw).astype(np.float32)
+        ratio = np.where(still > 0, pinhole.astype(np.float32) / np.maximum(still, 1.0), 1.0)
+        ratio[drawn] = 1.0
+        return (255.0 * np.clip(ratio, 0.0, 1.0)).round().astype(np.uint8)
+
+    def plate_shadows_image(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+        """``camera``'s pinhole image of the room with the shadows a background plate holds, made
+        once per camera and size: the robot's fixed parts and its arms at home, which is where an
+        arm that no task of the recordings moves stays (its shadow in every frame the plate is the
+        median of), without the task objects (they start elsewhere in each episode). Where an arm
+        at home hides the room, the room without the arms. What a render leaves out is moved to a
+        geom group it does not draw, then back: a transparent geom would still cast its shadow."""
+        key = (camera, tuple(size_hw))
+        if key not in self._still_images:
+            m = self.model
+            d = mujoco.MjData(m)
+            self._robot_home(d)
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_camlight(m, d)  # the cameras and lights where the bodies now put them
+            moving = m.body_weldid[m.geom_bodyid] != 0
+            is_object = np.isin(m.body_rootid[m.geom_bodyid], list(self._obj_body.values()))
+            at_home, no_arms = (self._render_without(d, camera, size_hw, hide) for hide in (is_object, moving))
+            renderer = self.renderer(tuple(size_hw))
+            renderer.update_scene(d, camera=camera)
+            renderer.enable_segmentation_rendering()
+            try:
+                seg = renderer.render()
+            finally:
+                renderer.disable_segmentation_rendering()
+            arm = (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & moving[np.clip(seg[..., 0], 0, None)] & (seg[..., 0] >= 0)
+            self._still_images[key] = np.where(arm[..., None], no_arms, at_home)
+        return self._still_images[key]
+
+    def _render_without(self, d: mujoco.MjData, camera: str, size_hw: tuple[int, int], hide: np.ndarray) -> np.ndarray:
+        """``camera``'s pinhole image of ``d`` without the geoms ``hide`` (bool per geom)."""
+        m = self.model
+        groups = m.geom_group.copy()
+        option = mujoco.MjvOption()
+        option.geomgroup[_HIDDEN_GROUP] = 0
+        renderer = self.renderer(tuple(size_hw))
+        try:
+            m.geom_group[hide] = _HIDDEN_GROUP
+            renderer.update_scene(d, camera=camera, scene_option=option)
+            return renderer.render()
+        finally:
+            m.geom_group[:] = groups
 
     def lens_image(self, rgb: np.ndarray, camera: str) -> np.ndarray:
         """``rgb`` (a pinhole image of ``camera``) through the world's lens of that camera

@@ -55,6 +55,10 @@ class WorldParams:
     # calibrated sim's answer to a room no world file holds, r2s_eval.calib.background): the camera
     # records the sim's robot and task objects over it. Missing -> the sim's own surroundings.
     background_plates: dict[str, str] = field(default_factory=dict)
+    # The key light casts shadows (the arm's and the objects' on the table, which the recordings
+    # show and a plate, the room standing still, does not hold): over a plate the sim darkens it by
+    # its own shadows' share (r2s_eval.sim.env). False: the world file's lights as they are.
+    shadows: bool = False
 
     def mass_scale(self, obj: str) -> float:
         return float(self.object_mass_scale.get(obj, 1.0))
@@ -70,7 +74,8 @@ class WorldParams:
 # hold it), and the sims a fidelity experiment crosses the checkpoints into besides the calibrated
 # one (fidelity.sims): the world as its files state it (nothing calibrated), the calibration
 # without its answers, the calibration without one answer.
-ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates",), "latency": ("command_latency_steps",)}
+ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates",), "latency": ("command_latency_steps",),
+           "shadows": ("shadows",)}
 NOMINAL_SIM = "nominal"
 WITHOUT_ANSWERS = "without_answers"
 SIM_VARIANTS = (NOMINAL_SIM, WITHOUT_ANSWERS, *(f"without_{answer}" for answer in ANSWERS))

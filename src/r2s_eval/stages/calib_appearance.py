@@ -8,7 +8,9 @@ commands' latency of ``calib_joints``, the background plates of ``calib_backgrou
     {"params": {...WorldParams...}, "cameras": {...the cameras record used, or {"method": "none"}},
      "joints": {...calib_joints' report...}, "appearance": {"fitted": bool, "residual_before": ...,
      "residual_after": ..., ...}, "background": {...calib_background's record..., "errors": {camera:
-     {"with_plate": ..., "without_plate": ..., "frames": ...}}} (with plates only)}
+     {"with_plate": ..., "without_plate": ..., "frames": ... [, "shadows": {"pixels", "recorded", "sim",
+     "unshaded_recorded", "frames"}]}}} (with plates only; "shadows" with calib.appearance.shadows:
+     ``r2s_eval.calib.background.shadow_agreement``)}
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import logging
 import pandas as pd
 
 from r2s_eval.calib.appearance import calibrate_appearance
-from r2s_eval.calib.background import plate_errors
+from r2s_eval.calib.background import plate_errors, shadow_agreement
 from r2s_eval.calib.cameras import camera_params
 from r2s_eval.sim import WorldParams, load_world_params
 from r2s_eval.stages import _cli
@@ -44,10 +46,18 @@ def main(args) -> None:
               "appearance": appearance}
     if background:
         errors = plate_errors(args.dataset, index, estimates, cfg["world"], fitted, cfg["calib.appearance"])
+        for cam, agreement in shadow_agreement(args.dataset, index, estimates, cfg["world"], fitted,
+                                               cfg["calib.appearance"]).items():
+            errors[cam]["shadows"] = agreement
         record["background"] = {**background, "errors": errors}
         for cam, e in errors.items():
             log.info("%s: first frames' colour error %.1f with its plate, %.1f without (0-255, %d frames)", cam,
                      e["with_plate"], e["without_plate"], e["frames"])
+            if (e.get("shadows") or {}).get("pixels"):
+                s = e["shadows"]
+                log.info("%s: where the sim shades the room (%d px of %d frames) the recordings are at %.2f of the "
+                         "plate, the sim at %.2f; elsewhere the recordings at %.2f", cam, s["pixels"], s["frames"],
+                         s["recorded"], s["sim"], s["unshaded_recorded"])
     write_json(args.out, record, provenance=True)
 
 

@@ -8,11 +8,13 @@ the appearance fit's colour error before and after. An estimate that fitted the 
 (``calib.cameras.board.intrinsics``) adds each lens against the twin's true lens, its reality
 record's (``r2s_eval.twin.reality.load_reality_effects``: OpenCV's rational model; a twin without
 one records through pinholes) (``r2s_eval.calib.cameras.lens_errors``: pixels at the take's image
-size). Only this scoring reads the reality record, never the calibration. Writes::
+size), and with a reality record the sim's shadows beside the twin's and the angle between their
+key lights. Only this scoring reads the reality record, never the calibration. Writes::
 
     {"cameras": {"model" | METHOD: {camera: {"position_mm": .., "rotation_deg": ..}}},
-     "used": METHOD | "none", "appearance": {"residual_before": .., "residual_after": ..}
-     [, "background": {camera: {"with_plate", "without_plate", "frames"}}]
+     "used": METHOD | "none", "appearance": {"residual_before": .., "residual_after": ..
+                                             [, "shadows", "twin_shadows", "key_light_deg"]}
+     [, "background": {camera: {"with_plate", "without_plate", "frames" [, "shadows"]}}]
      [, "lens": {METHOD: {camera: {"distortion_px", "distortion_max_px", "model_px",
                                    "focal_pct": {"fx", "fy"}, "principal_point_px", "image_size"}}}]}
 """
@@ -40,7 +42,8 @@ def main(args) -> None:
         estimates[method] = read_json(path)
     reality = load_reality_effects(args.twin)
     report = score_calibration(estimates, read_json(args.world_params), load_world_params(args.twin), cfg["world"],
-                               cfg["tasks"], true_lenses=None if reality is None else reality.lens_distortion)
+                               cfg["tasks"], true_lenses=None if reality is None else reality.lens_distortion,
+                               true_shadows=None if reality is None else reality.shadows)
     print("\n".join(camera_lines(report)))
     write_json(args.out, report, provenance=True)
 

@@ -2,7 +2,8 @@
 
 ``nominal``: the world as its files state it, nothing calibrated; ``without_answers``: the
 calibration without its answers to what the world files cannot state (the lens, the background
-plates, the commands' latency: ``r2s_eval.sim.params.ANSWERS``), the calibration as it was before
+plates, the commands' latency, the key light's shadows: ``r2s_eval.sim.params.ANSWERS``), the
+calibration as it was before
 those answers; ``without_<answer>``: the calibration without that one. Writes ``{"params", "sim"}``
 (no reality effects: a sim).
 """

@@ -273,10 +273,11 @@ PERTURBATION_FAMILIES = {
     "backlash": (),
     "gripper": (),
     # The room and the true shapes (r2s_eval.twin.scene). The sim's answer to the room, its
-    # background plates, are pictures of this twin's own room: no family hands them to a twin.
+    # background plates, are pictures of this twin's own room: no family hands them to a twin. Its
+    # shadows are the key light's, as the twin's: taken away, the twin casts the sim's.
     "table_texture": (),
     "walls": (),
-    "shadows": (),
+    "shadows": ("shadows",),
     "distractors": (),
     "shapes": (),
 }

@@ -49,6 +49,7 @@ from r2s_eval.errors import ConfigError
 from r2s_eval.sim.model_files import load_model_spec
 from r2s_eval.sim.objects import ObjectSpec
 from r2s_eval.sim.params import WorldParams
+from r2s_eval.sim.render_params import key_light
 from r2s_eval.sim.robot import Robot
 from r2s_eval.sim.rotations import yaw_quat
 from r2s_eval.sim.tasks import Task
@@ -231,7 +232,7 @@ def _cast_shadows(spec: mujoco.MjSpec) -> None:
     lights = list(spec.lights)
     if not lights:
         return
-    key = max(lights, key=lambda light: float(np.sum(light.diffuse)))
+    key = lights[key_light([light.diffuse for light in lights])]
     key.castshadow = True
     spec.visual.quality.shadowsize = SHADOW_MAP_PX
     spec.visual.map.shadowclip = SHADOW_CLIP_REL

@@ -1,0 +1,104 @@
+"""The calibrated sim's shadows (``WorldParams.shadows``, ``calib.appearance.shadows``): the key
+light casts them in the sim's own renders, and over a background plate the sim darkens the plate
+where its arm and objects shade the room (``TabletopEnv.shadow_shade``), never elsewhere."""
+
+import dataclasses
+
+import cv2
+import mujoco
+import numpy as np
+import pytest
+
+from r2s_eval.calib.appearance import calibrate_appearance
+from r2s_eval.calib.cameras import key_light_error_deg, score_calibration
+from r2s_eval.errors import ConfigError
+from r2s_eval.sim import WorldParams
+from r2s_eval.sim.render_params import SHADOW_MAP_PX, apply_shadows, key_light
+from tests.helpers.commands import POSES
+from tests.helpers.worlds import bundled_env, bundled_world
+
+CAMERA = "head_left"
+SIZE = (96, 96)
+
+
+@pytest.fixture(scope="module")
+def plate(tmp_path_factory):
+    """A striped green room, unlike anything the sim draws."""
+    image = np.full((*SIZE, 3), (90, 160, 90), np.uint8)
+    image[::6] = (60, 120, 60)
+    path = tmp_path_factory.mktemp("plates") / f"{CAMERA}.png"
+    cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    return str(path), image
+
+
+def _recorded(params: WorldParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The recorded image, the pinhole image and the foreground mask of CAMERA at the test poses."""
+    env = bundled_env("cup_on_plate", params, image_size=SIZE)
+    try:
+        env.reset(POSES, seed=0, settle=False, observe=False)
+        groups = env.model.geom_group.copy()
+        image = env.render(CAMERA, add_noise=True)
+        assert np.array_equal(env.model.geom_group, groups)  # the still scene's render put them back
+        return image, env.render(CAMERA), env.foreground_mask(CAMERA, SIZE)
+    finally:
+        env.close()
+
+
+def test_the_world_files_lights_cast_no_shadow_and_the_answer_makes_the_key_light_cast_them():
+    plain, shaded = bundled_env("cup_on_plate"), bundled_env("cup_on_plate", WorldParams(shadows=True))
+    try:
+        assert not plain.model.light_castshadow.any() and plain.model.vis.quality.shadowsize == 0
+        key = key_light(shaded.model.light_diffuse)
+        assert shaded.model.light_castshadow.tolist() == [i == key for i in range(shaded.model.nlight)]
+        assert shaded.model.vis.quality.shadowsize == SHADOW_MAP_PX
+        for env in (plain, shaded):
+            env.reset(POSES, seed=0, settle=False, observe=False)
+        room = ~shaded.foreground_mask(CAMERA, SIZE)
+        before, after = (e.render(CAMERA, SIZE).astype(int).sum(axis=-1) for e in (plain, shaded))
+        darker = (after < before - 30) & room
+        assert darker.sum() > 50  # the arms' and the objects' shadows on the table
+        assert (after <= before + 3)[room].all()  # a shadow only darkens
+    finally:
+        plain.close()
+        shaded.close()
+
+
+def test_over_a_plate_the_sims_shadows_darken_the_plate_where_they_fall_and_nowhere_else(plate):
+    path, image = plate
+    flat, _, drawn = _recorded(WorldParams(background_plates={CAMERA: path}))
+    shaded, pinhole, drawn_too = _recorded(WorldParams(background_plates={CAMERA: path}, shadows=True))
+    assert np.array_equal(drawn, drawn_too)
+    room = ~drawn
+    assert np.array_equal(flat[room], image[room])  # without shadows the room is the plate
+    dark = shaded.astype(int).sum(axis=-1) < image.astype(int).sum(axis=-1) - 30
+    assert (dark & room).sum() > 50
+    assert (shaded.astype(int) <= image.astype(int) + 1)[room].all()
+    # The plate's own pattern is kept under a shadow: a shade, not a colour painted over it.
+    stripes = np.zeros(SIZE, bool)
+    stripes[::6] = True
+    under = dark & room
+    assert shaded[under & stripes].mean() < shaded[under & ~stripes].mean()
+    # Where nothing shades the room the image is the plate, byte for byte, in most of it.
+    assert np.mean(shaded[room & ~dark] == image[room & ~dark]) > 0.9
+
+
+def test_a_world_without_a_scene_light_cannot_have_the_answer():
+    model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
+    apply_shadows(model, WorldParams())  # off: nothing asked
+    with pytest.raises(ConfigError, match=r"shadows: the world's model has no scene light .*calib.appearance.shadows"):
+        apply_shadows(model, WorldParams(shadows=True))
+
+
+def test_the_calibration_gives_the_answer_and_the_scoring_holds_it_against_the_twin():
+    params, record = calibrate_appearance(None, "", None, "", bundled_world(), WorldParams(),
+                                          {"fit": False, "shadows": True}, CAMERA)
+    assert params.shadows and record == {"fitted": False, "shadows": True}
+    world, tasks = bundled_world(), ["cup_on_plate"]
+    assert key_light_error_deg(WorldParams(), WorldParams(), world, tasks) == 0.0
+    moved = WorldParams(light_dir_offset=(0.1, 0.0, 0.0))
+    assert 1.0 < key_light_error_deg(moved, WorldParams(), world, tasks) < 20.0
+    calibrated = {"params": dataclasses.asdict(params), "appearance": record}
+    scored = score_calibration({}, calibrated, moved, world, tasks, true_shadows=True)["appearance"]
+    assert scored["shadows"] and scored["twin_shadows"]
+    assert scored["key_light_deg"] == pytest.approx(key_light_error_deg(params, moved, world, tasks))
+    assert "key_light_deg" not in score_calibration({}, calibrated, moved, world, tasks)["appearance"]

@@ -95,7 +95,8 @@ def test_the_estimated_latency_is_reported_against_the_twins():
 
 
 def _task_episodes(policy, successes, trials, task="cup_on_plate"):
-    return pd.DataFrame({"policy": policy, "task": task, "success": [k < successes for k in range(trials)]})
+    return pd.DataFrame({"policy": policy, "task": task, "init_id": range(trials),
+                         "success": [k < successes for k in range(trials)]})
 
 
 def test_the_crossing_in_further_sims_and_the_effects_alone():
@@ -162,13 +163,24 @@ def test_the_stage_reads_each_sim_and_effect_by_its_key_and_writes_their_tables(
         cfg={"stats.n_boot": 50, "stats.ci_level": 0.95, "seed": 0, "world.robot.control_hz": 10,
              "report.fidelity": {"decimals": 1}},
         reference=str(reference), sim=[folder("S_sim", 12)], cross_sim=[folder("R_sim", 9)], cross_real=[],
+        real=[folder("R_real", 10)],
         ablation=[], seed_rollouts=[], twin=None, world_params=str(world),
         sims=[f"nominal:real={folder('nominal_R', 2)}", f"nominal:sim={folder('nominal_S', 3)}"],
         alone=[], out=str(tmp_path / "report.json"), table=str(tmp_path / "fidelity_table.tex"),
         sims_table=str(tmp_path / "sims.tex"), alone_table=None, ablation_table=None, pdf=None, png=None)
     fidelity.main(args)
     assert "nominal & 11.1 & -44.4 [" in (tmp_path / "sims.tex").read_text()
-    assert set(json.loads((tmp_path / "report.json").read_text())["sims"]) == {"nominal"}
+    written = json.loads((tmp_path / "report.json").read_text())
+    assert set(written["sims"]) == {"nominal"}
+    # the reference's own episodes given: every part is paired over the shared inits, and says so
+    assert all(part["paired"] for part in written["cross"]["parts"].values())
+    assert all(part["paired"] for part in written["sims"]["nominal"]["parts"].values())
+    assert "paired over the shared inits" in (tmp_path / "sims.tex").read_text()
+    assert "intervals paired over the shared inits" in (tmp_path / "fidelity_table.tex").read_text()
+    args.real = [folder("R_real_other", 11)]  # episodes that are not the reference's: refused, the cell named
+    with pytest.raises(DataError, match="policy act, task cup_on_plate: the episodes"):
+        fidelity.main(args)
+    args.real = []
     args.sims = [folder("bad", 2)]  # no SIM:TRAINED_ON= before the folder: named, with what was expected
     with pytest.raises(DataError, match=r"--sims '.*bad': expected KEY=PATH"):
         fidelity.main(args)

@@ -60,3 +60,27 @@ def test_seed_spread_lists_every_seed_and_its_range():
                                   2: table([("a", "t1", 6, 10)])}})
     assert rows == [{"world": "S_sim", "policy": "a", "task": "t1", "seeds": [0, 1, 2],
                      "rates_pct": [50.0, 80.0, 60.0], "range_pp": 30.0, "std_pp": pytest.approx(15.275, abs=1e-3)}]
+
+
+def test_parts_whose_two_worlds_have_their_episodes_are_paired_over_the_shared_inits():
+    def trials(successes, n=20):  # one cell's episodes: init i succeeds for the first `successes`
+        return [("a", "t1", i, i < successes) for i in range(n)]
+
+    def frame(rows):
+        return pd.DataFrame(rows, columns=["policy", "task", "init_id", "success"])
+
+    episodes = {"R_sim": frame(trials(9)), "S_sim": frame(trials(7)), "S_real": frame(trials(8))}
+    worlds = {"R_real": table([("a", "t1", 12, 20)]), **{w: table([("a", "t1", 0, 0)]) for w in episodes}}
+    for world, e in episodes.items():
+        worlds[world] = table([("a", "t1", int(e["success"].sum()), len(e))])
+    report = cross_evaluation(worlds, level=0.95, n_boot=200, seed=0, episodes=episodes)
+    parts = report["parts"]
+    # R_real is known only by its counts: the parts it is in are drawn on each side's own
+    assert not parts["calibration"]["paired"] and not parts["total"]["paired"]
+    assert parts["training"]["paired"] and parts["calibration_reverse"]["paired"]
+    # nested outcomes (an init S_sim solves R_sim solves too): every redraw keeps the gap's sign
+    assert parts["training"]["mean_gap_pp"] == pytest.approx(-10.0) and parts["training"]["mean_gap_ci_pp"][1] <= 0
+    with_real = cross_evaluation(worlds | {"R_real": table([("a", "t1", 12, 20)])}, 0.95, 200, 0,
+                                 {**episodes, "R_real": frame(trials(12))})
+    assert with_real["parts"]["calibration"]["paired"]
+    assert with_real["parts"]["calibration"]["mean_gap_ci_pp"][1] <= 0

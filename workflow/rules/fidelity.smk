@@ -219,6 +219,8 @@ def fidelity_inputs(wildcards):
                        policy=TRAINED),
     }
     if TWIN:
+        # pi^R's real-side episodes (the reference's own), for intervals paired over the shared inits
+        inputs["real"] = expand("results/rollout/real/{policy}", policy=TRAINED)
         inputs["cross_real"] = expand("results/cross/real/{policy}", policy=TRAINED)
         inputs["twin"] = "results/real/twin_params.json"
         inputs["ablation"] = expand("results/fidelity/ablation/{family}/{policy}", family=ABLATION["families"],
@@ -233,7 +235,7 @@ def fidelity_args(wildcards, input):
     if not input.seeds:
         args = []
     if TWIN:
-        args += ["--cross-real", *input.cross_real, "--twin", input.twin]
+        args += ["--real", *input.real, "--cross-real", *input.cross_real, "--twin", input.twin]
         if ABLATION_POLICIES:
             args += ["--ablation", *[f"{Path(d).parent.name}={d}" for d in input.ablation]]
         if ALONE:

@@ -38,14 +38,17 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
                  ablated: Mapping[str, pd.DataFrame], seed_episodes: Mapping[tuple[str, int], pd.DataFrame],
                  calibrated: Mapping, truth: Mapping | None, level: float, n_boot: int, seed,
                  latency_truth: float | None = None, sims: Mapping[str, pd.DataFrame] | None = None,
-                 alone: Mapping[str, pd.DataFrame] | None = None) -> dict:
+                 alone: Mapping[str, pd.DataFrame] | None = None, real: pd.DataFrame | None = None) -> dict:
     """The report (module docstring) from the reference success table (R_real), episode tables
     (pi^S in the sim, pi^R in the sim, pi^S on the real side; ``ablated``: family -> pi^S's episodes
     in the twin without it; ``seed_episodes``: (world, replicate) -> a further seed's episodes),
     the calibrated sim's world-parameter record and the twin's true joint offsets and commands'
     latency (control steps, its reality effects' seconds times the control rate); ``sims``:
     "SIM:TRAINED_ON" -> the episodes of the checkpoints trained on that arm in a further sim;
-    ``alone``: effect -> pi^S's episodes in the twin with that effect alone (``none`` among them)."""
+    ``alone``: effect -> pi^S's episodes in the twin with that effect alone (``none`` among them);
+    ``real``: pi^R's episodes on the real side where the reference was counted from them (then
+    every crossing's interval is paired over the shared inits)."""
+    episodes = {"R_real": real, "R_sim": cross_sim, "S_sim": sim, "S_real": cross_real}
     worlds = {"R_real": reference, "R_sim": success_counts(cross_sim), "S_sim": success_counts(sim),
               "S_real": None if cross_real is None else success_counts(cross_real)}
     seeds: dict[str, dict[int, pd.DataFrame]] = {}
@@ -60,11 +63,11 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
         joints["latency"] = {"estimated_steps": int(latency),
                              "truth_steps": None if latency_truth is None else round(float(latency_truth), 3)}
     return {
-        "cross": cross_evaluation(worlds, level, n_boot, seed),
+        "cross": cross_evaluation(worlds, level, n_boot, seed, episodes),
         "joints": joints,
         "ablation": ablation_rows(ablated, cross_real, level),
         "seeds": seed_spread(seeds),
-        "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed),
+        "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed, episodes),
         "alone": alone_rows(alone or {}, level),
     }
 
@@ -73,18 +76,22 @@ CROSSING_PARTS = ("calibration", "calibration_reverse")  # the same weights in t
 
 
 def sims_report(sims: Mapping[str, pd.DataFrame], reference: pd.DataFrame, s_real: pd.DataFrame | None, level: float,
-                n_boot: int, seed) -> dict:
+                n_boot: int, seed, real_episodes: Mapping[str, pd.DataFrame | None] | None = None) -> dict:
     """Per further sim, the crossing both ways: pi^R there against pi^R on the real side and pi^S
     on the real side against pi^S there (``cross_evaluation``'s calibration parts, its cells and
-    the same-policy agreement). ``sims``: "SIM:TRAINED_ON" -> episodes."""
+    the same-policy agreement). ``sims``: "SIM:TRAINED_ON" -> episodes; ``real_episodes``: the
+    real side's episodes (R_real, S_real) where at hand, for paired intervals."""
     arms: dict[str, dict[str, pd.DataFrame]] = {}
     for key, episodes in sims.items():
         sim, _, trained_on = key.partition(":")
-        arms.setdefault(sim, {})[trained_on] = success_counts(episodes)
+        arms.setdefault(sim, {})[trained_on] = episodes
+    real_episodes = {k: v for k, v in (real_episodes or {}).items() if k in ("R_real", "S_real")}
     out = {}
-    for sim, tables in sorted(arms.items()):
+    for sim, arm in sorted(arms.items()):
+        tables = {trained_on: success_counts(episodes) for trained_on, episodes in arm.items()}
         cross = cross_evaluation({"R_real": reference, "R_sim": tables.get("real"), "S_sim": tables.get("sim"),
-                                  "S_real": s_real}, level, n_boot, seed)
+                                  "S_real": s_real}, level, n_boot, seed,
+                                 {**real_episodes, "R_sim": arm.get("real"), "S_sim": arm.get("sim")})
         out[sim] = {"cells": [c for c in cross["cells"] if "R_sim" in c or "S_sim" in c],
                     "parts": {k: v for k, v in cross["parts"].items() if k in CROSSING_PARTS},
                     "agreement": cross["agreement"]}
@@ -171,12 +178,20 @@ def fidelity_table(report: Mapping, decimals: int = 1) -> str:
     return _tabular("ll" + "r" * len(worlds) + "rr", header, body, notes=notes)
 
 
+def _drawn(summary: Mapping) -> str:
+    """How the part's intervals were drawn, in a few words."""
+    return "paired over the shared inits" if summary.get("paired") else "each side drawn on its own"
+
+
 def part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
-    """One line: a part's mean absolute gap with its interval, signed mean, largest, cells."""
+    """One line: a part's mean absolute gap and signed mean with their intervals, largest, cells,
+    and how the intervals were drawn."""
     lo, hi = summary["mean_abs_gap_ci_pp"]
+    signed_lo, signed_hi = summary["mean_gap_ci_pp"]
     return (f"{name} ({summary['compares']}): mean |gap| {summary['mean_abs_gap_pp']:.{decimals}f} pp "
-            f"[{lo:.{decimals}f}, {hi:.{decimals}f}], mean {summary['mean_gap_pp']:+.{decimals}f} pp, largest "
-            f"{summary['max_abs_gap_pp']:.{decimals}f} pp over {summary['cells']} cells")
+            f"[{lo:.{decimals}f}, {hi:.{decimals}f}], mean {summary['mean_gap_pp']:+.{decimals}f} pp "
+            f"[{signed_lo:+.{decimals}f}, {signed_hi:+.{decimals}f}], largest "
+            f"{summary['max_abs_gap_pp']:.{decimals}f} pp over {summary['cells']} cells ({_drawn(summary)})")
 
 
 def ablation_table(rows: list[Mapping], decimals: int = 1, alone: bool = False) -> str:
@@ -234,10 +249,12 @@ def sims_table(report: Mapping, decimals: int = 1) -> str:
                   _mean_gap(r["parts"].get("calibration_reverse"), decimals)]) for name, r in rows.items()]
     real = rows["calibrated"]["cells"]
     level = 100 * cross["ci_level"]
+    paired = any(part.get("paired") for r in rows.values() for part in r["parts"].values())
     notes = [f"The same checkpoints in every sim, from the same initial configurations; on the real side "
              f"$\\pi^R$ {_pooled(real, 'R_real')}\\%, $\\pi^S$ {_pooled(real, 'S_real')}\\% "
              f"({', '.join(sorted(latex_escape(p) for p in trained))}). Mean signed gap over the policy-task cells, "
-             f"{level:g}\\% percentile-bootstrap interval."]
+             f"{level:g}\\% percentile-bootstrap interval"
+             f"{', paired over the shared inits where both sides ran them' if paired else ''}."]
     return _tabular("lrrrr", header, body, notes=notes)
 
 
@@ -248,7 +265,7 @@ def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
     return (f"{latex_escape(name.replace('_', ' '))} ({WORLD_LABELS[plus]} $-$ {WORLD_LABELS[minus]}): mean $|$gap$|$ "
             f"{summary['mean_abs_gap_pp']:.{decimals}f} pp [{lo:.{decimals}f}, {hi:.{decimals}f}], mean "
             f"{summary['mean_gap_pp']:+.{decimals}f} pp, largest {summary['max_abs_gap_pp']:.{decimals}f} pp, "
-            f"{summary['cells']} cells")
+            f"{summary['cells']} cells, intervals {_drawn(summary)}")
 
 
 def format_report(report: Mapping) -> str:

@@ -1,6 +1,7 @@
 """Stage: the fidelity report (``r2s_eval.report.fidelity_report``) and its table and figure.
 
-Reads the real side's reference (pi^R on the robot), pi^S's sim rollouts, the cross-evaluation
+Reads the real side's reference (pi^R on the robot; its episodes too where it was counted from
+rollouts, for intervals paired over the shared inits), pi^S's sim rollouts, the cross-evaluation
 rollouts (pi^R in the calibrated sim; pi^S on the twin), optionally the ablation rollouts
 (``FAMILY=FOLDER``: pi^S in the twin without that family) and further training seeds' rollouts
 (``WORLD:SEED=FOLDER``), the calibrated sim's world parameters and, with the twin, its truth;
@@ -39,7 +40,8 @@ def main(args) -> None:
         read_json(args.world_params), twin["joint_offset_rad"] if twin is not None else None,
         float(cfg["stats.ci_level"]), int(cfg["stats.n_boot"]), int(cfg["seed"]),
         latency_truth=latency_truth,
-        sims=_cli.keyed(args.sims, load_episodes, "sims"), alone=_cli.keyed(args.alone, load_episodes, "alone"))
+        sims=_cli.keyed(args.sims, load_episodes, "sims"), alone=_cli.keyed(args.alone, load_episodes, "alone"),
+        real=load_episodes(args.real) if args.real else None)
     print(format_report(report))
     write_json(args.out, report, provenance=True)
     decimals = int(opts["decimals"])
@@ -58,6 +60,8 @@ if __name__ == "__main__":
     p.add_argument("--reference", required=True, help="reference success table (pi^R on the real side)")
     p.add_argument("--sim", nargs="+", required=True, help="pi^S sim rollout folders")
     p.add_argument("--cross-sim", nargs="+", required=True, help="pi^R rollout folders in the calibrated sim")
+    p.add_argument("--real", nargs="*", default=[], help="pi^R's rollout folders on the real side, the reference's "
+                                                          "episodes (paired intervals)")
     p.add_argument("--cross-real", nargs="*", default=[], help="pi^S rollout folders on the twin")
     p.add_argument("--ablation", nargs="*", default=[], help="FAMILY=FOLDER: pi^S in the twin without FAMILY")
     p.add_argument("--seed-rollouts", nargs="*", default=[], help="WORLD:SEED=FOLDER: a further seed's rollouts")

@@ -11,8 +11,11 @@ same initial configurations splits it exactly, per policy-task cell::
 ``S_sim``: pi^S in the simulation; ``S_real``: pi^S on the real side (only where the real side
 can run it: the twin). The calibration part compares the same weights in two worlds; the
 training part two trainings in one world. Every part is a set of per-cell differences of two
-independent rates, summarised as ``r2s_eval.stats.proportions.gap_summary`` does (mean
-absolute and signed gap, largest, with parametric-bootstrap intervals).
+rates, summarised as ``r2s_eval.stats.proportions.gap_summary`` does (mean absolute and signed
+gap, largest, with bootstrap intervals). Every world starts a cell's trials from the same seeded
+inits, so where both worlds' episodes are at hand the interval is paired over those inits (the
+part's ``paired``); a world known only by its counts (a lab's hardware trials) is drawn
+binomially, independent of the other.
 
 Same-policy agreement: Pearson r and MMRV of the per-policy success (the mean of its per-task
 rates, as the reference defines it: ``reference_rates``) of R_sim against R_real, as SimplerEnv scores its simulator with the same policy in both worlds.
@@ -24,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.stats.metrics import mmrv, pearson
-from r2s_eval.stats.proportions import count_gap_cells, gap_summary, wilson_interval
+from r2s_eval.stats.proportions import count_gap_cells, gap_summary, paired_outcomes, wilson_interval
 from r2s_eval.stats.reference import reference_rates
 
 # name -> (what the gap compares: minuend, subtrahend)
@@ -37,13 +40,16 @@ PARTS = {
 }
 
 
-def cross_evaluation(worlds: dict[str, pd.DataFrame], level: float, n_boot: int, seed) -> dict:
+def cross_evaluation(worlds: dict[str, pd.DataFrame], level: float, n_boot: int, seed,
+                     episodes: dict[str, pd.DataFrame | None] | None = None) -> dict:
     """The split (module docstring) from success tables per world: ``worlds`` maps R_real,
-    R_sim, S_sim and optionally S_real to tables (policy, task, trials, successes).
+    R_sim, S_sim and optionally S_real to tables (policy, task, trials, successes);
+    ``episodes`` the worlds whose episodes (policy, task, init_id, success) are at hand to theirs.
 
     Returns per cell the four rates with Wilson intervals and trials, per part the cells' gaps
     with Newcombe intervals and their summary, and the same-policy agreement."""
     worlds = {name: table for name, table in worlds.items() if table is not None and len(table)}
+    episodes = {name: e for name, e in (episodes or {}).items() if e is not None and name in worlds}
     cells: dict[tuple[str, str], dict] = {}
     for name, table in worlds.items():
         for c in table.itertuples():
@@ -56,7 +62,9 @@ def cross_evaluation(worlds: dict[str, pd.DataFrame], level: float, n_boot: int,
         if plus not in worlds or minus not in worlds:
             continue
         gap_cells = count_gap_cells(worlds[minus], worlds[plus], level)
-        summary = gap_summary(gap_cells, level, n_boot, seed)
+        paired = (paired_outcomes(episodes[minus], episodes[plus]) if minus in episodes and plus in episodes
+                  else None)
+        summary = gap_summary(gap_cells, level, n_boot, seed, paired=paired)
         summary["compares"] = f"{plus} - {minus}"
         summary["cells_gap_pp"] = [
             {"policy": g.policy, "task": g.task, "gap_pp": 100 * g.gap,

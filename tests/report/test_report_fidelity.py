@@ -164,14 +164,14 @@ def test_the_stage_reads_each_sim_and_effect_by_its_key_and_writes_their_tables(
              "report.fidelity": {"decimals": 1}},
         reference=str(reference), sim=[folder("S_sim", 12)], cross_sim=[folder("R_sim", 9)], cross_real=[],
         real=[folder("R_real", 10)],
-        ablation=[], seed_rollouts=[], twin=None, world_params=str(world),
+        ablation=[], seed_rollouts=[f"S_sim:1={folder('S_sim_seed1', 11)}"], twin=None, world_params=str(world),
         sims=[f"nominal:real={folder('nominal_R', 2)}", f"nominal:sim={folder('nominal_S', 3)}"],
         alone=[], out=str(tmp_path / "report.json"), table=str(tmp_path / "fidelity_table.tex"),
         sims_table=str(tmp_path / "sims.tex"), alone_table=None, ablation_table=None, pdf=None, png=None)
     fidelity.main(args)
     assert "nominal & 11.1 & -44.4 [" in (tmp_path / "sims.tex").read_text()
     written = json.loads((tmp_path / "report.json").read_text())
-    assert set(written["sims"]) == {"nominal"}
+    assert set(written["sims"]) == {"nominal"} and written["seeds"][0]["seeds"] == [0, 1]
     # the reference's own episodes given: every part is paired over the shared inits, and says so
     assert all(part["paired"] for part in written["cross"]["parts"].values())
     assert all(part["paired"] for part in written["sims"]["nominal"]["parts"].values())

@@ -48,7 +48,7 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
     ``alone``: effect -> pi^S's episodes in the twin with that effect alone (``none`` among them);
     ``real``: pi^R's episodes on the real side where the reference was counted from them (then
     every crossing's interval is paired over the shared inits)."""
-    episodes = {"R_real": real, "R_sim": cross_sim, "S_sim": sim, "S_real": cross_real}
+    world_episodes = {"R_real": real, "R_sim": cross_sim, "S_sim": sim, "S_real": cross_real}
     worlds = {"R_real": reference, "R_sim": success_counts(cross_sim), "S_sim": success_counts(sim),
               "S_real": None if cross_real is None else success_counts(cross_real)}
     seeds: dict[str, dict[int, pd.DataFrame]] = {}
@@ -63,11 +63,11 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
         joints["latency"] = {"estimated_steps": int(latency),
                              "truth_steps": None if latency_truth is None else round(float(latency_truth), 3)}
     return {
-        "cross": cross_evaluation(worlds, level, n_boot, seed, episodes),
+        "cross": cross_evaluation(worlds, level, n_boot, seed, world_episodes),
         "joints": joints,
         "ablation": ablation_rows(ablated, cross_real, level),
         "seeds": seed_spread(seeds),
-        "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed, episodes),
+        "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed, world_episodes),
         "alone": alone_rows(alone or {}, level),
     }
 

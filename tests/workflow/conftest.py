@@ -7,6 +7,7 @@ end Snakemake had recorded.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -21,6 +22,7 @@ from pathlib import Path
 import pandas as pd
 import psutil
 import pytest
+from filelock import FileLock
 
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
@@ -223,15 +225,15 @@ def kill_inside_job(cmd: list[str], stage: str, log_path: Path, after_rule: str)
         proc.wait()
 
 
-@pytest.fixture(scope="session")
-def smoke_run(tmp_path_factory) -> SmokeRun:
-    """The smoke experiment, killed twice like a lost machine and resumed with the plain command.
+def _make_smoke_run(workdir: Path) -> SmokeRun:
+    """The smoke experiment in `workdir`, killed twice like a lost machine and resumed with the
+    plain command.
 
     First kill: one job at a time, right after ingest wrote its outputs but before Snakemake
     recorded the job (the resume must redo it, not stop on incomplete files). Second kill: inside
     a training job. A hard kill leaves Snakemake's lock behind; `--unlock` is the documented step.
     """
-    workdir = tmp_path_factory.mktemp("smoke")
+    workdir.mkdir(parents=True)
     base = [*SNAKEMAKE, "-s", str(REPO / "Snakefile"), "-d", str(workdir)]
     start = time.monotonic()
     first_log = workdir.parent / "first_run.log"
@@ -250,3 +252,25 @@ def smoke_run(tmp_path_factory) -> SmokeRun:
         workdir, killed_after, resumed.stdout + resumed.stderr, time.monotonic() - start,
         ingest_outputs, second_text,
     )
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory, worker_id) -> SmokeRun:
+    """One smoke run for the whole test session (`_make_smoke_run`). Under pytest-xdist the
+    workers share it: the first to ask makes it while the others wait on a file lock, then read
+    what it recorded; a run that failed fails their tests too, without being made again."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base if worker_id == "master" else base.parent  # xdist: the session's folder above the workers'
+    record, failed = shared / "smoke_run.json", shared / "smoke_run.failed"
+    with FileLock(shared / "smoke_run.lock"):
+        if failed.exists():
+            pytest.fail(f"the shared smoke run failed (in another worker):\n{failed.read_text()[-3000:]}")
+        if not record.exists():
+            try:
+                run = _make_smoke_run(shared / "smoke")
+            except BaseException as error:
+                failed.write_text(f"{type(error).__name__}: {error}")
+                raise
+            record.write_text(json.dumps({**dataclasses.asdict(run), "workdir": str(run.workdir)}))
+        fields = json.loads(record.read_text())
+    return SmokeRun(**{**fields, "workdir": Path(fields["workdir"])})

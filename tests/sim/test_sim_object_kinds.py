@@ -4,18 +4,24 @@ the video judge ask the kind instead of branching on its name."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.judge.video_judge import goal_relation
+from r2s_eval.sim import WorldParams
 from r2s_eval.sim.objects import KINDS, PLACEMENTS, ObjectKind, ObjectSpec, add_object
 from r2s_eval.sim.predicates import SUPPORTED_KINDS, ConditionError, compile_condition, inside
-from tests.helpers.worlds import bundled_tasks, bundled_world
+from r2s_eval.twin.reality import RealityEffects
+from r2s_eval.twin.scene import scene_adder, true_handle_dims
+from tests.helpers.worlds import bundled_robot, bundled_tasks, bundled_world
 
 OBJECTS = {name: ObjectSpec(name=name, kind=e["kind"], rgba=tuple(e["rgba"]), dims=e["dims"], mass_kg=e["mass_kg"])
            for name, e in bundled_world()["objects"].items()}
+MUG_HANDLE = dict(handle_low_m=0.021, handle_high_m=0.068, handle_out_m=0.025, handle_thickness_m=0.009)
 
 
 def test_every_kind_a_world_names_is_one_class():
@@ -54,6 +60,51 @@ def test_each_kind_states_its_geometry():
     assert cup.placed_height_m(dims["cup"], "on_side") == pytest.approx(0.074)
     assert [cup.yaw_symmetry("upright"), cup.yaw_symmetry("on_side"), block.yaw_symmetry(), box.yaw_symmetry(),
             KINDS["mesh"].yaw_symmetry()] == [0, 1, 4, 2, 1]
+    mug = {**dims["cup"], **MUG_HANDLE}  # a handle points one way; the footprint stays the body's
+    assert [cup.yaw_symmetry("upright", mug), cup.yaw_symmetry("upside_down", mug)] == [1, 1]
+    assert [cup.footprint_radius_m(mug, p) for p in PLACEMENTS] == [cup.footprint_radius_m(dims["cup"], p)
+                                                                    for p in PLACEMENTS]
+
+
+def test_a_cup_whose_world_states_a_handle_is_a_mug_as_the_twin_builds_its_own():
+    """The world's mug (a lab's measurement) is built by the kind: three massless capsules along the
+    body's -x. Stated as the twin's true handle, the calibrated sim's mug is the twin's, geom for
+    geom; stated otherwise, the twin keeps its own handle (the world's never reaches its model)."""
+    world = bundled_world()
+    cup = world["objects"]["cup"]
+    plain = ObjectSpec(name="cup", kind="cup", rgba=tuple(cup["rgba"]), dims=cup["dims"], mass_kg=cup["mass_kg"])
+    true = true_handle_dims(plain.dims)
+    measured = dataclasses.replace(plain, dims={**plain.dims, **true})
+    wrong = dataclasses.replace(plain, dims={**plain.dims, **MUG_HANDLE, "handle_out_m": 0.04})
+
+    def cup_geoms(obj, reality=None):
+        spec = mujoco.MjSpec()
+        add_object(spec, obj, 1.0)
+        if reality is not None:
+            scene_adder(reality, bundled_robot(), [obj], WorldParams())(spec)
+        model = spec.compile()
+        geoms = [g for g in range(model.ngeom) if model.geom(g).name.startswith("cup_handle_")]
+        return model, geoms
+
+    model, geoms = cup_geoms(measured)
+    assert [model.geom(g).name for g in geoms] == ["cup_handle_lower", "cup_handle_upper", "cup_handle_grip"]
+    assert model.body_mass[model.body("cup").id] == pytest.approx(cup["mass_kg"])
+    grip = model.geom_pos[geoms[2]]
+    assert grip[0] < -cup["dims"]["radius_m"] and abs(grip[1]) < 1e-9  # off the wall, along -x
+    d = cup["dims"]  # the handle's outside stands handle_out_m off the wall where its upper arm meets it
+    wall = d["base_radius_m"] + (d["radius_m"] - d["base_radius_m"]) * true["handle_high_m"] / d["height_m"]
+    assert grip[0] - model.geom_size[geoms[2]][0] == pytest.approx(-wall - true["handle_out_m"])
+    assert not cup_geoms(plain)[1]
+    twin_model, twin_geoms = cup_geoms(plain, RealityEffects(cup_handle=True))
+    for obj in (measured, wrong):
+        over, over_geoms = cup_geoms(obj, RealityEffects(cup_handle=True))
+        assert len(over_geoms) == 3  # the twin's handle in place of the world's, not beside it
+        for field in ("geom_pos", "geom_size", "geom_quat"):
+            assert np.allclose(getattr(over, field)[over_geoms], getattr(twin_model, field)[twin_geoms]), field
+    for field in ("geom_pos", "geom_size", "geom_quat", "geom_friction", "geom_contype", "geom_conaffinity"):
+        assert np.allclose(getattr(model, field)[geoms], getattr(twin_model, field)[twin_geoms]), field
+    wrong_model, wrong_geoms = cup_geoms(wrong)
+    assert not np.allclose(wrong_model.geom_pos[wrong_geoms], model.geom_pos[geoms])
 
 
 @pytest.mark.parametrize("name", sorted(OBJECTS))

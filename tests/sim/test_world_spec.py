@@ -108,6 +108,21 @@ def test_an_objects_dimensions_are_its_kinds():
         load_tasks(world)
     assert str(err.value).splitlines()[1:] == [
         "  - world.objects.cup.dims.radius: is not a dimension of a cup "
-        "['radius_m', 'height_m', 'wall_m', 'bottom_m', 'n_walls', 'base_radius_m']",
+        "['radius_m', 'height_m', 'wall_m', 'bottom_m', 'n_walls', 'base_radius_m', 'handle_low_m', "
+        "'handle_high_m', 'handle_out_m', 'handle_thickness_m']",
         "  - world.objects.cup.dims.radius_m: is missing",
         "  - world.objects.block_a.dims.height_m: is not a dimension of a block ['size_m']"]
+
+
+def test_a_mugs_handle_takes_all_its_dimensions_and_fits_on_the_cup():
+    world = copy.deepcopy(bundled_world())
+    world["objects"]["cup"]["dims"].update(handle_low_m=0.021, handle_high_m=0.09, handle_out_m=0.025)
+    with pytest.raises(WorldError) as err:
+        load_tasks(world)
+    assert str(err.value) == ("world.objects.cup.dims.handle_thickness_m: is missing: a mug's handle takes all of "
+                              "['handle_low_m', 'handle_high_m', 'handle_out_m', 'handle_thickness_m']")
+    world["objects"]["cup"]["dims"].update(handle_thickness_m=0.03)
+    with pytest.raises(WorldError) as err:
+        load_tasks(world)
+    assert [line.split(":")[0] for line in str(err.value).splitlines()[1:]] == [
+        "  - world.objects.cup.dims.handle_high_m", "  - world.objects.cup.dims.handle_out_m"]

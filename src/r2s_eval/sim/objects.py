@@ -18,7 +18,8 @@ cup    hollow and tapered like a real cup: a bottom disc plus a ring of wall box
        leaning outwards (open top), so a ball can go in it or be covered by it upside
        down. The taper also tells the opening from the bottom when it lies on its side.
        dims: radius_m (outer, at the rim), base_radius_m (outer, at the bottom),
-       height_m, wall_m, bottom_m, n_walls
+       height_m, wall_m, bottom_m, n_walls; a mug also states its handle (``HANDLE_DIMS``,
+       all four or none): a C of three capsules on its wall along the body's -x, massless
 plate  flat disc with a low rim of boxes. dims: radius_m, thickness_m, rim_height_m,
        rim_width_m, n_rim
 ball   solid sphere (body frame at its lowest point). dims: radius_m
@@ -240,9 +241,15 @@ class ObjectKind:
         """Lean of a tapered wall from vertical."""
         return 0.0
 
-    def yaw_symmetry(self, placement: str = "upright") -> int:
-        """The object's yaw symmetry in ``placement`` (0: round, n: the same after 2 pi / n)."""
+    def yaw_symmetry(self, placement: str = "upright", dims: dict | None = None) -> int:
+        """The object's yaw symmetry in ``placement`` (0: round, n: the same after 2 pi / n), for
+        an object of ``dims`` where its shape depends on them."""
         return self.upright_yaw_symmetry
+
+    def dims_problems(self, dims: dict) -> list[tuple[str, str]]:
+        """(key, problem) for dimensions that cannot go together (the keys' presence is checked
+        by the world's reader)."""
+        return []
 
     # ------------------------------------------------------------ placements
     def _check_placement(self, placement: str) -> None:
@@ -331,12 +338,46 @@ class ObjectKind:
         raise self._undefined("apart", "has no footprint", name, "footprint")
 
 
+# A mug's handle, as a lab measures its mug (metres): the heights of its lower and upper arms'
+# centre lines above the cup's bottom, how far its outside stands off the cup's widest wall, and
+# the thickness of its tube. It points along the body's -x (``HANDLE_AXIS``): the on_side placement
+# turns +x down, so a lying mug rests on its wall with the handle up (along +-y it would lie in the
+# jaws' way).
+HANDLE_DIMS = ("handle_low_m", "handle_high_m", "handle_out_m", "handle_thickness_m")
+HANDLE_AXIS = np.array([-1.0, 0.0])
+
+
+def has_handle(dims: dict) -> bool:
+    """Whether a cup of ``dims`` is a mug (its world states a handle)."""
+    return all(k in dims for k in HANDLE_DIMS)
+
+
+def add_cup_handle(body, name: str, dims: dict, rgba, friction: float) -> None:
+    """A mug's C-shaped handle on the wall of cup ``name`` of (scaled) ``dims``: two arms out from
+    the wall and a grip joining them, capsules without mass (the cup weighs what its world says)."""
+    r, h = dims["radius_m"], dims["height_m"]
+    r_base = dims.get("base_radius_m", r)
+    tube = dims["handle_thickness_m"] / 2
+    z_lo, z_hi = dims["handle_low_m"], dims["handle_high_m"]
+    wall_at = {z: r_base + (r - r_base) * z / h for z in (z_lo, z_hi)}  # the outer wall's radius at a height
+    grip = max(wall_at.values()) + dims["handle_out_m"] - tube  # the grip's centre line off the axis
+    axis = np.r_[HANDLE_AXIS, 0.0]
+    points = {"lower": (axis * (wall_at[z_lo] - tube) + [0, 0, z_lo], axis * grip + [0, 0, z_lo]),
+              "upper": (axis * (wall_at[z_hi] - tube) + [0, 0, z_hi], axis * grip + [0, 0, z_hi]),
+              "grip": (axis * grip + [0, 0, z_lo], axis * grip + [0, 0, z_hi])}
+    for part, (start, end) in points.items():
+        geom = _add_geom(body, [tube], [0, 0, 0], rgba, 0.0, friction, mujoco.mjtGeom.mjGEOM_CAPSULE,
+                         name=f"{name}_handle_{part}")
+        geom.fromto = [*start, *end]
+
+
 class Cup(ObjectKind):
-    """Hollow, tapered, open at the top (a ball goes in it, or it covers one upside down)."""
+    """Hollow, tapered, open at the top (a ball goes in it, or it covers one upside down); a mug
+    where its dims state a handle (``HANDLE_DIMS``)."""
 
     name = "cup"
     dims_keys = ("radius_m", "height_m", "wall_m", "bottom_m", "n_walls")
-    optional_dims_keys = ("base_radius_m",)
+    optional_dims_keys = ("base_radius_m", *HANDLE_DIMS)
     placements = PLACEMENTS
     upright_yaw_symmetry = 0
     pickable = True
@@ -345,6 +386,8 @@ class Cup(ObjectKind):
         return dims["radius_m"] * 2 if placement == "on_side" else self.height_m(dims)
 
     def footprint_radius_m(self, dims: dict, placement: str = "upright") -> float:
+        # The cup's body: a mug's thin handle may reach over a neighbour's clearance, as a real mug's does
+        # (counted in, the bundled tasks' regions would leave no room for a mug beside the plate).
         if placement == "on_side":
             return float(np.hypot(dims["height_m"] / 2, dims["radius_m"]))
         return dims["radius_m"]
@@ -356,8 +399,27 @@ class Cup(ObjectKind):
         return float(np.arctan2(dims["radius_m"] - dims.get("base_radius_m", dims["radius_m"]),
                                 dims["height_m"] - dims["bottom_m"]))
 
-    def yaw_symmetry(self, placement: str = "upright") -> int:
-        return 1 if placement == "on_side" else self.upright_yaw_symmetry  # lying, its opening points one way
+    def yaw_symmetry(self, placement: str = "upright", dims: dict | None = None) -> int:
+        if placement == "on_side" or (dims is not None and has_handle(dims)):
+            return 1  # lying, its opening points one way; a handle points one way
+        return self.upright_yaw_symmetry
+
+    def dims_problems(self, dims):
+        stated = [k for k in HANDLE_DIMS if k in dims]
+        if not stated:
+            return []
+        if len(stated) < len(HANDLE_DIMS):
+            return [(f"dims.{k}", f"is missing: a mug's handle takes all of {list(HANDLE_DIMS)}")
+                    for k in HANDLE_DIMS if k not in dims]
+        problems = [(f"dims.{k}", f"must be above 0, got {dims[k]}") for k in HANDLE_DIMS if not dims[k] > 0]
+        if not dims["handle_low_m"] < dims["handle_high_m"] <= dims["height_m"]:
+            problems.append(("dims.handle_high_m", f"must lie above handle_low_m ({dims['handle_low_m']}) and no "
+                             f"higher than the cup's height_m ({dims['height_m']}), got {dims['handle_high_m']}"))
+        if not dims["handle_out_m"] >= dims["handle_thickness_m"]:
+            problems.append(("dims.handle_out_m", f"must be at least handle_thickness_m "
+                             f"({dims['handle_thickness_m']}): it is measured to the handle's outside, got "
+                             f"{dims['handle_out_m']}"))
+        return problems
 
     def origin_m(self, dims, placement, x_m, y_m, yaw_rad, support_z_m):
         if placement != "on_side":
@@ -389,6 +451,8 @@ class Cup(ObjectKind):
         _ring_of_boxes(body, obj.name, r_mid, int(dims["n_walls"]), wall / 2, wall_h / 2 / np.cos(lean_rad),
                        bottom + wall_h / 2, rgba, obj.mass_kg - bottom_mass, obj.friction, lean_rad=lean_rad,
                        max_radius_m=r - wall / 2)
+        if has_handle(dims):
+            add_cup_handle(body, obj.name, dims, rgba, obj.friction)
 
     def grasp(self, dims, placement):
         # Round its wall near the table; upside down a little lower, round its rim.

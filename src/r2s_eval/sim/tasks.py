@@ -99,7 +99,7 @@ class Task:
     def yaw_symmetry(self, name: str) -> int:
         """Yaw symmetry of the object in its start placement (its kind's, ``ObjectKind.yaw_symmetry``)."""
         obj = self.object(name)
-        return obj.symmetry if obj.symmetry is not None else obj.kind_object.yaw_symmetry(self.placement(name))
+        return obj.symmetry if obj.symmetry is not None else obj.kind_object.yaw_symmetry(self.placement(name), obj.dims)
 
 
 # ---------------------------------------------------------------- reading a world

@@ -451,6 +451,8 @@ class Object:
                 problems += [(f"dims.{k}", f"is not a dimension of a {self.kind} {list(known)}")
                              for k in self.dims if k not in known]
                 problems += [(f"dims.{k}", "is missing") for k in kind.dims_keys if k not in self.dims]
+                if all(k in self.dims for k in kind.dims_keys):
+                    problems += kind.dims_problems(dict(self.dims))
             problems += [(k, f"is for kind mesh, not {self.kind}") for k in ("mesh", "collision", "yaw_symmetry")
                          if getattr(self, k) is not None]
         return problems

@@ -20,8 +20,10 @@ fields (``r2s_eval.twin.reality``), each off at its default:
   bases and the objects. ``check_distractors`` refuses a twin whose distractor lies within 2 cm of
   a task's start region (grown by the object's footprint).
 - ``cup_handle``: every cup is a mug: a C-shaped handle (three capsules, massless: the cup weighs
-  what the world says) on its wall, pointing along the body's -x axis (``HANDLE_AXIS``): up when
-  the cup lies on its side, clear of the table and of the jaws that close across it. The scripted
+  what the world says) on its wall, pointing along the body's -x axis (``r2s_eval.sim.objects``'
+  ``HANDLE_AXIS``): up when the cup lies on its side, clear of the table and of the jaws that
+  close across it. Its size is the twin's (``true_handle_dims``), in place of any handle the world
+  states (a lab's measurement of its mug, which the calibrated sim builds). The scripted
   operator sees it and turns its jaws away from it (``r2s_eval.twin.operator``).
 - ``block_edge_radius_m``: every block's edges and corners are rounded with this radius (three
   boxes and twelve capsules in place of the cube: the same size, mass and frame).
@@ -47,7 +49,7 @@ from scipy import ndimage
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.model_files import load_model_spec
-from r2s_eval.sim.objects import ObjectSpec
+from r2s_eval.sim.objects import HANDLE_DIMS, ObjectSpec, add_cup_handle
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.render_params import key_light
 from r2s_eval.sim.robot import Robot
@@ -329,12 +331,12 @@ def _add_distractors(spec: mujoco.MjSpec, robot: Robot, distractors) -> None:
 
 
 # ----------------------------------------------------------------------------- true shapes
-# The mug's handle points along the cup body's -x: the on_side placement turns +x down, so a lying
-# mug rests on its wall with the handle up (along +-y it would lie in the jaws' way).
-HANDLE_AXIS = np.array([-1.0, 0.0])
+# The twin's mug, in proportion to the world's cup (its rim radius and height): a handle between a
+# quarter and four fifths of the height whose tube is 0.24 x the rim radius thick (8.9 mm on the
+# bundled cup) and stands 0.67 x the rim radius off the wall (25 mm).
 HANDLE_SPAN = (0.25, 0.80)  # its lower and upper arms, as fractions of the cup's height
-HANDLE_REACH_REL = 0.55  # how far its grip stands off the wall, x the rim radius (2 cm on the bundled cup)
-HANDLE_TUBE_REL = 0.12  # its tube's radius, x the rim radius (4.4 mm)
+HANDLE_OUT_REL = 0.67
+HANDLE_THICKNESS_REL = 0.24
 
 
 def _style_of(body: mujoco.MjsBody) -> dict:
@@ -344,25 +346,22 @@ def _style_of(body: mujoco.MjsBody) -> dict:
                 rgba=list(geom.rgba))
 
 
-def _add_handle(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float) -> None:
-    """A C-shaped handle on the cup's wall: two arms out from the wall and a grip joining them
-    (capsules, massless: the cup weighs what the world says), pointing along ``HANDLE_AXIS``."""
-    dims = obj.scaled_dims(size_scale)
+def true_handle_dims(dims: dict) -> dict:
+    """The twin's mug handle (``HANDLE_DIMS``) on a cup of (scaled) ``dims``."""
     r, h = dims["radius_m"], dims["height_m"]
-    r_base = dims.get("base_radius_m", r)
+    return {"handle_low_m": HANDLE_SPAN[0] * h, "handle_high_m": HANDLE_SPAN[1] * h,
+            "handle_out_m": HANDLE_OUT_REL * r, "handle_thickness_m": HANDLE_THICKNESS_REL * r}
+
+
+def _add_handle(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float) -> None:
+    """The twin's true handle on the cup's wall (``true_handle_dims``), in place of any handle the
+    world states (a lab's measurement of its mug: the calibrated sim's answer, never the twin's)."""
+    dims = {k: v for k, v in obj.scaled_dims(size_scale).items() if k not in HANDLE_DIMS}
     body = spec.body(obj.name)
+    for geom in [g for g in body.geoms if g.name.startswith(f"{obj.name}_handle_")]:
+        spec.delete(geom)
     style = _style_of(body)
-    tube, reach = HANDLE_TUBE_REL * r, HANDLE_REACH_REL * r
-    z_lo, z_hi = HANDLE_SPAN[0] * h, HANDLE_SPAN[1] * h
-    wall_at = {z: r_base + (r - r_base) * z / h for z in (z_lo, z_hi)}  # the outer wall's radius at a height
-    grip = max(wall_at.values()) + reach
-    axis = np.r_[HANDLE_AXIS, 0.0]
-    points = {"lower": (axis * (wall_at[z_lo] - tube) + [0, 0, z_lo], axis * grip + [0, 0, z_lo]),
-              "upper": (axis * (wall_at[z_hi] - tube) + [0, 0, z_hi], axis * grip + [0, 0, z_hi]),
-              "grip": (axis * grip + [0, 0, z_lo], axis * grip + [0, 0, z_hi])}
-    for part, (start, end) in points.items():
-        body.add_geom(name=f"{obj.name}_handle_{part}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[tube, 0, 0],
-                      fromto=[*start, *end], mass=0.0, **style)
+    add_cup_handle(body, obj.name, {**dims, **true_handle_dims(dims)}, style["rgba"], style["friction"][0])
 
 
 def _round_block(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, radius_m: float) -> None:

@@ -107,6 +107,40 @@ def test_a_cup_whose_world_states_a_handle_is_a_mug_as_the_twin_builds_its_own()
     assert not np.allclose(wrong_model.geom_pos[wrong_geoms], model.geom_pos[geoms])
 
 
+def test_a_block_whose_world_states_rounded_edges_is_built_as_the_twin_rounds_its_own():
+    """A block's ``edge_radius_m`` (a lab's measurement) gives the kind's rounded cube: the same
+    size, mass and frame; the twin's own radius replaces it in the twin's model."""
+    block = bundled_world()["objects"]["block_a"]
+    plain = ObjectSpec(name="block_a", kind="block", rgba=tuple(block["rgba"]), dims=block["dims"],
+                       mass_kg=block["mass_kg"])
+
+    def compiled(obj, reality=None):
+        spec = mujoco.MjSpec()
+        add_object(spec, obj, 1.0)
+        if reality is not None:
+            scene_adder(reality, bundled_robot(), [obj], WorldParams())(spec)
+        model = spec.compile()
+        return model, np.flatnonzero(model.geom_bodyid == model.body("block_a").id)
+
+    rounded = dataclasses.replace(plain, dims={**plain.dims, "edge_radius_m": 0.004})
+    model, geoms = compiled(rounded)
+    cube, cube_geoms = compiled(plain)
+    assert (len(geoms), len(cube_geoms)) == (15, 1)
+    assert model.body_mass[model.body("block_a").id] == pytest.approx(block["mass_kg"])
+    half = block["dims"]["size_m"] / 2  # the rounded cube's faces where the cube's are: its boxes reach them
+    boxes = geoms[model.geom_type[geoms] == mujoco.mjtGeom.mjGEOM_BOX]
+    low, high = model.geom_pos[boxes] - model.geom_size[boxes], model.geom_pos[boxes] + model.geom_size[boxes]
+    assert np.allclose([low.min(0), high.max(0)], [[-half, -half, 0], [half, half, 2 * half]])
+    twin, twin_geoms = compiled(plain, RealityEffects(block_edge_radius_m=0.004))
+    for field in ("geom_pos", "geom_size", "geom_quat", "geom_friction", "geom_rgba", "body_mass"):
+        a, b = getattr(model, field), getattr(twin, field)
+        assert np.allclose(a[geoms] if field.startswith("geom") else a, b[twin_geoms] if field.startswith("geom")
+                           else b), field
+    other, other_geoms = compiled(rounded, RealityEffects(block_edge_radius_m=0.002))  # the twin's radius wins
+    assert len(other_geoms) == 15 and model.geom_size[geoms[3], 0] == pytest.approx(0.004)
+    assert other.geom_size[other_geoms[3], 0] == pytest.approx(0.002)
+
+
 @pytest.mark.parametrize("name", sorted(OBJECTS))
 def test_a_placed_object_gives_back_its_planar_pose(name):
     obj = OBJECTS[name]

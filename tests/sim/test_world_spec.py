@@ -111,7 +111,7 @@ def test_an_objects_dimensions_are_its_kinds():
         "['radius_m', 'height_m', 'wall_m', 'bottom_m', 'n_walls', 'base_radius_m', 'handle_low_m', "
         "'handle_high_m', 'handle_out_m', 'handle_thickness_m']",
         "  - world.objects.cup.dims.radius_m: is missing",
-        "  - world.objects.block_a.dims.height_m: is not a dimension of a block ['size_m']"]
+        "  - world.objects.block_a.dims.height_m: is not a dimension of a block ['size_m', 'edge_radius_m']"]
 
 
 def test_a_mugs_handle_takes_all_its_dimensions_and_fits_on_the_cup():
@@ -126,3 +126,9 @@ def test_a_mugs_handle_takes_all_its_dimensions_and_fits_on_the_cup():
         load_tasks(world)
     assert [line.split(":")[0] for line in str(err.value).splitlines()[1:]] == [
         "  - world.objects.cup.dims.handle_high_m", "  - world.objects.cup.dims.handle_out_m"]
+    world["objects"]["cup"]["dims"].update(handle_high_m=0.068, handle_thickness_m=0.009)
+    world["objects"]["block_a"]["dims"]["edge_radius_m"] = 0.03
+    with pytest.raises(WorldError) as err:
+        load_tasks(world)
+    assert str(err.value) == "world.objects.block_a.dims.edge_radius_m: must lie between 0 and half the edge size_m " \
+                             "(0.0225), got 0.03"

@@ -23,7 +23,8 @@ cup    hollow and tapered like a real cup: a bottom disc plus a ring of wall box
 plate  flat disc with a low rim of boxes. dims: radius_m, thickness_m, rim_height_m,
        rim_width_m, n_rim
 ball   solid sphere (body frame at its lowest point). dims: radius_m
-block  solid cube. dims: size_m (edge length)
+block  solid cube. dims: size_m (edge length); edge_radius_m (optional): its edges and
+       corners rounded with this radius (three boxes and twelve capsules)
 box    open-top rectangular tray: a floor plus four walls.
        dims: length_m (outer, body x), width_m (outer, body y), height_m, wall_m, floor_m
 mesh   a scanned object: its surface from a mesh file (``r2s_eval.sim.meshes``), body frame at
@@ -574,11 +575,44 @@ def _rectangle(scene: Scene, name: str, half_extent: np.ndarray) -> tuple[np.nda
     return s["pos_world_m"][:2] + (signs * half_extent) @ np.array(axes), axes
 
 
+_CAPSULE_ALONG = {0: (float(np.cos(np.pi / 4)), 0.0, float(np.sin(np.pi / 4)), 0.0),  # a capsule's axis along x
+                  1: (float(np.cos(np.pi / 4)), float(-np.sin(np.pi / 4)), 0.0, 0.0),  # along y
+                  2: (1.0, 0.0, 0.0, 0.0)}  # along z
+
+
+def add_rounded_cube(body, name: str, half_m: float, radius_m: float, rgba, mass_kg: float, friction: float) -> None:
+    """A cube of half edge ``half_m`` (its bottom face at the body's origin) whose edges and corners
+    are rounded by ``radius_m``: three boxes (each full along one axis) and a capsule along each of
+    its twelve edges, their masses in proportion to their volumes, adding up to ``mass_kg``."""
+    inner = half_m - radius_m  # the half edge of the cube whose edges the capsules follow
+    centre = np.array([0.0, 0.0, half_m])
+    parts = []
+    for axis in range(3):
+        size = np.full(3, inner)
+        size[axis] = half_m
+        parts.append((mujoco.mjtGeom.mjGEOM_BOX, size.tolist(), centre.tolist(), None, 8 * float(np.prod(size))))
+    capsule_volume = np.pi * radius_m**2 * 2 * inner + 4 / 3 * np.pi * radius_m**3
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        for sa in (-1, 1):
+            for sb in (-1, 1):
+                pos = centre.copy()
+                pos[others[0]] += sa * inner
+                pos[others[1]] += sb * inner
+                parts.append((mujoco.mjtGeom.mjGEOM_CAPSULE, [radius_m, inner], pos.tolist(), _CAPSULE_ALONG[axis],
+                              capsule_volume))
+    total = sum(volume for *_, volume in parts)
+    for i, (geom_type, size, pos, quat, volume) in enumerate(parts):
+        _add_geom(body, size, pos, rgba, mass_kg * volume / total, friction, geom_type, quat=quat,
+                  name=f"{name}_rounded{i}")
+
+
 class Block(ObjectKind):
-    """A solid cube."""
+    """A solid cube, its edges rounded where its dims say (``edge_radius_m``)."""
 
     name = "block"
     dims_keys = ("size_m",)
+    optional_dims_keys = ("edge_radius_m",)
     upright_yaw_symmetry = 4
     table_faces = ("bottom", "top", "any")
     pickable = True
@@ -590,8 +624,18 @@ class Block(ObjectKind):
     def footprint_radius_m(self, dims, placement="upright"):
         return dims["size_m"] / np.sqrt(2)
 
+    def dims_problems(self, dims):
+        if "edge_radius_m" in dims and not 0 < dims["edge_radius_m"] < dims["size_m"] / 2:
+            return [("dims.edge_radius_m", f"must lie between 0 and half the edge size_m ({dims['size_m'] / 2:g}), "
+                     f"got {dims['edge_radius_m']}")]
+        return []
+
     def add_geoms(self, spec, body, obj, size_scale, rgba):
-        h = obj.scaled_dims(size_scale)["size_m"] / 2
+        dims = obj.scaled_dims(size_scale)
+        h = dims["size_m"] / 2
+        if "edge_radius_m" in dims:
+            add_rounded_cube(body, obj.name, h, dims["edge_radius_m"], rgba, obj.mass_kg, obj.friction)
+            return
         _add_geom(body, [h, h, h], [0, 0, h], rgba, obj.mass_kg, obj.friction, mujoco.mjtGeom.mjGEOM_BOX,
                   name=f"{obj.name}_cube")
 

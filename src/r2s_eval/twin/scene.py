@@ -26,7 +26,8 @@ fields (``r2s_eval.twin.reality``), each off at its default:
   states (a lab's measurement of its mug, which the calibrated sim builds). The scripted
   operator sees it and turns its jaws away from it (``r2s_eval.twin.operator``).
 - ``block_edge_radius_m``: every block's edges and corners are rounded with this radius (three
-  boxes and twelve capsules in place of the cube: the same size, mass and frame).
+  boxes and twelve capsules in place of the cube: the same size, mass and frame), in place of any
+  rounding the world states (``edge_radius_m``, a lab's measurement).
 
 The textures are made here with numpy from fixed seeds (a lab's room is the same in every
 episode), the photograph read from matplotlib's sample data: nothing is downloaded. ``scene_adder``
@@ -49,7 +50,7 @@ from scipy import ndimage
 
 from r2s_eval.errors import ConfigError
 from r2s_eval.sim.model_files import load_model_spec
-from r2s_eval.sim.objects import HANDLE_DIMS, ObjectSpec, add_cup_handle
+from r2s_eval.sim.objects import HANDLE_DIMS, ObjectSpec, add_cup_handle, add_rounded_cube
 from r2s_eval.sim.params import WorldParams
 from r2s_eval.sim.render_params import key_light
 from r2s_eval.sim.robot import Robot
@@ -365,9 +366,8 @@ def _add_handle(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float) -> None
 
 
 def _round_block(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, radius_m: float) -> None:
-    """The block's cube replaced by a cube of the same size with edges and corners rounded by
-    ``radius_m``: three boxes (each full along one axis) and a capsule along each of its twelve
-    edges, their masses in proportion to their volumes, adding up to the block's."""
+    """The block's geoms replaced by the twin's cube of the same size with edges and corners rounded
+    by ``radius_m`` (``add_rounded_cube``), in place of any rounding the world states."""
     half = obj.scaled_dims(size_scale)["size_m"] / 2
     if not 0 < radius_m < half:
         raise ConfigError(f"the twin's block_edge_radius_m {radius_m} must be below half the edge of {obj.name} "
@@ -376,29 +376,7 @@ def _round_block(spec: mujoco.MjSpec, obj: ObjectSpec, size_scale: float, radius
     style = _style_of(body)
     for geom in list(body.geoms):
         spec.delete(geom)
-    inner = half - radius_m  # the half edge of the cube whose edges the capsules follow
-    centre = np.array([0.0, 0.0, half])
-    parts = []
-    for axis in range(3):
-        size = np.full(3, inner)
-        size[axis] = half
-        parts.append(("box", size.tolist(), centre.tolist(), None, 8 * float(np.prod(size))))
-    capsule_volume = np.pi * radius_m**2 * 2 * inner + 4 / 3 * np.pi * radius_m**3
-    for axis in range(3):
-        others = [a for a in range(3) if a != axis]
-        quat = {0: _ALONG_X, 1: (float(np.cos(np.pi / 4)), float(-np.sin(np.pi / 4)), 0.0, 0.0), 2: _UPRIGHT}[axis]
-        for sa in (-1, 1):
-            for sb in (-1, 1):
-                pos = centre.copy()
-                pos[others[0]] += sa * inner
-                pos[others[1]] += sb * inner
-                parts.append(("capsule", [radius_m, inner, 0.0], pos.tolist(), quat, capsule_volume))
-    total = sum(volume for *_, volume in parts)
-    for i, (geom_type, size, pos, quat, volume) in enumerate(parts):
-        geom = body.add_geom(name=f"{obj.name}_rounded{i}", type=getattr(mujoco.mjtGeom, f"mjGEOM_{geom_type.upper()}"),
-                             size=size, pos=pos, mass=obj.mass_kg * volume / total, **style)
-        if quat is not None:
-            geom.quat = list(quat)
+    add_rounded_cube(body, obj.name, half, radius_m, style["rgba"], obj.mass_kg, style["friction"][0])
 
 
 # ----------------------------------------------------------------------------- the twin's model

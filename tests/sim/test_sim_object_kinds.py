@@ -66,6 +66,15 @@ def test_each_kind_states_its_geometry():
                                                                     for p in PLACEMENTS]
 
 
+def _object_model(obj: ObjectSpec, reality: RealityEffects | None = None) -> mujoco.MjModel:
+    """A model of ``obj`` alone, built as the world builds it, then as the twin of ``reality`` does."""
+    spec = mujoco.MjSpec()
+    add_object(spec, obj, 1.0)
+    if reality is not None:
+        scene_adder(reality, bundled_robot(), [obj], WorldParams())(spec)
+    return spec.compile()
+
+
 def test_a_cup_whose_world_states_a_handle_is_a_mug_as_the_twin_builds_its_own():
     """The world's mug (a lab's measurement) is built by the kind: three massless capsules along the
     body's -x. Stated as the twin's true handle, the calibrated sim's mug is the twin's, geom for
@@ -78,13 +87,8 @@ def test_a_cup_whose_world_states_a_handle_is_a_mug_as_the_twin_builds_its_own()
     wrong = dataclasses.replace(plain, dims={**plain.dims, **MUG_HANDLE, "handle_out_m": 0.04})
 
     def cup_geoms(obj, reality=None):
-        spec = mujoco.MjSpec()
-        add_object(spec, obj, 1.0)
-        if reality is not None:
-            scene_adder(reality, bundled_robot(), [obj], WorldParams())(spec)
-        model = spec.compile()
-        geoms = [g for g in range(model.ngeom) if model.geom(g).name.startswith("cup_handle_")]
-        return model, geoms
+        model = _object_model(obj, reality)
+        return model, [g for g in range(model.ngeom) if model.geom(g).name.startswith("cup_handle_")]
 
     model, geoms = cup_geoms(measured)
     assert [model.geom(g).name for g in geoms] == ["cup_handle_lower", "cup_handle_upper", "cup_handle_grip"]
@@ -115,11 +119,7 @@ def test_a_block_whose_world_states_rounded_edges_is_built_as_the_twin_rounds_it
                        mass_kg=block["mass_kg"])
 
     def compiled(obj, reality=None):
-        spec = mujoco.MjSpec()
-        add_object(spec, obj, 1.0)
-        if reality is not None:
-            scene_adder(reality, bundled_robot(), [obj], WorldParams())(spec)
-        model = spec.compile()
+        model = _object_model(obj, reality)
         return model, np.flatnonzero(model.geom_bodyid == model.body("block_a").id)
 
     rounded = dataclasses.replace(plain, dims={**plain.dims, "edge_radius_m": 0.004})

@@ -194,6 +194,25 @@ def test_fit_and_validate_store_both_intervals_and_metric_cis(tmp_path, monkeypa
         assert record["ci_width_unit"] > record["ci_width_binomial"]
     # Coupled unit replicates: the average over checkpoints has an interval too.
     assert result["average"]["spearman_ci_low"] is not None
+    assert "against_networks_in_twin" not in result
+
+    # The checkpoints the sim ranks, rolled out in the twin (a and b: c's weights came from
+    # elsewhere): the same metrics against their success there, beside the real reference's.
+    for policy, wins in (("a", [1, 0, 0, 0]), ("b", [1, 1, 1, 0])):
+        Path(f"twin/{policy}").mkdir(parents=True)
+        write_parquet(f"twin/{policy}/episodes.parquet", pd.DataFrame({
+            "policy": policy, "task": ["cup_on_plate", "cup_on_plate", "stack", "stack"], "success": wins}))
+    run_stage("validate", cfg, declaration("validate")["READS"], "--fit", "fit.parquet", "--replicates", "replicates.parquet",
+              "--reference", "success.parquet", "--networks-in-twin", "twin/a", "twin/b", "--out", "validate_t.json")
+    twin = read_json("validate_t.json")
+    assert {k: v for k, v in twin.items() if k not in ("against_networks_in_twin", "provenance")} == \
+        {k: v for k, v in result.items() if k != "provenance"}
+    networks = twin["against_networks_in_twin"]
+    assert networks["policies"] == ["a", "b"]
+    assert networks["reference_success_rate"] == {"a": pytest.approx(0.25), "b": pytest.approx(0.75)}
+    scores = fit[fit["checkpoint"] == 30].set_index("policy")["score"]
+    assert networks["last"]["spearman"] == pytest.approx(1.0 if scores["b"] > scores["a"] else -1.0)
+    assert networks["last"]["spearman_ci_low"] <= networks["last"]["spearman_ci_high"]
 
     # Choosing the binomial interval: the same stored intervals, the other one shown.
     binomial_cfg = compose_config(CONF, experiment="smoke", overrides=["stats.interval=binomial"])

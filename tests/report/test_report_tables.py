@@ -76,6 +76,16 @@ def test_realsim_table_without_audit_and_at_last_checkpoint():
         realsim_table({"kinematic": v}, metrics_at="first")
 
 
+def test_realsim_table_adds_the_judges_against_the_networks_in_the_twin():
+    v = {**validation(0.5, 0.6, 0.1, 6.0), "against_networks_in_twin": validation(0.9, 0.8, 0.02, 5.0)}
+    table = realsim_table({"kinematic": v, "video": validation(0.4, 0.3, 0.2, 7.0)}, decimals=2)
+    check_structure(table)
+    assert row(table, "kinematic &") == r"kinematic & 0.50 & 0.60 & 0.10 & 6.00 & -- & -- & -- \\"
+    assert row(table, "Average") == r"Average & 0.45 & 0.45 & 0.15 & 6.50 & -- & -- & -- \\"  # the real reference's
+    assert row(table, "kinematic, vs") == r"kinematic, vs pi$^S$ in the twin & 0.90 & 0.80 & 0.02 & 5.00 & -- & -- & -- \\"
+    assert "video, vs" not in table and "pi$^R$'s" in table
+
+
 def test_tasks_table():
     summary = pd.DataFrame({"task": ["cup_on_plate", "stack"], "real": [8, 4], "sim": [6, 1],
                             "replay_success": [0.75, 0.25]})

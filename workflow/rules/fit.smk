@@ -22,6 +22,8 @@ rule validate:
         fit="results/fit/{judge}.parquet",
         replicates="results/fit/{judge}.replicates.parquet",
         reference="results/reference/success.parquet",
+        # stability.networks_in_twin: the checkpoints the sim ranks, rolled out in the twin
+        networks=expand("results/cross/real/{policy}", policy=CROSSED if CFG["stability"]["networks_in_twin"] else []),
     output:
         "results/validate/{judge}.json",
     params:
@@ -30,4 +32,4 @@ rule validate:
         "logs/validate/{judge}.log",
     shell:
         "{PY} -m r2s_eval.stages.validate --cfg {params.cfg:q} --fit {input.fit} --replicates {input.replicates}"
-        " --reference {input.reference} --out {output} --log {log}"
+        " --reference {input.reference} --networks-in-twin {input.networks} --out {output} --log {log}"

@@ -172,7 +172,8 @@ def realsim_table(validations: Mapping[str, dict], audits: Mapping[str, dict] | 
     checkpoints, the paper's convention) or "last" (the last checkpoint). ``audits``: the
     judge-audit JSON per judge. A judge without human annotations, without swapped answers
     or without an audit shows a dash in those columns; the average row averages the judges
-    that have a value. A note under the table names the bootstrap behind the BT CI column
+    that have a value. Where validate held a judge against the twin's success of the networks
+    it ranks too (``against_networks_in_twin``), a row per such judge follows the average. A note under the table names the bootstrap behind the BT CI column
     (validate's ``interval``; older JSON without it: binomial).
     """
     if metrics_at not in ("average", "last"):
@@ -187,12 +188,24 @@ def realsim_table(validations: Mapping[str, dict], audits: Mapping[str, dict] | 
     if len(values) > 1:
         means = [_nanmean(col) for col in zip(*values.values())]
         footer = [_row(["Average"] + [_fmt(m, decimals) for m in means])]
+    # The same judges against the twin's success of the networks they rank (pi^S), where validate
+    # has it: its own rows under the average, the audit's columns (the judge's, not the truth's) left out.
+    twin = {j: v["against_networks_in_twin"][metrics_at] for j, v in sorted(validations.items())
+            if v.get("against_networks_in_twin")}
+    if twin:
+        footer += [r"\midrule"] + [
+            _row([latex_escape(j) + r", vs pi$^S$ in the twin"]
+                 + [_fmt(m.get(key), decimals) if where == "metrics" else DASH for _, where, key in _REALSIM_COLUMNS])
+            for j, m in twin.items()]
     header = [_row(["Judge"] + [title for title, _, _ in _REALSIM_COLUMNS])]
     shown = sorted({(str(v.get("interval", "binomial")), float(v.get("ci_level", 0.95))) for v in validations.values()})
     where = "average over checkpoints" if metrics_at == "average" else "last checkpoint"
     notes = [latex_escape(f"BT CI: mean {interval_label(interval, level)} width "
                           f"({INTERVAL_SHORT.get(interval, 'bootstrap')}); {where}.")
              for interval, level in shown]
+    if twin:
+        notes.append(r"vs pi$^S$ in the twin: against the twin's success of the checkpoints the sim ranks; the rows "
+                     r"above: against the real reference (pi$^R$'s).")
     return _tabular("l" + "c" * len(_REALSIM_COLUMNS), header, body, footer, notes)
 
 

@@ -590,6 +590,7 @@ class TrainedPolicy:
     ema_decay: Level | None = optional(_POLICY_DEFAULTS)
     betas: tuple[Beta, Beta] | None = optional(_POLICY_DEFAULTS)
     seeds: PositiveInt = optional(_POLICY_DEFAULTS)
+    seed: Count | None = optional(_POLICY_DEFAULTS)
 
 
 @dataclass

@@ -289,6 +289,7 @@ def test_a_lab_dataset_or_trials_csv_that_is_not_there_names_the_setting(tmp_pat
     (["fidelity.ablation.policies=[act]", "real.source=dataset", "real.dataset_root=x", "real.reference_csv=y.csv"],
      "needs real.source twin"),
     (["+policies.act.seeds=0"], r"policies.act.seeds .*must be in \[1, inf\]"),
+    (["+policies.act.seed=-1"], r"policies.act.seed .*must be in \[0, inf\]"),
     (["fidelity.sims=[calibrated]"], r"fidelity.sims\[0\].*must be one of"),
     (["fidelity.sims=[nominal,without_lens]"],
      r"fidelity.sims\[1\] .*'without_lens' takes away an answer the calibration does not give "

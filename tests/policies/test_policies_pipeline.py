@@ -173,6 +173,22 @@ def test_policies_training_is_deterministic(dataset_root, tmp_path):
     assert file_sha256(weights[0]) == file_sha256(weights[1])
 
 
+def test_a_candidates_own_seed_takes_the_place_of_the_experiments(dataset_root, tmp_path):
+    # `seed` in the candidate's entry: the training is the one the experiment's seed would give
+    # had it been that number, whatever the experiment's is.
+    cfg = _tiny("act", steps=2)
+    own = train_policy(dataset_root, REPO_ID, {**cfg, "seed": 7}, tmp_path / "own", seed=0)
+    experiments = train_policy(dataset_root, REPO_ID, cfg, tmp_path / "experiments", seed=7)
+    other = train_policy(dataset_root, REPO_ID, cfg, tmp_path / "other", seed=0)
+    assert own["seed"] == experiments["seed"] == 7 and other["seed"] == 0
+    weights = {run: file_sha256(tmp_path / run / "pretrained_model" / "model.safetensors")
+               for run in ("own", "experiments", "other")}
+    assert weights["own"] == weights["experiments"] != weights["other"]
+    for bad in (-1, True, 1.5):
+        with pytest.raises(PolicyConfigError, match=r"'seed' must be a whole number >= 0 or None"):
+            validate_policy_cfg({**cfg, "seed": bad})
+
+
 def test_a_snapshot_holds_the_weights_a_training_that_short_ends_with(dataset_root, tmp_path):
     # A constant learning rate: a 2-step training draws the same batches as the first 2 steps of
     # a 5-step one, so the snapshot must be its weights bit for bit; saving it changes nothing

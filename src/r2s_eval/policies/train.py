@@ -180,8 +180,8 @@ def train_policy(
 ) -> dict[str, Any]:
     """Train one policy on one dataset; write `out_dir/pretrained_model/` and `out_dir/train_log.json`.
 
-    `seed` is the experiment's; replicate k > 0 (the policy's `seeds`) trains the candidate again
-    from a seed drawn from both (`training_seed`). Training runs on the policy's `device`.
+    `seed` is the experiment's, unless the policy states its own (`seed`); replicate k > 0 (the
+    policy's `seeds`) trains the candidate again from a seed drawn from that and k (`training_seed`). Training runs on the policy's `device`.
     `episodes` restricts training to those episode indices (ingest's index: the episodes that
     passed its checks); None uses every episode of the dataset. `snapshot_steps`: steps after
     which the weights are saved as well (`snapshot_folder`), each below the last.
@@ -198,6 +198,8 @@ def train_policy(
     if late:
         raise ValueError(f"snapshot steps {late} of {cfg['name'] or cfg['type']!r}: each must be in [1, "
                          f"{cfg['steps']}) (the last step's weights are the training's own)")
+    if cfg["seed"] is not None:
+        seed = int(cfg["seed"])
     seed, device = training_seed(seed, replicate), cfg["device"]
     deterministic_torch(int(cfg["threads"]))
     set_seed(seed)

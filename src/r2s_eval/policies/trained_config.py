@@ -135,6 +135,8 @@ def _validate_training_keys(cfg: dict) -> None:
         cfg["betas"] = betas
     if isinstance(cfg["seeds"], bool) or not isinstance(cfg["seeds"], int) or cfg["seeds"] < 1:
         raise PolicyConfigError(f"{where}: 'seeds' must be a whole number >= 1, got {cfg['seeds']!r}")
+    if cfg["seed"] is not None and (isinstance(cfg["seed"], bool) or not isinstance(cfg["seed"], int) or cfg["seed"] < 0):
+        raise PolicyConfigError(f"{where}: 'seed' must be a whole number >= 0 or None, got {cfg['seed']!r}")
     if isinstance(cfg["std_floor"], bool) or not isinstance(cfg["std_floor"], (int, float)) or cfg["std_floor"] < 0:
         raise PolicyConfigError(f"{where}: 'std_floor' must be a number >= 0, got {cfg['std_floor']!r}")
     if cfg["grad_clip_norm"] is not None and float(cfg["grad_clip_norm"]) <= 0:

@@ -1,4 +1,5 @@
-"""The transformers backend end to end on CPU, with a tiny randomly initialised Qwen3-VL.
+"""The transformers backend end to end, with a tiny randomly initialised Qwen3-VL: on CPU, and on
+CUDA too where a GPU is present (skipped otherwise).
 
 The model, its tokenizer (a byte-level BPE trained here) and its processor are built offline from
 their configs and saved to a folder; the judge then loads that folder through AutoProcessor and
@@ -119,11 +120,16 @@ def cfg(model: Path, **kw) -> dict:
             "dtype": "float32", "max_frames": 4, "max_new_tokens": 12, "local_files_only": True, **kw}
 
 
-def test_transformers_judge_end_to_end_on_cpu(tiny_models, rollouts, tmp_path):
+DEVICES = ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no GPU"))]
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_transformers_judge_end_to_end(device, tiny_models, rollouts, tmp_path):
     free, letters = tiny_models
     cache = tmp_path / "cache"
-    judge = make_judge(cfg(free))
+    judge = make_judge(cfg(free, device=device))
     desc = describe_rollouts(rollouts, ".", judge, cache)
+    assert judge._model.device.type == device
     st = desc.attrs["stats"]
     assert st["calls"] == st["requests"] == len(rollouts)
     assert st["tokens_in"] > 4 * len(rollouts) and 0 < st["tokens_out"] <= 12 * len(rollouts)
@@ -132,12 +138,12 @@ def test_transformers_judge_end_to_end_on_cpu(tiny_models, rollouts, tmp_path):
         d = Description.from_json(js)
         assert d.missing == (*CRITERIA, "summary") and d.raw_text
     assert (desc["missing"] != "").all() and st["incomplete"] == len(rollouts)
-    assert describe_rollouts(rollouts, ".", make_judge(cfg(free)), cache).attrs["stats"]["calls"] == 0
+    assert describe_rollouts(rollouts, ".", make_judge(cfg(free, device=device)), cache).attrs["stats"]["calls"] == 0
 
     # The letter-constrained checkpoint: valid verdicts, a wins matrix, the order-swap audit.
     policies, checkpoints = ["P_bad", "P_good"], [3, 6]
     pairs = sample_pairs(rollouts, policies, checkpoints, seed=0)
-    out = judge_pairs(pairs, desc, make_judge(cfg(letters, swap_share=1.0)), cache)
+    out = judge_pairs(pairs, desc, make_judge(cfg(letters, device=device, swap_share=1.0)), cache)
     assert set(out["verdict"]) <= {"A", "B"} and (out["verdict_swapped"] != "").all()
     assert out.attrs["stats"]["excluded"] == 0 and 0.0 <= out.attrs["stats"]["swap_consistency"] <= 1.0
     assert wins_at_checkpoints(out, policies, checkpoints)[-1].sum() == checkpoints[-1]
@@ -145,7 +151,7 @@ def test_transformers_judge_end_to_end_on_cpu(tiny_models, rollouts, tmp_path):
     # The unconstrained model never answers with one letter: re-asked, excluded, replaced from
     # the reserve until that runs out, which names the pair.
     reserve = sample_reserve(rollouts, policies, checkpoints, seed=0, n_reserve=1)
-    free_judge = make_judge(cfg(free))
+    free_judge = make_judge(cfg(free, device=device))
     with pytest.raises(RuntimeError, match=r"pair row \d+ \(P_\w+ vs P_\w+.*no reserve comparison is left"):
         judge_pairs(pairs, desc, free_judge, cache, reserve_df=reserve)
 

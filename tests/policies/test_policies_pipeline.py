@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from r2s_eval.horizon import Horizon
 from r2s_eval.policies import (
@@ -187,6 +188,19 @@ def test_a_candidates_own_seed_takes_the_place_of_the_experiments(dataset_root, 
     for bad in (-1, True, 1.5):
         with pytest.raises(PolicyConfigError, match=r"'seed' must be a whole number >= 0 or None"):
             validate_policy_cfg({**cfg, "seed": bad})
+
+
+def test_a_training_on_a_device_the_machine_lacks_is_refused(dataset_root, tmp_path, monkeypatch):
+    # lerobot would quietly train on the CPU and the log would say cuda: refused before any data
+    # is read, naming the key. CUDA is hidden so the test means the same on a GPU machine.
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    cfg = {**_tiny("act", steps=2), "name": "act"}
+    for device in ("cuda", "cuda:1"):
+        with pytest.raises(PolicyConfigError, match=r"policies\.act\.device is '%s', but this machine has 0 CUDA" % device):
+            train_policy(dataset_root, REPO_ID, {**cfg, "device": device}, tmp_path / device, seed=0)
+    with pytest.raises(PolicyConfigError, match=r"policies\.act\.device: 'gpu' is not a torch device"):
+        train_policy(dataset_root, REPO_ID, {**cfg, "device": "gpu"}, tmp_path / "gpu", seed=0)
+    assert not any(tmp_path.iterdir())
 
 
 def test_a_snapshot_holds_the_weights_a_training_that_short_ends_with(dataset_root, tmp_path):

@@ -279,7 +279,13 @@ def test_vla_chunks_do_not_depend_on_the_slots_beside_it(policy_type, trained, o
     (its noise is its own: per-slot noise, or one slot per call for X-VLA)."""
     from r2s_eval.policies.lerobot_policy import load_lerobot_policy
 
-    policy = load_lerobot_policy(trained[policy_type], call_batch=2)
+    alone, together = _chunks_alone_and_together(load_lerobot_policy(trained[policy_type], call_batch=2))
+    np.testing.assert_array_equal(alone[0], together[0])
+    assert not np.array_equal(together[0], together[1])
+
+
+def _chunks_alone_and_together(policy):
+    """Slot 0's chunk predicted alone, then slots 0 and 3 predicted in one call."""
     rng = np.random.default_rng(1)
     obs = []
     for _ in range(2):
@@ -290,9 +296,28 @@ def test_vla_chunks_do_not_depend_on_the_slots_beside_it(policy_type, trained, o
     alone = policy.predict_chunks([0], obs[:1])
     policy.reset(0, 5)
     policy.reset(3, 9)
-    together = policy.predict_chunks([0, 3], obs)
+    return alone, policy.predict_chunks([0, 3], obs)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no GPU")
+@pytest.mark.parametrize("policy_type", FAMILIES)
+def test_vla_trains_and_predicts_on_cuda(policy_type, offline, pretrained, dataset_root, dataset_without_quantiles,
+                                         tmp_path):
+    """On a GPU box the recipe's `device: cuda` trains there and the reloaded policy predicts
+    there, its chunks as on the CPU: finite, a slot's the same alone or beside another."""
+    from r2s_eval.policies.lerobot_policy import load_lerobot_policy
+
+    data = dataset_without_quantiles if policy_type == "pi05" else dataset_root
+    allocations = torch.cuda.memory_stats().get("allocation.all.allocated", 0)
+    train_policy(data, REPO_ID, _cfg(policy_type, pretrained, device="cuda"), tmp_path / policy_type, seed=0)
+    # lerobot falls back to the CPU quietly; the training must have allocated on the GPU
+    assert torch.cuda.memory_stats()["allocation.all.allocated"] > allocations
+    assert np.isfinite([e["loss"] for e in _log(tmp_path / policy_type)["losses"]]).all()
+    policy = load_lerobot_policy(tmp_path / policy_type, device="cuda", call_batch=2)
+    assert next(policy.policy.parameters()).device.type == "cuda"
+    alone, together = _chunks_alone_and_together(policy)
+    assert np.isfinite(together).all() and together.shape[:2] == (2, 10)
     np.testing.assert_array_equal(alone[0], together[0])
-    assert not np.array_equal(together[0], together[1])
 
 
 def test_reload_refuses_weights_that_did_not_load(trained, offline, tmp_path):

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from r2s_eval.data import open_metadata
+from r2s_eval.errors import PolicyConfigError
 from r2s_eval.policies.checkpoint_files import CHECKPOINT_SUBDIR, RUNNER_CONFIG, snapshot_folder
 from r2s_eval.policies.finetune import EMA, build_vla_policy_and_processors
 from r2s_eval.policies.trained_config import (
@@ -168,6 +169,26 @@ def training_seed(seed: int, replicate: int) -> int:
     return seed if replicate == 0 else int(np.random.SeedSequence([seed, replicate]).generate_state(1)[0])
 
 
+def require_device(device: str, name: str) -> None:
+    """Refuse a `device` this machine lacks. lerobot falls back to the CPU on its own when CUDA is
+    missing, so a training the config put on a GPU would run on the CPU and still be logged on
+    the GPU."""
+    where = f"policies.{name}.device"
+    try:
+        wanted = torch.device(device)
+    except (RuntimeError, TypeError) as e:
+        raise PolicyConfigError(f"{where}: {device!r} is not a torch device ('cpu', 'cuda', 'cuda:1', 'mps')") from e
+    if wanted.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0 or (wanted.index or 0) >= count:
+            raise PolicyConfigError(
+                f"{where} is {device!r}, but this machine has {count} CUDA device(s): train it on a GPU "
+                f"node, or set {where}=cpu"
+            )
+    if wanted.type == "mps" and not torch.backends.mps.is_available():
+        raise PolicyConfigError(f"{where} is 'mps', but this machine has no Apple GPU: set {where}=cpu")
+
+
 def train_policy(
     dataset_root: str | Path,
     repo_id: str,
@@ -201,6 +222,7 @@ def train_policy(
     if cfg["seed"] is not None:
         seed = int(cfg["seed"])
     seed, device = training_seed(seed, replicate), cfg["device"]
+    require_device(device, cfg["name"] or cfg["type"])
     deterministic_torch(int(cfg["threads"]))
     set_seed(seed)
 

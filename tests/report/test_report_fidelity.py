@@ -140,6 +140,47 @@ def test_effects_alone_need_the_twin_with_none():
         alone_rows({"blur": _task_episodes("act", 9, 18)}, 0.95)
 
 
+def test_the_crossing_over_every_training_of_a_recipe():
+    # act's candidate and its further training seed 1, each in all four worlds from the same 18
+    # inits per task: the crossing over both trainings averages their cells, paired over the inits.
+    from r2s_eval.report.fidelity_report import build_report, sims_table
+
+    def worlds(r_real, r_sim, s_sim, s_real, policy="act"):
+        tasks = ("cup_on_plate", "cover_ball")
+        return {w: pd.concat([_task_episodes(policy, k, 18, task) for task in tasks], ignore_index=True)
+                for w, k in zip(("R_real", "R_sim", "S_sim", "S_real"), (r_real, r_sim, s_sim, s_real))}
+
+    own, further = worlds(10, 8, 9, 9), worlds(6, 7, 12, 10)
+    reference = own["R_real"].groupby(["policy", "task"], as_index=False)["success"].agg(
+        successes="sum", trials="size")
+    seed_episodes = {(w, 1): e for w, e in further.items()}
+    built = build_report(reference, own["S_sim"], own["R_sim"], own["S_real"], {}, seed_episodes, {}, None, 0.95,
+                         200, 0, real=own["R_real"])
+    over = built["cross_trainings"]
+    assert over["trainings"] == {"act": 2}
+    calibration = over["parts"]["calibration"]
+    # pi^R sim - real: the candidate's 8 - 10 and the seed's 7 - 6 of 18 in each of the two tasks
+    assert calibration["cells"] == 4 and calibration["paired"]
+    assert np.isclose(calibration["mean_gap_pp"], 100 * ((8 - 10) + (7 - 6)) / 2 / 18)
+    assert np.isclose(over["training_means_pp"]["calibration"]["act"], 100 * -2 / 18)
+    assert np.isclose(over["training_means_pp"]["calibration_reverse"]["act/1"], 100 * (10 - 12) / 18)
+    # the candidate's own crossing is the one it always was; the seed's spread lists all four worlds
+    assert np.isclose(built["cross"]["parts"]["calibration"]["mean_gap_pp"], 100 * -2 / 18)
+    assert {s["world"] for s in built["seeds"]} == {"R_real", "R_sim", "S_sim", "S_real"}
+    text = format_report(built)
+    assert "over every training (act 2 trainings): calibration (R_sim - R_real)" in text
+    assert "calibration per training (pp): act -11.1, act/1 +5.6" in text
+    rows = {line.split(" & ")[0]: line for line in sims_table(built).splitlines() if " & " in line}
+    assert rows["calibrated, every training"].startswith("calibrated, every training & 41.7 & -2.8 [")
+    over_line = next(line for line in fidelity_table(built).splitlines() if "Over every training (act 2" in line)
+    lo, hi = calibration["mean_gap_ci_pp"]
+    assert f"mean {calibration['mean_gap_pp']:+.1f} pp [{lo:+.1f}, {hi:+.1f}]" in over_line
+    # a further seed that ran only in its own worlds (no twin to cross into) adds no crossing over trainings
+    only_own = {k: v for k, v in seed_episodes.items() if k[0] in ("R_real", "S_sim")}
+    assert "cross_trainings" not in build_report(reference, own["S_sim"], own["R_sim"], own["S_real"], {}, only_own,
+                                                 {}, None, 0.95, 50, 0, real=own["R_real"])
+
+
 def _rollout_folder(path, policy, successes, trials):
     path.mkdir(parents=True)
     table = _task_episodes(policy, successes, trials).assign(video_path="v.mp4", trajectory_path="t.parquet")

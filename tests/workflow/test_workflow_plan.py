@@ -76,17 +76,19 @@ def test_a_lab_without_a_twin_cross_evaluates_its_real_checkpoints_in_the_sim(tm
     assert {(w["arm"], w["policy"]) for w in by_rule["seed_rollout"]} == {("sim", "act"), ("sim", "act_weak")}
     assert "calib_joints" in by_rule and "fidelity" in by_rule
     assert {w["arm"] for w in by_rule["rollout"]} == {"sim"}
-    assert not {"twin", "teleop", "ablation_rollout", "twin_ablation"} & set(by_rule)
+    assert not {"twin", "teleop", "ablation_rollout", "twin_ablation", "seed_cross_rollout"} & set(by_rule)
 
 
 def test_the_twin_cross_evaluates_both_ways_and_runs_the_ablation(tmp_path):
     # The smoke: pi^S of act in twins without the joint offsets and without every family, and
-    # act_weak's second training seed rolled out on both sides.
+    # act_weak's second training seed rolled out on both sides and crossed into the other world.
     plan = planned_jobs(snakemake(tmp_path / "run", "-n", "reports/fidelity_table.tex").stdout)
     cross = {(w["arm"], w["policy"]) for rule, w in plan if rule == "cross_rollout"}
     assert cross == {(arm, p) for arm in ("sim", "real") for p in ("act", "act_subset", "act_weak")}
     assert {(w["family"], w["policy"]) for rule, w in plan if rule == "ablation_rollout"} == {("joints", "act"), ("all", "act")}
     assert {(w["arm"], w["replicate"]) for rule, w in plan if rule == "seed_rollout"} == {("real", "1"), ("sim", "1")}
+    assert {(w["arm"], w["policy"], w["replicate"]) for rule, w in plan
+            if rule == "seed_cross_rollout"} == {("real", "act_weak", "1"), ("sim", "act_weak", "1")}
     assert {w["policy"] for rule, w in plan if rule == "train_replicate"} == {"act_weak"}
 
 

@@ -124,9 +124,10 @@ def test_policy_change_reruns_only_that_policy(smoke_run):
     per_policy = {(rule, wc.get("policy")) for rule, wc in jobs if "policy" in wc}
     # Its rollouts are described again, the other policies' descriptions are kept; its checkpoints
     # are crossed into the other world again, and its second training seed (the smoke's
-    # policies.act_weak.seeds) trained and rolled out again.
+    # policies.act_weak.seeds) trained, rolled out and crossed again.
     assert per_policy == {(rule, "act_weak") for rule in ("train", "rollout", "describe", "cross_rollout",
-                                                          "train_replicate", "seed_rollout")}, per_policy
+                                                          "train_replicate", "seed_rollout",
+                                                          "seed_cross_rollout")}, per_policy
     assert not {rule for rule, _ in jobs} & {"twin", "teleop", "ingest", "init_estimate", "replay", "rollout_inits"}
 
 

@@ -181,9 +181,14 @@ rule sim_variant_rollout:
 
 # Further training seeds (policies.<name>.seeds): each rolled out in its own world (pi^R on the
 # real side, where it can be rerun: the twin; pi^S in the sim), for the spread over trainings.
+# With the twin each also crosses into the other world (pi^R in the calibrated sim, pi^S on the
+# twin), so that the crossing's parts average over every training of a recipe, not one.
 SEED_ARMS = {"real": "R_real", "sim": "S_sim"} if TWIN else {"sim": "S_sim"}
+SEED_CROSS_ARMS = {"sim": "R_sim", "real": "S_real"} if TWIN else {}
 SEED_ROLLOUTS = [f"results/seeds/rollout/{arm}/{p}/{k}" for p in TRAINED for k in range(1, seeds_of(p))
                  for arm in SEED_ARMS]
+SEED_CROSS_ROLLOUTS = [f"results/seeds/cross/{arm}/{p}/{k}" for p in TRAINED for k in range(1, seeds_of(p))
+                       for arm in SEED_CROSS_ARMS]
 
 
 rule seed_rollout:
@@ -208,13 +213,36 @@ rule seed_rollout:
         " --threads {threads} --out {output} --log {log}"
 
 
+rule seed_cross_rollout:
+    wildcard_constraints:
+        policy="|".join(TRAINED) or "(?!)",
+        replicate=r"[1-9]\d*",
+        arm="|".join(SEED_CROSS_ARMS) or "(?!)",
+    input:
+        inits="results/rollout/inits.parquet",
+        world=lambda w: WORLD_PARAMS[w.arm],
+        policy=lambda w: f"results/seeds/train/{OTHER_ARM[w.arm]}/{w.policy}/{w.replicate}",
+    output:
+        directory("results/seeds/cross/{arm}/{policy}/{replicate}"),
+    params:
+        cfg=cross_rollout_params,
+        batch_episodes=Untracked(CFG["rollout"]["batch_episodes"]),
+    threads: 1
+    log:
+        "logs/seeds/cross/{arm}/{policy}/{replicate}.log",
+    shell:
+        "LP_NUM_THREADS=0 {PY} -m r2s_eval.stages.rollout --cfg {params.cfg:q} --policy {input.policy}"
+        " --inits {input.inits} --world-params {input.world} --batch-episodes {params.batch_episodes}"
+        " --threads {threads} --out {output} --log {log}"
+
+
 def fidelity_inputs(wildcards):
     inputs = {
         "reference": "results/reference/success.parquet",
         "sim": expand("results/rollout/sim/{policy}", policy=TRAINED),
         "cross_sim": expand("results/cross/sim/{policy}", policy=TRAINED),
         "world": "results/calib/world_params.json",
-        "seeds": SEED_ROLLOUTS,
+        "seeds": SEED_ROLLOUTS + SEED_CROSS_ROLLOUTS,
         "sims": expand("results/fidelity/in_sims/{sim}/{trained_on}/{policy}", sim=SIMS, trained_on=["real", "sim"],
                        policy=TRAINED),
     }
@@ -231,7 +259,10 @@ def fidelity_inputs(wildcards):
 
 def fidelity_args(wildcards, input):
     # results/seeds/rollout/<arm>/<policy>/<k> -> WORLD:k=FOLDER
-    args = [f"--seed-rollouts"] + [f"{SEED_ARMS[Path(d).parts[-3]]}:{Path(d).name}={d}" for d in input.seeds]
+    # results/seeds/cross/<arm>/<policy>/<k> likewise, the world being the cross's (R_sim, S_real)
+    worlds = {"rollout": SEED_ARMS, "cross": SEED_CROSS_ARMS}
+    args = [f"--seed-rollouts"] + [f"{worlds[Path(d).parts[-4]][Path(d).parts[-3]]}:{Path(d).name}={d}"
+                                   for d in input.seeds]
     if not input.seeds:
         args = []
     if TWIN:

@@ -51,7 +51,7 @@ def _gpu_jobs():
     trained_on_gpu = _on_gpu(CFG["rollout"]["device"])
     jobs["cross_rollout"] = (("arm", "policy"), [(arm, p) for arm in ARMS for p in TRAINED if trained_on_gpu])
     jobs["ablation_rollout"] = (("policy",), [(p,) for p in TRAINED if trained_on_gpu])
-    jobs["seed_rollout"] = jobs["cross_rollout"]
+    jobs["seed_rollout"] = jobs["seed_cross_rollout"] = jobs["cross_rollout"]
     jobs["train_replicate"] = (("policy",), [(p,) for p in TRAINED if _on_gpu(CFG["policies"][p].get("device"))])
     # A LIBERO checkpoint candidate runs where rollout.device (or its own device) says.
     jobs["libero_rollout"] = (("policy",), [

@@ -11,6 +11,9 @@ Its JSON layout (``results/fidelity/report.json``, built by ``r2s_eval.stages.fi
      "ablation": [{"policy", "family", "successes", "trials", "rate", "ci", "full_twin_rate",
                    "cost_pp", "cost_ci_pp"}],
      "seeds": r2s_eval.stats.fidelity.seed_spread(...),
+     "cross_trainings": {**cross_evaluation(...), "trainings": {policy: n}, "training_means_pp": {part: {label: pp}}}
+             (the crossing over every training of each recipe, the candidate's own cells and each further
+             seed's, "act/1" replicate 1 of act; only where the further seeds crossed into the other world),
      "sims": {sim: {"cells", "parts": {"calibration", "calibration_reverse"}, "agreement"}}
              (the crossing both ways in each further sim, as "cross" holds it for the calibrated one),
      "alone": [ablation rows, "family" the effect left on, costs against the twin with none]}
@@ -62,7 +65,7 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
     if latency is not None:  # calib_joints estimated it
         joints["latency"] = {"estimated_steps": int(latency),
                              "truth_steps": None if latency_truth is None else round(float(latency_truth), 3)}
-    return {
+    report = {
         "cross": cross_evaluation(worlds, level, n_boot, seed, world_episodes),
         "joints": joints,
         "ablation": ablation_rows(ablated, cross_real, level),
@@ -70,6 +73,59 @@ def build_report(reference: pd.DataFrame, sim: pd.DataFrame, cross_sim: pd.DataF
         "sims": sims_report(sims or {}, reference, worlds["S_real"], level, n_boot, seed, world_episodes),
         "alone": alone_rows(alone or {}, level),
     }
+    trainings = every_training(worlds, world_episodes, seed_episodes)
+    if trainings is not None:
+        report["cross_trainings"] = crossing_over_trainings(*trainings, level, n_boot, seed)
+    return report
+
+
+def training_label(policy: str, replicate: int) -> str:
+    """A training's name in the crossing over trainings: the candidate itself, or "act/1"."""
+    return policy if replicate == 0 else f"{policy}/{replicate}"
+
+
+def every_training(worlds: Mapping[str, pd.DataFrame | None], world_episodes: Mapping[str, pd.DataFrame | None],
+                   seed_episodes: Mapping[tuple[str, int], pd.DataFrame]) -> tuple[dict, dict] | None:
+    """The four worlds' success tables and episodes of every checkpoint trained here (those with
+    pi^R in the sim), each further training seed's cells beside the candidate's under
+    ``training_label``; None where no further seed ran in all four worlds."""
+    crossing = ("R_real", "R_sim", "S_sim", "S_real")
+    replicates = {k for world, k in seed_episodes if world == "R_sim"}
+    replicates = sorted(k for k in replicates if all((w, k) in seed_episodes for w in crossing))
+    if not replicates or any(worlds.get(w) is None for w in crossing):
+        return None
+    trained = set(worlds["R_sim"]["policy"])
+
+    def relabel(frame: pd.DataFrame, k: int) -> pd.DataFrame:
+        return frame.assign(policy=[training_label(p, k) for p in frame["policy"]])
+
+    tables, episodes = {}, {}
+    for world in crossing:
+        own = worlds[world][worlds[world]["policy"].isin(trained)]
+        tables[world] = pd.concat([own, *(relabel(success_counts(seed_episodes[(world, k)]), k) for k in replicates)],
+                                  ignore_index=True)
+        own = world_episodes.get(world)  # a world known by its counts alone is drawn binomially, as ever
+        episodes[world] = None if own is None else pd.concat(
+            [own[own["policy"].isin(trained)], *(relabel(seed_episodes[(world, k)], k) for k in replicates)],
+            ignore_index=True)
+    return tables, episodes
+
+
+def crossing_over_trainings(tables: Mapping[str, pd.DataFrame], episodes: Mapping[str, pd.DataFrame | None],
+                            level: float, n_boot: int, seed) -> dict:
+    """``cross_evaluation`` over every training (``every_training``), with how many trainings each
+    recipe has and each training's own mean gap per part (its tasks' cells): the interval redraws
+    the shared inits given these trainings, the per-training means show how far one training
+    alone would have moved the number."""
+    cross = cross_evaluation(dict(tables), level, n_boot, seed, dict(episodes))
+    labels = sorted(set(tables["R_sim"]["policy"]))
+    recipes = [label.partition("/")[0] for label in labels]
+    cross["trainings"] = {recipe: recipes.count(recipe) for recipe in sorted(set(recipes))}
+    cross["training_means_pp"] = {
+        part: {label: float(np.mean([c["gap_pp"] for c in summary["cells_gap_pp"] if c["policy"] == label]))
+               for label in labels if any(c["policy"] == label for c in summary["cells_gap_pp"])}
+        for part, summary in cross["parts"].items()}
+    return cross
 
 
 CROSSING_PARTS = ("calibration", "calibration_reverse")  # the same weights in the twin and in a sim
@@ -172,10 +228,20 @@ def fidelity_table(report: Mapping, decimals: int = 1) -> str:
                   _gap(parts.get("calibration"), c["policy"], c["task"], decimals),
                   _gap(parts.get("training"), c["policy"], c["task"], decimals)]) for c in cross["cells"]]
     notes = [latex_part_sentence(name, summary, decimals) for name, summary in parts.items() if summary.get("cells")]
+    if "cross_trainings" in report:
+        over = report["cross_trainings"]
+        notes += [f"Over every training ({latex_escape(_trainings_text(over))}): "
+                  + latex_part_sentence(name, summary, decimals)
+                  for name, summary in over["parts"].items() if name in CROSSING_PARTS and summary.get("cells")]
     level = 100 * cross["ci_level"]
     notes.append(f"Calibration: $\\pi^R$ sim $-$ $\\pi^R$ real (same weights); training: $\\pi^S$ sim $-$ $\\pi^R$ sim "
                  f"(same world); {level:g}\\% Newcombe intervals per cell, percentile bootstrap for means.")
     return _tabular("ll" + "r" * len(worlds) + "rr", header, body, notes=notes)
+
+
+def _trainings_text(over: Mapping) -> str:
+    """"act 3, act_close 3 trainings" from the crossing over trainings."""
+    return ", ".join(f"{p} {n}" for p, n in over["trainings"].items()) + " trainings"
 
 
 def _drawn(summary: Mapping) -> str:
@@ -242,8 +308,12 @@ def sims_table(report: Mapping, decimals: int = 1) -> str:
                     r"$\pi^S$ real $-$ sim (pp)"])]
     cross = report["cross"]
     trained = {c["policy"] for c in cross["cells"] if "R_sim" in c}
-    rows = {"calibrated": {"cells": [c for c in cross["cells"] if c["policy"] in trained], "parts": cross["parts"]},
-            **report["sims"]}
+    rows = {"calibrated": {"cells": [c for c in cross["cells"] if c["policy"] in trained], "parts": cross["parts"]}}
+    if "cross_trainings" in report:  # the same sim over every training of each recipe
+        over = report["cross_trainings"]
+        rows["calibrated, every training"] = {
+            "cells": [c for c in over["cells"] if "R_sim" in c], "parts": over["parts"]}
+    rows.update(report["sims"])
     body = [_row([latex_escape(name.replace("_", " ")), _pooled(r["cells"], "R_sim"),
                   _mean_gap(r["parts"].get("calibration"), decimals), _pooled(r["cells"], "S_sim"),
                   _mean_gap(r["parts"].get("calibration_reverse"), decimals)]) for name, r in rows.items()]
@@ -255,16 +325,21 @@ def sims_table(report: Mapping, decimals: int = 1) -> str:
              f"({', '.join(sorted(latex_escape(p) for p in trained))}). Mean signed gap over the policy-task cells, "
              f"{level:g}\\% percentile-bootstrap interval"
              f"{', paired over the shared inits where both sides ran them' if paired else ''}."]
+    if "cross_trainings" in report:
+        notes.append(f"Every training: each recipe's further training seeds beside the candidate "
+                     f"({latex_escape(_trainings_text(report['cross_trainings']))}), the interval given those trainings.")
     return _tabular("lrrrr", header, body, notes=notes)
 
 
 def latex_part_sentence(name: str, summary: Mapping, decimals: int = 1) -> str:
     """`part_sentence` as LaTeX text."""
     lo, hi = summary["mean_abs_gap_ci_pp"]
+    signed_lo, signed_hi = summary["mean_gap_ci_pp"]
     plus, minus = summary["compares"].split(" - ")
     return (f"{latex_escape(name.replace('_', ' '))} ({WORLD_LABELS[plus]} $-$ {WORLD_LABELS[minus]}): mean $|$gap$|$ "
             f"{summary['mean_abs_gap_pp']:.{decimals}f} pp [{lo:.{decimals}f}, {hi:.{decimals}f}], mean "
-            f"{summary['mean_gap_pp']:+.{decimals}f} pp, largest {summary['max_abs_gap_pp']:.{decimals}f} pp, "
+            f"{summary['mean_gap_pp']:+.{decimals}f} pp [{signed_lo:+.{decimals}f}, {signed_hi:+.{decimals}f}], "
+            f"largest {summary['max_abs_gap_pp']:.{decimals}f} pp, "
             f"{summary['cells']} cells, intervals {_drawn(summary)}")
 
 
@@ -284,6 +359,12 @@ def format_report(report: Mapping) -> str:
         pearson = "undefined" if a["pearson"] is None else f"{a['pearson']:.3f}"
         lines.append(f"same-policy agreement of {name} with R_real over {len(a['policies'])} policies: "
                      f"Pearson {pearson}, MMRV {a['mmrv_pp']:.1f} pp")
+    if "cross_trainings" in report:
+        over = report["cross_trainings"]
+        lines += [f"over every training ({_trainings_text(over)}): " + part_sentence(name, s)
+                  for name, s in over["parts"].items() if s.get("cells")]
+        for name, means in over["training_means_pp"].items():
+            lines.append(f"{name} per training (pp): " + ", ".join(f"{label} {v:+.1f}" for label, v in means.items()))
     lines += [joint_line(arm, j) for arm, j in report["joints"]["arms"].items()]
     if "latency" in report["joints"]:
         lines.append(latency_line(report["joints"]["latency"]))

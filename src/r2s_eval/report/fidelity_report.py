@@ -89,9 +89,9 @@ def every_training(worlds: Mapping[str, pd.DataFrame | None], world_episodes: Ma
     """The four worlds' success tables and episodes of every checkpoint trained here (those with
     pi^R in the sim), each further training seed's cells beside the candidate's under
     ``training_label``; None where no further seed ran in all four worlds."""
-    crossing = ("R_real", "R_sim", "S_sim", "S_real")
-    replicates = {k for world, k in seed_episodes if world == "R_sim"}
-    replicates = sorted(k for k in replicates if all((w, k) in seed_episodes for w in crossing))
+    crossing = tuple(WORLD_LABELS)  # R_real, R_sim, S_sim, S_real
+    replicates = sorted(k for world, k in seed_episodes
+                        if world == "R_sim" and all((w, k) in seed_episodes for w in crossing))
     if not replicates or any(worlds.get(w) is None for w in crossing):
         return None
     trained = set(worlds["R_sim"]["policy"])
@@ -104,10 +104,10 @@ def every_training(worlds: Mapping[str, pd.DataFrame | None], world_episodes: Ma
         own = worlds[world][worlds[world]["policy"].isin(trained)]
         tables[world] = pd.concat([own, *(relabel(success_counts(seed_episodes[(world, k)]), k) for k in replicates)],
                                   ignore_index=True)
-        own = world_episodes.get(world)  # a world known by its counts alone is drawn binomially, as ever
-        episodes[world] = None if own is None else pd.concat(
-            [own[own["policy"].isin(trained)], *(relabel(seed_episodes[(world, k)], k) for k in replicates)],
-            ignore_index=True)
+        own_episodes = world_episodes.get(world)  # a world known by its counts alone is drawn binomially, as ever
+        episodes[world] = None if own_episodes is None else pd.concat(
+            [own_episodes[own_episodes["policy"].isin(trained)],
+             *(relabel(seed_episodes[(world, k)], k) for k in replicates)], ignore_index=True)
     return tables, episodes
 
 

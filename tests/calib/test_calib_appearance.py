@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from r2s_eval.calib.appearance import AppearanceModel, Frame, fit_appearance
 from r2s_eval.sim import WorldParams
@@ -78,3 +79,24 @@ def test_frames_through_a_lens_are_compared_undistorted():
     # Measured: 0.27 with the lens (the corners it leaves uncovered left out), 5.0 without (0-255:
     # every edge of the scene a few pixels off its render).
     assert errors["lens"] < 0.6 and errors["pinhole"] > 4 * errors["lens"], errors
+
+
+def test_the_fitted_look_is_scored_against_the_twins():
+    from r2s_eval.calib.cameras import score_calibration
+    from r2s_eval.report.calibration_report import camera_lines
+
+    model = AppearanceModel(first_frames(LOOK, n=2), bundled_world(), WorldParams(), CAMERA)
+    try:
+        fitted, report = fit_appearance(model, prior=0.01)
+    finally:
+        model.close()
+    calibrated = {"params": dataclasses.asdict(fitted), "appearance": {"fitted": True, **report}}
+    scored = score_calibration({}, calibrated, LOOK, bundled_world(), ["cup_on_plate"])["appearance"]
+    assert scored["light_scale"] == {"sim": fitted.light_intensity_scale, "twin": LOOK.light_intensity_scale}
+    cup = scored["object_rgb_error"]["cup"]
+    assert cup["model"] == pytest.approx(255 * np.mean(np.abs(LOOK.object_rgb_offset["cup"])))
+    assert cup["sim"] < cup["model"], cup  # the fit moved the cup's colour towards the twin's
+    assert any(line.startswith("appearance against the twin: light x") for line in camera_lines(
+        {"cameras": {}, "used": "none", "appearance": scored}))
+    unfitted = {"params": dataclasses.asdict(WorldParams()), "appearance": {"fitted": False}}
+    assert "light_scale" not in score_calibration({}, unfitted, LOOK, bundled_world(), ["cup_on_plate"])["appearance"]

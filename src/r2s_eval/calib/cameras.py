@@ -256,6 +256,19 @@ def lens_errors(record: Mapping, true_lenses: Mapping[str, Sequence[float]], wor
         env.close()
 
 
+def look_errors(sim: WorldParams, truth: WorldParams) -> dict:
+    """The fitted light's intensity beside the twin's (``light_scale``: {"sim", "twin"}) and each
+    object's colour off the twin's (``object_rgb_error``: {object: {"sim", "model"}}, the mean
+    absolute difference of its colour offset, 0-255; ``model``: the world file's colour)."""
+    def error(offset, true_offset):
+        return float(255.0 * np.mean(np.abs(np.subtract(offset, true_offset))))
+
+    return {"light_scale": {"sim": float(sim.light_intensity_scale), "twin": float(truth.light_intensity_scale)},
+            "object_rgb_error": {name: {"sim": error(sim.object_rgb_offset.get(name, (0.0, 0.0, 0.0)), true),
+                                        "model": error((0.0, 0.0, 0.0), true)}
+                                 for name, true in sorted(truth.object_rgb_offset.items())}}
+
+
 def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth: WorldParams, world: Mapping,
                       tasks: Sequence[str], true_lenses: Mapping[str, Sequence[float]] | None = None,
                       true_shadows: bool | None = None) -> dict:
@@ -267,7 +280,8 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
     one (``true_lenses``: its reality record's ``lens_distortion``; None: pinholes) (``lens``:
     ``lens_errors``); with ``true_shadows`` (the twin's reality record: whether its key light casts
     them), the sim's shadows beside it and the angle between the two key lights (``appearance``:
-    ``shadows``, ``twin_shadows``, ``key_light_deg``)."""
+    ``shadows``, ``twin_shadows``, ``key_light_deg``); a fitted appearance, its light and colours
+    against the twin's (``look_errors``)."""
     cameras = sorted({c for record in estimates.values() for c in record["cameras"]}) or list(world["cameras"])
     scored = {"model": camera_errors(WorldParams(), truth, world, tasks, cameras)}
     for method, record in estimates.items():
@@ -275,6 +289,8 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
     appearance = calibrated.get("appearance") or {}
     report = {"cameras": scored, "used": (calibrated.get("cameras") or {}).get("method", "none"),
               "appearance": {k: appearance.get(k) for k in ("fitted", "residual_before", "residual_after")}}
+    if appearance.get("fitted"):
+        report["appearance"].update(look_errors(WorldParams(**calibrated["params"]), truth))
     if true_shadows is not None:  # the twin's shadows, and the key light that casts them, against the sim's
         sim = WorldParams(light_dir_offset=tuple(calibrated["params"].get("light_dir_offset", (0.0, 0.0, 0.0))))
         report["appearance"].update(shadows=bool(calibrated["params"].get("shadows", False)),

@@ -219,6 +219,13 @@ def camera_lines(calibration: dict) -> list[str]:
     if appearance.get("fitted"):
         lines.append(f"appearance: mean colour error of the first frames {appearance['residual_before']:.1f} -> "
                      f"{appearance['residual_after']:.1f} (0-255) with the fitted light and colours")
+    if "light_scale" in appearance:
+        light, colours = appearance["light_scale"], appearance["object_rgb_error"]
+        lines.append(f"appearance against the twin: light x{light['sim']:.3f} (the twin's x{light['twin']:.3f}); "
+                     "each object's colour off the twin's by " + ", ".join(
+                         f"{name} {e['sim']:.1f}" for name, e in colours.items())
+                     + " (0-255; the world file's colours: " + ", ".join(
+                         f"{name} {e['model']:.1f}" for name, e in colours.items()) + ")")
     if "key_light_deg" in appearance:
         lines.append(f"shadows: sim {'on' if appearance['shadows'] else 'off'}, twin "
                      f"{'on' if appearance['twin_shadows'] else 'off'}; the key light "

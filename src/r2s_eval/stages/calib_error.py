@@ -4,7 +4,8 @@ it but the world report).
 For each camera estimate (``METHOD=FILE``: calib_board's, calib_silhouette's) and for the model's
 own poses, each camera's distance from the twin's true pose (position mm, rotation deg, in its
 parent's frame); and, from the calibrated sim's world parameters, which estimate was used and
-the appearance fit's colour error before and after. An estimate that fitted the cameras' lenses
+the appearance fit's colour error before and after (and, where it fitted, its light and each
+object's colour against the twin's: ``r2s_eval.calib.cameras.look_errors``). An estimate that fitted the cameras' lenses
 (``calib.cameras.board.intrinsics``) adds each lens against the twin's true lens, its reality
 record's (``r2s_eval.twin.reality.load_reality_effects``: OpenCV's rational model; a twin without
 one records through pinholes) (``r2s_eval.calib.cameras.lens_errors``: pixels at the take's image
@@ -13,6 +14,7 @@ key lights. Only this scoring reads the reality record, never the calibration. W
 
     {"cameras": {"model" | METHOD: {camera: {"position_mm": .., "rotation_deg": ..}}},
      "used": METHOD | "none", "appearance": {"residual_before": .., "residual_after": ..
+                                             [, "light_scale", "object_rgb_error"]
                                              [, "shadows", "twin_shadows", "key_light_deg"]}
      [, "background": {camera: {"with_plate", "without_plate", "frames" [, "shadows"]}}]
      [, "lens": {METHOD: {camera: {"distortion_px", "distortion_max_px", "model_px",

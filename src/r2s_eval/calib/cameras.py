@@ -27,7 +27,7 @@ from r2s_eval.calib.board import (Board, CameraFit, Lens, board_on_table, find_b
                                   views_of_stated_board)
 from r2s_eval.calib.take import read_take
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim import TabletopEnv, WorldParams
+from r2s_eval.sim import TabletopEnv, WorldParams, world_params_from_record
 from r2s_eval.sim import cameras as cam_geom
 from r2s_eval.sim.assembly import ee_site
 from r2s_eval.sim.build import make_env
@@ -289,12 +289,11 @@ def score_calibration(estimates: Mapping[str, dict], calibrated: Mapping, truth:
     appearance = calibrated.get("appearance") or {}
     report = {"cameras": scored, "used": (calibrated.get("cameras") or {}).get("method", "none"),
               "appearance": {k: appearance.get(k) for k in ("fitted", "residual_before", "residual_after")}}
+    sim = world_params_from_record(calibrated.get("params") or {})
     if appearance.get("fitted"):
-        report["appearance"].update(look_errors(WorldParams(**calibrated["params"]), truth))
+        report["appearance"].update(look_errors(sim, truth))
     if true_shadows is not None:  # the twin's shadows, and the key light that casts them, against the sim's
-        sim = WorldParams(light_dir_offset=tuple(calibrated["params"].get("light_dir_offset", (0.0, 0.0, 0.0))))
-        report["appearance"].update(shadows=bool(calibrated["params"].get("shadows", False)),
-                                    twin_shadows=bool(true_shadows),
+        report["appearance"].update(shadows=sim.shadows, twin_shadows=bool(true_shadows),
                                     key_light_deg=key_light_error_deg(sim, truth, world, tasks))
     lenses = {method: lens_errors(record, true_lenses or {}, world, tasks) for method, record in estimates.items()
               if any("intrinsics" in fit for fit in record["cameras"].values())}

@@ -15,7 +15,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from r2s_eval.sim.env import TabletopEnv  # noqa: E402
-from r2s_eval.sim.params import WorldParams, load_world_params  # noqa: E402
+from r2s_eval.sim.params import WorldParams, load_world_params, world_params_from_record  # noqa: E402
 from r2s_eval.sim.robot import Robot, world_robot  # noqa: E402
 from r2s_eval.sim.tasks import Task, get_task, world_config  # noqa: E402
 
@@ -27,5 +27,6 @@ __all__ = [
     "get_task",
     "load_world_params",
     "world_config",
+    "world_params_from_record",
     "world_robot",
 ]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -97,7 +98,11 @@ def sim_variant(calibrated: WorldParams, name: str) -> WorldParams:
 
 def load_world_params(path: str | Path) -> WorldParams:
     """The ``params`` of a world-parameter JSON file (as the twin stage writes it)."""
-    raw = json.loads(Path(path).read_text())["params"]
+    return world_params_from_record(json.loads(Path(path).read_text())["params"])
+
+
+def world_params_from_record(raw: Mapping) -> WorldParams:
+    """``WorldParams`` from its JSON record (a world-parameter file's ``params``)."""
     return WorldParams(**{k: _tuples(v) for k, v in raw.items()})
 
 

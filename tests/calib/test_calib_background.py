@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 
 from r2s_eval.calib.background import fit_plates, plate_errors, shadow_agreement, write_plates
+from r2s_eval.data import STATE_KEY
+from r2s_eval.data.contract import read_metadata
+from r2s_eval.data.frames import episode_rows
 from r2s_eval.errors import ConfigError, DataError
 from r2s_eval.sim import WorldParams
 from r2s_eval.sim.build import check_world_params
@@ -95,6 +98,19 @@ def test_the_sims_shadows_fall_where_the_recordings_are_darker_than_the_plate(re
     assert head["recorded"] < head["unshaded_recorded"] - 0.1
     assert abs(head["recorded"] - head["sim"]) < 0.1
     assert 0.95 < head["unshaded_recorded"] < 1.05
+
+
+def test_the_record_holds_the_robots_state_at_each_frame_the_plate_is_the_median_of(recording, plates):
+    # The sim takes the same median of its own room at them (WorldParams.background_states).
+    path, _ = recording
+    _, record = plates
+    meta = read_metadata(str(path))
+    used = record["cameras"]["head_left"]["frames_used"]
+    assert len(record["states"]) == len(used) == BACKGROUND["frames"]
+    for (episode, frame), state in zip(used, record["states"]):
+        recorded = episode_rows(meta, episode, [STATE_KEY])[STATE_KEY][frame]
+        assert np.allclose(state, np.asarray(recorded, float))
+    assert len({tuple(s) for s in record["states"]}) > BACKGROUND["frames"] // 2  # the arm in many places
 
 
 def test_recordings_that_never_move_the_arm_away_are_refused(recording):

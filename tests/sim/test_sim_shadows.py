@@ -3,6 +3,7 @@ light casts them in the sim's own renders, and over a background plate the sim d
 where its arm and objects shade the room (``TabletopEnv.shadow_shade``), never elsewhere."""
 
 import dataclasses
+import json
 
 import cv2
 import mujoco
@@ -12,7 +13,8 @@ import pytest
 from r2s_eval.calib.appearance import calibrate_appearance
 from r2s_eval.calib.cameras import key_light_error_deg, score_calibration
 from r2s_eval.errors import ConfigError
-from r2s_eval.sim import WorldParams
+from r2s_eval.sim import WorldParams, load_world_params
+from r2s_eval.sim.build import check_world_params
 from r2s_eval.sim.render_params import SHADOW_MAP_PX, apply_shadows, key_light
 from tests.helpers.commands import POSES
 from tests.helpers.worlds import bundled_env, bundled_world
@@ -80,6 +82,48 @@ def test_over_a_plate_the_sims_shadows_darken_the_plate_where_they_fall_and_nowh
     assert shaded[under & stripes].mean() < shaded[under & ~stripes].mean()
     # Where nothing shades the room the image is the plate, byte for byte, in most of it.
     assert np.mean(shaded[room & ~dark] == image[room & ~dark]) > 0.9
+
+
+def _states(swing_rad: float) -> tuple[tuple[float, ...], ...]:
+    """Recorded states of both arms at home, each first joint turned by ``swing_rad`` and by a few
+    degrees more or less (a plate's frames): 0 is a robot that never left home."""
+    robot = bundled_env("cup_on_plate").robot
+    states = []
+    for extra in (0.0, 0.05, -0.05):
+        per_arm = {name: (q + np.r_[swing_rad + (extra if swing_rad else 0.0), np.zeros(len(q) - 1)], closing)
+                   for name, (q, closing) in robot.home_targets().items()}
+        states.append(tuple(robot.from_model(per_arm)))
+    return tuple(states)
+
+
+def test_a_plate_taken_while_the_arms_worked_lacks_their_shadows_at_home_and_the_sim_draws_them(plate):
+    """The sim takes the median of its own room at the plate's recorded states: where the plate's
+    frames show the arms at home, it holds their shadows there and the sim adds none; where they
+    show the arms at work elsewhere, the arms at home cast shadows the plate lacks."""
+    path, image = plate
+    kept, _, drawn = _recorded(WorldParams(background_plates={CAMERA: path}, shadows=True,
+                                           background_states=_states(0.0)))
+    added, _, _ = _recorded(WorldParams(background_plates={CAMERA: path}, shadows=True,
+                                        background_states=_states(0.8)))
+    room = ~drawn
+    darker = added.astype(int).sum(axis=-1) < kept.astype(int).sum(axis=-1) - 30
+    assert (darker & room).sum() > 30  # the arms' shadows at home
+    assert (added.astype(int) <= kept.astype(int) + 1)[room].all()  # and nothing brighter
+    # States at home give what a plate without states is taken to hold: the robot at home.
+    default, _, _ = _recorded(WorldParams(background_plates={CAMERA: path}, shadows=True))
+    assert np.mean(np.abs(default.astype(int) - kept.astype(int))[room] <= 2) > 0.99
+
+
+def test_recorded_states_of_another_robot_are_refused(tmp_path):
+    world = bundled_world()
+    params = WorldParams(background_states=_states(0.8))
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"params": dataclasses.asdict(params)}))
+    assert load_world_params(path) == params  # the states come back as they went
+    check_world_params(WorldParams(background_states=_states(0.8)), world, "params.json")
+    with pytest.raises(ConfigError, match=r"params.json: background_states\[0\] has 3 values, a state of this "
+                                          r"world has 14"):
+        check_world_params(WorldParams(background_states=((0.0, 0.0, 0.0),)), world, "params.json")
 
 
 def test_a_world_without_a_scene_light_cannot_have_the_answer():

@@ -37,7 +37,7 @@ PARAMS_BEFORE = {2: "c69831e27d1e027851cedb0597eae5b05ef44f412ccb6501116cf7bedfc
                  7: "ba5fbc7e1076a38a84965782a5f59b28880cb8a061c0ef42e0ed03550b96c005",
                  11: "9d4f816efcb8c9d9af401cb26bacd039c5a05a40a7aba96bd11b39b570e5a0c0"}
 # The calibrated sim's answers, nominal in a twin.
-ANSWER_FIELDS = ("lens_distortion", "command_latency_steps", "background_plates", "shadows")
+ANSWER_FIELDS = ("lens_distortion", "command_latency_steps", "background_plates", "background_states", "shadows")
 
 
 def _twin_record(seed: int, magnitudes: dict | None = None) -> dict:
@@ -57,7 +57,8 @@ def test_the_twins_world_parameters_are_todays_and_its_reality_is_off_by_default
     record = _twin_record(seed)
     params = dict(record["params"])
     assert {k: params.pop(k) for k in ANSWER_FIELDS} == {"lens_distortion": {}, "command_latency_steps": 0,
-                                                         "background_plates": {}, "shadows": False}
+                                                         "background_plates": {}, "background_states": (),
+                                                         "shadows": False}
     assert _digest(params) == PARAMS_BEFORE[seed]
     assert record["reality"] == dataclasses.asdict(RealityEffects())
     # Every reality magnitude at a lab's reference moves no world parameter.

@@ -94,6 +94,10 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
     for camera, plate in params.background_plates.items():
         if not Path(plate).is_file():
             raise ConfigError(f"{source}: background_plates: camera {camera!r}'s plate {plate} does not exist")
+    for i, state in enumerate(params.background_states):
+        if len(state) != robot.action_dim:
+            raise ConfigError(f"{source}: background_states[{i}] has {len(state)} values, a state of {world_name} "
+                              f"has {robot.action_dim}")
     latency = params.command_latency_steps
     if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
         raise ConfigError(f"{source}: command_latency_steps must be a whole number of control steps >= 0, "

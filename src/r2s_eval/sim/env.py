@@ -41,6 +41,8 @@ from __future__ import annotations
 
 import os
 import threading
+import warnings
+import weakref
 from collections import deque
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering unless the user chose otherwise
@@ -60,6 +62,13 @@ from r2s_eval.errors import ConfigError, DataError, PolicyError  # noqa: E402
 SETTLE_STEPS = 100  # physics steps (0.2 s) after placing objects at reset
 _ENCODER_STREAM = 2**31 - 1  # the encoders' noise stream; the cameras' are their rig indices
 _HIDDEN_GROUP = 5  # the geom group plate_shadows_image moves what it leaves out to
+# The room with a plate's shadows (plate_shadows_image), per model: every environment of a shared
+# model reads the same images, made once under the lock ({model: {(camera, size, look): image}}).
+_PLATE_SHADOWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_PLATE_SHADOWS_LOCK = threading.Lock()
+# How far around the robot a plate's frame does not count as room (calib.background.margin_px's
+# default): the sim's median of its own room leaves out as much.
+PLATE_MARGIN_PX = 2
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
 
 
@@ -104,7 +113,6 @@ class TabletopEnv:
         self.steps = 0  # control steps since reset
         self._pending_commands: deque[np.ndarray] = deque()  # sent, not yet at the servos (latency)
         self._plates: dict = {}  # background plates read, by (camera, size)
-        self._still_images: dict = {}  # the room with a plate's shadows (shadow_shade), by (camera, size)
         self._index_model()
         self.max_task_progress = 0.0
         self.initial_centre_z_m: dict[str, float] = {}
@@ -209,15 +217,21 @@ class TabletopEnv:
     def pose_robot(self, state) -> None:
         """Hold the robot still at a dataset-layout ``state`` (arm joints at its angles, fingers at
         its closing): kinematics only, as a recorded frame shows the robot. Objects stay put."""
-        for name, (q, closing) in self.robot.to_model(state).items():
-            self.data.qpos[self._arm_qpos_adr[name]] = q
-            self.data.qpos[self._grip_qpos_adr[name]] = self.robot.arms[name].gripper.position(closing)
-            for _, adr, finger in self._finger_adr[name]:
-                self.data.qpos[adr] = finger.position(closing)
-            for adr, ratio in self._coupled_adr[name]:
-                self.data.qpos[adr] = ratio * self.robot.arms[name].gripper.position(closing)
-        self.data.qvel[:] = 0.0
+        self._pose_data(self.data, state)
         mujoco.mj_forward(self.model, self.data)
+
+    def _pose_data(self, d: mujoco.MjData, state) -> None:
+        """``d``'s robot at ``state`` (``pose_robot``), its kinematics, cameras and lights updated."""
+        for name, (q, closing) in self.robot.to_model(state).items():
+            d.qpos[self._arm_qpos_adr[name]] = q
+            d.qpos[self._grip_qpos_adr[name]] = self.robot.arms[name].gripper.position(closing)
+            for _, adr, finger in self._finger_adr[name]:
+                d.qpos[adr] = finger.position(closing)
+            for adr, ratio in self._coupled_adr[name]:
+                d.qpos[adr] = ratio * self.robot.arms[name].gripper.position(closing)
+        d.qvel[:] = 0.0
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_camlight(self.model, d)
 
     def step(self, action: np.ndarray, images: bool = True) -> dict:
         """Hold ``action`` (14-D, see module table) for one control period; the observation
@@ -400,32 +414,86 @@ class TabletopEnv:
         return (255.0 * np.clip(ratio, 0.0, 1.0)).round().astype(np.uint8)
 
     def plate_shadows_image(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
-        """``camera``'s pinhole image of the room with the shadows a background plate holds, made
-        once per camera and size: the robot's fixed parts and its arms at home, which is where an
-        arm that no task of the recordings moves stays (its shadow in every frame the plate is the
-        median of), without the task objects (they start elsewhere in each episode). Where an arm
-        at home hides the room, the room without the arms. What a render leaves out is moved to a
-        geom group it does not draw, then back: a transparent geom would still cast its shadow."""
-        key = (camera, tuple(size_hw))
-        if key not in self._still_images:
-            m = self.model
-            d = mujoco.MjData(m)
-            self._robot_home(d)
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_camlight(m, d)  # the cameras and lights where the bodies now put them
-            moving = m.body_weldid[m.geom_bodyid] != 0
-            is_object = np.isin(m.body_rootid[m.geom_bodyid], list(self._obj_body.values()))
-            at_home, no_arms = (self._render_without(d, camera, size_hw, hide) for hide in (is_object, moving))
-            renderer = self.renderer(tuple(size_hw))
-            renderer.update_scene(d, camera=camera)
-            renderer.enable_segmentation_rendering()
-            try:
-                seg = renderer.render()
-            finally:
-                renderer.disable_segmentation_rendering()
-            arm = (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & moving[np.clip(seg[..., 0], 0, None)] & (seg[..., 0] >= 0)
-            self._still_images[key] = np.where(arm[..., None], no_arms, at_home)
-        return self._still_images[key]
+        """``camera``'s pinhole image of the room with the shadows a background plate holds,
+        without the task objects (they start elsewhere in each episode), made once per model,
+        camera, size and look. A plate is the median of recorded frames, so it holds the shadows
+        the median of those frames holds: with their recorded states (``params.background_states``)
+        the same median of the sim's own renders at them (``_median_room``); an arm that works in
+        most of them leaves no shadow there, not even where it rests at home. Without them, the
+        robot's fixed parts and its arms at home (``_room_at_home``)."""
+        m = self.model
+        look = (m.light_diffuse.tobytes(), m.light_dir.tobytes(), m.light_pos.tobytes(), m.geom_rgba.tobytes())
+        key = (camera, tuple(size_hw), hash(look))
+        with _PLATE_SHADOWS_LOCK:
+            images = _PLATE_SHADOWS.setdefault(m, {})
+            if key not in images:
+                states = self.params.background_states
+                images[key] = (self._median_room(camera, size_hw, states) if states
+                               else self._room_at_home(camera, size_hw))
+            return images[key]
+
+    def _room_at_home(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+        """``camera``'s pinhole image of the room with the robot's fixed parts and its arms at
+        home, where an arm that no task moves stays; where an arm at home hides the room, the room
+        without the arms. What a render leaves out is moved to a geom group it does not draw, then
+        back: a transparent geom would still cast its shadow."""
+        m = self.model
+        d = self._data_at_home()
+        moving = m.body_weldid[m.geom_bodyid] != 0
+        at_home, no_arms = (self._render_without(d, camera, size_hw, hide) for hide in (self._object_geoms(), moving))
+        geoms = self._geoms_drawn(d, camera, size_hw)
+        arm = (geoms >= 0) & moving[np.clip(geoms, 0, None)]
+        return np.where(arm[..., None], no_arms, at_home)
+
+    def _median_room(self, camera: str, size_hw: tuple[int, int], states) -> np.ndarray:
+        """``camera``'s pinhole image of the room as a plate taken at the recorded ``states``
+        holds it (``r2s_eval.calib.background.plate_from_frames``): per pixel, the median of the
+        sim's renders at those states, the task objects left out, over the states in which the
+        robot (widened by ``PLATE_MARGIN_PX``) does not cover it; where it always does, the room
+        with the arms at home."""
+        import cv2
+
+        d = self._data_at_home()
+        objects = self._object_geoms()
+        margin = np.ones((2 * PLATE_MARGIN_PX + 1,) * 2, np.uint8)
+        renders, free = [], []
+        for state in states:
+            self._pose_data(d, state)
+            renders.append(self._render_without(d, camera, size_hw, objects))
+            geoms = self._geoms_drawn(d, camera, size_hw)
+            robot = (geoms >= 0) & self._geom_is_robot[np.clip(geoms, 0, None)]
+            free.append(cv2.dilate(robot.astype(np.uint8), margin) == 0)
+        values = np.where(np.stack(free)[..., None], np.stack(renders).astype(np.float32), np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a pixel the robot always covers
+            median = np.nanmedian(values, axis=0)
+        home = self._render_without(self._data_at_home(), camera, size_hw, objects)
+        return np.where(np.isnan(median), home, np.nan_to_num(median)).round().astype(np.uint8)
+
+    def _data_at_home(self) -> mujoco.MjData:
+        """A fresh MjData of the model with every arm at home, its cameras and lights placed."""
+        d = mujoco.MjData(self.model)
+        self._robot_home(d)
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_camlight(self.model, d)
+        return d
+
+    def _object_geoms(self) -> np.ndarray:
+        """bool per geom: the task objects' geoms."""
+        m = self.model
+        return np.isin(m.body_rootid[m.geom_bodyid], list(self._obj_body.values()))
+
+    def _geoms_drawn(self, d: mujoco.MjData, camera: str, size_hw: tuple[int, int]) -> np.ndarray:
+        """The geom ``camera`` draws at each pixel of ``d`` (int32[H, W]; -1 where none is)."""
+        renderer = self.renderer(tuple(size_hw))
+        renderer.update_scene(d, camera=camera)
+        renderer.enable_segmentation_rendering()
+        try:
+            seg = renderer.render()
+        finally:
+            renderer.disable_segmentation_rendering()
+        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        return np.where(is_geom & (seg[..., 0] >= 0), seg[..., 0], -1).astype(np.int32)
 
     def _render_without(self, d: mujoco.MjData, camera: str, size_hw: tuple[int, int], hide: np.ndarray) -> np.ndarray:
         """``camera``'s pinhole image of ``d`` without the geoms ``hide`` (bool per geom)."""
@@ -481,16 +549,7 @@ class TabletopEnv:
 
     def render_geoms(self, camera: str, size: tuple[int, int] | None = None) -> np.ndarray:
         """The geom drawn at each pixel (int32[H, W] geom ids; -1 where no geom is)."""
-        size_hw = tuple(int(s) for s in (size or self.image_size))
-        renderer = self.renderer(size_hw)
-        renderer.update_scene(self.data, camera=camera)
-        renderer.enable_segmentation_rendering()
-        try:
-            seg = renderer.render()
-        finally:
-            renderer.disable_segmentation_rendering()
-        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
-        return np.where(is_geom & (seg[..., 0] >= 0), seg[..., 0], -1).astype(np.int32)
+        return self._geoms_drawn(self.data, camera, tuple(int(s) for s in (size or self.image_size)))
 
     @property
     def geom_is_robot(self) -> np.ndarray:

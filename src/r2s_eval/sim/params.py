@@ -56,6 +56,11 @@ class WorldParams:
     # calibrated sim's answer to a room no world file holds, r2s_eval.calib.background): the camera
     # records the sim's robot and task objects over it. Missing -> the sim's own surroundings.
     background_plates: dict[str, str] = field(default_factory=dict)
+    # The robot's recorded states (observation.state) at the frames the plates are the median of:
+    # the sim takes the same median of its own room at them (r2s_eval.sim.env), so it draws the
+    # shadows a plate lacks (an arm's at home, when the frames show that arm mostly at work) and
+    # not those it holds. Empty -> a plate is taken to hold the shadows of the robot at home.
+    background_states: tuple[tuple[float, ...], ...] = ()
     # The key light casts shadows (the arm's and the objects' on the table, which the recordings
     # show and a plate, the room standing still, does not hold): over a plate the sim darkens it by
     # its own shadows' share (r2s_eval.sim.env). False: the world file's lights as they are.
@@ -75,7 +80,7 @@ class WorldParams:
 # hold it), and the sims a fidelity experiment crosses the checkpoints into besides the calibrated
 # one (fidelity.sims): the world as its files state it (nothing calibrated), the calibration
 # without its answers, the calibration without one answer.
-ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates",), "latency": ("command_latency_steps",),
+ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates", "background_states"), "latency": ("command_latency_steps",),
            "shadows": ("shadows",)}
 NOMINAL_SIM = "nominal"
 WITHOUT_ANSWERS = "without_answers"
@@ -107,10 +112,11 @@ def world_params_from_record(raw: Mapping) -> WorldParams:
 
 
 def _tuples(value):
-    """JSON arrays back to the tuples ``WorldParams`` holds, inside dicts too (per-camera,
-    per-object and per-arm vectors), so a round trip gives an equal ``WorldParams``."""
+    """JSON arrays back to the tuples ``WorldParams`` holds, inside dicts and arrays too (per-camera,
+    per-object and per-arm vectors, the recorded states), so a round trip gives an equal
+    ``WorldParams``."""
     if isinstance(value, list):
-        return tuple(value)
+        return tuple(_tuples(v) for v in value)
     if isinstance(value, dict):
         return {k: _tuples(v) for k, v in value.items()}
     return value

@@ -38,7 +38,9 @@ def main(args) -> None:
     joints = load_world_params(args.joints)
     background = read_json(f"{args.background}/background.json") if args.background else None
     params = WorldParams(joint_offset_rad=joints.joint_offset_rad, command_latency_steps=joints.command_latency_steps,
-                         background_plates=background["plates"] if background else {}, **camera_params(cameras))
+                         background_plates=background["plates"] if background else {},
+                         background_states=tuple(map(tuple, background["states"])) if background else (),
+                         **camera_params(cameras))
     index, estimates = pd.read_parquet(args.index), pd.read_parquet(args.estimates)
     fitted, appearance = calibrate_appearance(index, args.frames, estimates, args.dataset, cfg["world"], params,
                                               cfg["calib.appearance"], cfg["calib.camera"])

@@ -4,7 +4,7 @@ objects over them (``calib_appearance`` puts them in its world parameters).
 
 Writes ``<out>/<camera>.png`` and ``<out>/background.json``: ``{"plates": {camera: path}, "frames":
 ..., "cameras": {camera: {"frames_used", "free_frames_median", "free_frames_min", "unseen_share", "inpainted_share"}},
-"skipped": {camera: why}}``.
+"skipped": {camera: why}, "states": the robot's recorded state at each frame used}``.
 """
 
 from __future__ import annotations

@@ -273,7 +273,8 @@ PERTURBATION_FAMILIES = {
     "backlash": (),
     "gripper": (),
     # The room and the true shapes (r2s_eval.twin.scene). The sim's answer to the room, its
-    # background plates, are pictures of this twin's own room: no family hands them to a twin. Its
+    # background plates (and the states they were taken at), are pictures of this twin's own room:
+    # no family hands them to a twin. Its
     # shadows are the key light's, as the twin's: taken away, the twin casts the sim's.
     "table_texture": (),
     "walls": (),
@@ -329,7 +330,7 @@ def without_family(twin: WorldParams, sim: WorldParams, family: str) -> WorldPar
     """The twin's world parameters with one family's gap to the calibrated sim taken away: that
     family's fields take the sim's values (nominal, or what the calibration estimated: its lens,
     its latency in steps); ``all``: the sim itself (with the twin's noise seed, without its
-    background plates, which no twin takes). The twin's own
+    background plates and their states, which no twin takes). The twin's own
     effects of the family go with it: ``reality_without_family``."""
     return dataclasses.replace(twin, **{f: getattr(sim, f) for f in _family_fields(family, PERTURBATION_FAMILIES)})
 

@@ -221,7 +221,8 @@ class TabletopEnv:
         mujoco.mj_forward(self.model, self.data)
 
     def _pose_data(self, d: mujoco.MjData, state) -> None:
-        """``d``'s robot at ``state`` (``pose_robot``), its kinematics, cameras and lights updated."""
+        """``d``'s robot joints at ``state`` (``pose_robot``), at rest; the caller updates what
+        depends on them."""
         for name, (q, closing) in self.robot.to_model(state).items():
             d.qpos[self._arm_qpos_adr[name]] = q
             d.qpos[self._grip_qpos_adr[name]] = self.robot.arms[name].gripper.position(closing)
@@ -230,8 +231,6 @@ class TabletopEnv:
             for adr, ratio in self._coupled_adr[name]:
                 d.qpos[adr] = ratio * self.robot.arms[name].gripper.position(closing)
         d.qvel[:] = 0.0
-        mujoco.mj_kinematics(self.model, d)
-        mujoco.mj_camlight(self.model, d)
 
     def step(self, action: np.ndarray, images: bool = True) -> dict:
         """Hold ``action`` (14-D, see module table) for one control period; the observation
@@ -455,10 +454,13 @@ class TabletopEnv:
 
         d = self._data_at_home()
         objects = self._object_geoms()
+        home = self._render_without(d, camera, size_hw, objects)
         margin = np.ones((2 * PLATE_MARGIN_PX + 1,) * 2, np.uint8)
         renders, free = [], []
         for state in states:
             self._pose_data(d, state)
+            mujoco.mj_kinematics(self.model, d)
+            mujoco.mj_camlight(self.model, d)  # the cameras and lights where the bodies now put them
             renders.append(self._render_without(d, camera, size_hw, objects))
             geoms = self._geoms_drawn(d, camera, size_hw)
             robot = (geoms >= 0) & self._geom_is_robot[np.clip(geoms, 0, None)]
@@ -467,7 +469,6 @@ class TabletopEnv:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a pixel the robot always covers
             median = np.nanmedian(values, axis=0)
-        home = self._render_without(self._data_at_home(), camera, size_hw, objects)
         return np.where(np.isnan(median), home, np.nan_to_num(median)).round().astype(np.uint8)
 
     def _data_at_home(self) -> mujoco.MjData:

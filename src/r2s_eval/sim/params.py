@@ -80,8 +80,8 @@ class WorldParams:
 # hold it), and the sims a fidelity experiment crosses the checkpoints into besides the calibrated
 # one (fidelity.sims): the world as its files state it (nothing calibrated), the calibration
 # without its answers, the calibration without one answer.
-ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates", "background_states"), "latency": ("command_latency_steps",),
-           "shadows": ("shadows",)}
+ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates", "background_states"),
+           "latency": ("command_latency_steps",), "shadows": ("shadows",)}
 NOMINAL_SIM = "nominal"
 WITHOUT_ANSWERS = "without_answers"
 SIM_VARIANTS = (NOMINAL_SIM, WITHOUT_ANSWERS, *(f"without_{answer}" for answer in ANSWERS))

@@ -111,6 +111,8 @@ def test_the_record_holds_the_robots_state_at_each_frame_the_plate_is_the_median
         recorded = episode_rows(meta, episode, [STATE_KEY])[STATE_KEY][frame]
         assert np.allclose(state, np.asarray(recorded, float))
     assert len({tuple(s) for s in record["states"]}) > BACKGROUND["frames"] // 2  # the arm in many places
+    # ...and widens the robot by as many of the plate's pixels (WorldParams.background_margin_px).
+    assert record["margin_px"] == BACKGROUND["margin_px"]
 
 
 def test_recordings_that_never_move_the_arm_away_are_refused(recording):

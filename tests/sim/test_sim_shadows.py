@@ -114,6 +114,28 @@ def test_a_plate_taken_while_the_arms_worked_lacks_their_shadows_at_home_and_the
     assert np.mean(np.abs(default.astype(int) - kept.astype(int))[room] <= 2) > 0.99
 
 
+def _median_room(plate_path: str, margin_px: int) -> np.ndarray:
+    params = WorldParams(background_plates={CAMERA: plate_path}, shadows=True, background_states=_states(0.8),
+                         background_margin_px=margin_px)
+    env = bundled_env("cup_on_plate", params, image_size=SIZE)
+    try:
+        return env.plate_shadows_image(CAMERA, SIZE)
+    finally:
+        env.close()
+
+
+def test_the_sim_leaves_out_as_much_around_the_robot_as_the_plates_frames_did(plate, tmp_path):
+    """``background_margin_px`` (calib.background.margin_px, in the plate's pixels) widens the
+    robot in the sim's median of its own room as it widened it in the plate's frames: a plate
+    twice the render's size counts twice the pixels for the same band."""
+    path, image = plate
+    large = tmp_path / f"{CAMERA}.png"
+    cv2.imwrite(str(large), cv2.cvtColor(cv2.resize(image, (2 * SIZE[1], 2 * SIZE[0])), cv2.COLOR_RGB2BGR))
+    same = _median_room(path, 2)
+    assert np.array_equal(_median_room(str(large), 4), same)
+    assert not np.array_equal(_median_room(path, 12), same)  # a wider band changes which frames count
+
+
 def test_recorded_states_of_another_robot_are_refused(tmp_path):
     world = bundled_world()
     params = WorldParams(background_states=_states(0.8))
@@ -124,6 +146,9 @@ def test_recorded_states_of_another_robot_are_refused(tmp_path):
     with pytest.raises(ConfigError, match=r"params.json: background_states\[0\] has 3 values, a state of this "
                                           r"world has 14"):
         check_world_params(WorldParams(background_states=((0.0, 0.0, 0.0),)), world, "params.json")
+    with pytest.raises(ConfigError, match=r"params.json: background_margin_px must be a whole number of pixels >= 0, "
+                                          r"got -1"):
+        check_world_params(WorldParams(background_margin_px=-1), world, "params.json")
 
 
 def test_a_world_without_a_scene_light_cannot_have_the_answer():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from r2s_eval.sim import WorldParams
+from r2s_eval.sim.params import ANSWERS
 from r2s_eval.twin import TwinMagnitudes
 from r2s_eval.twin.perturb import PERTURBATION_FAMILIES, without_family
 from tests.helpers.worlds import bundled_env, bundled_robot, bundled_twin
@@ -152,9 +153,9 @@ def test_operator_aims_the_real_gripper_so_its_commands_carry_the_offsets(twin_p
 def test_taking_a_family_away_gives_it_the_calibrated_sims_values():
     twin = bundled_twin(np.random.default_rng(3))
     sim = WorldParams(joint_offset_rad={arm: tuple(0.5 * np.asarray(v)) for arm, v in twin.joint_offset_rad.items()})
-    # The background plates (and their frames' states) are images of the lab's own room: no family
-    # hands them to a twin.
-    every = {f.name for f in dataclasses.fields(WorldParams)} - {"noise_seed", "background_plates", "background_states"}
+    # The background plates (and their frames' states and margin) are images of the lab's own room:
+    # no family hands them to a twin.
+    every = {f.name for f in dataclasses.fields(WorldParams)} - {"noise_seed", *ANSWERS["background"]}
     assert {f for names in PERTURBATION_FAMILIES.values() for f in names} == every  # each field in one family
     joints = without_family(twin, sim, "joints")
     assert joints.joint_offset_rad == sim.joint_offset_rad

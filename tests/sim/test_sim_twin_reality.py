@@ -37,7 +37,8 @@ PARAMS_BEFORE = {2: "c69831e27d1e027851cedb0597eae5b05ef44f412ccb6501116cf7bedfc
                  7: "ba5fbc7e1076a38a84965782a5f59b28880cb8a061c0ef42e0ed03550b96c005",
                  11: "9d4f816efcb8c9d9af401cb26bacd039c5a05a40a7aba96bd11b39b570e5a0c0"}
 # The calibrated sim's answers, nominal in a twin.
-ANSWER_FIELDS = ("lens_distortion", "command_latency_steps", "background_plates", "background_states", "shadows")
+ANSWER_FIELDS = ("lens_distortion", "command_latency_steps", "background_plates", "background_states",
+                 "background_margin_px", "shadows")
 
 
 def _twin_record(seed: int, magnitudes: dict | None = None) -> dict:
@@ -58,6 +59,7 @@ def test_the_twins_world_parameters_are_todays_and_its_reality_is_off_by_default
     params = dict(record["params"])
     assert {k: params.pop(k) for k in ANSWER_FIELDS} == {"lens_distortion": {}, "command_latency_steps": 0,
                                                          "background_plates": {}, "background_states": (),
+                                                         "background_margin_px": 2,
                                                          "shadows": False}
     assert _digest(params) == PARAMS_BEFORE[seed]
     assert record["reality"] == dataclasses.asdict(RealityEffects())

@@ -24,7 +24,7 @@ from tests.sim.test_sim_twin_reality import LAB
 CALIBRATED = WorldParams(camera_pos_offset_m={"head_left": (0.01, 0.0, -0.02)}, light_intensity_scale=0.9,
                          lens_distortion={"head_left": tuple(C920_RATIONAL[:5])}, command_latency_steps=1,
                          background_plates={"head_left": "results/calib/background/head_left.png"},
-                         background_states=((0.1,) * 14, (0.2,) * 14), shadows=True)
+                         background_states=((0.1,) * 14, (0.2,) * 14), background_margin_px=3, shadows=True)
 
 
 def test_each_variant_takes_away_exactly_its_answers():
@@ -32,7 +32,7 @@ def test_each_variant_takes_away_exactly_its_answers():
     nominal = WorldParams()
     today = sim_variant(CALIBRATED, "without_answers")
     assert today == dataclasses.replace(CALIBRATED, lens_distortion={}, command_latency_steps=0, background_plates={},
-                                        background_states=(), shadows=False)
+                                        background_states=(), background_margin_px=2, shadows=False)
     for answer, fields in ANSWERS.items():
         variant = sim_variant(CALIBRATED, f"without_{answer}")
         changed = {f.name for f in dataclasses.fields(WorldParams) if getattr(variant, f.name) != getattr(CALIBRATED, f.name)}

@@ -132,7 +132,8 @@ def fit_plates(dataset: str, index, estimates, world: Mapping, params: WorldPara
     Returns ({camera: RGB plate}, the record: per camera the frames used, the free frames per pixel
     and the share of the room never seen; the cameras skipped and why; ``states``, the robot's
     recorded state at each frame used, from which the sim takes the same median of its own room
-    and so knows which of its shadows the plates hold, ``WorldParams.background_states``)."""
+    and so knows which of its shadows the plates hold, ``WorldParams.background_states``, and
+    ``margin_px``, how far around the robot a frame did not count, ``background_margin_px``)."""
     task_of = {int(e): str(t) for e, t in zip(index["episode_index"], index["task"])}
     poses_of = {} if estimates is None else {
         int(e): {r.object: (r.x_m, r.y_m, r.yaw_rad) for r in rows.itertuples()}
@@ -184,7 +185,7 @@ def fit_plates(dataset: str, index, estimates, world: Mapping, params: WorldPara
         for env in envs.values():
             env.close()
     return plates, {"dataset": str(dataset), "frames": len(chosen), "cameras": out, "skipped": skipped,
-                    "objects_masked": estimates is not None,
+                    "objects_masked": estimates is not None, "margin_px": int(cfg["margin_px"]),
                     "states": [np.asarray(states[k], float).tolist() for k in chosen] if plates else []}
 
 

@@ -98,6 +98,9 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
         if len(state) != robot.action_dim:
             raise ConfigError(f"{source}: background_states[{i}] has {len(state)} values, a state of {world_name} "
                               f"has {robot.action_dim}")
+    margin = params.background_margin_px
+    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 0:
+        raise ConfigError(f"{source}: background_margin_px must be a whole number of pixels >= 0, got {margin!r}")
     latency = params.command_latency_steps
     if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
         raise ConfigError(f"{source}: command_latency_steps must be a whole number of control steps >= 0, "

@@ -66,9 +66,6 @@ _HIDDEN_GROUP = 5  # the geom group plate_shadows_image moves what it leaves out
 # model reads the same images, made once under the lock ({model: {(camera, size, look): image}}).
 _PLATE_SHADOWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _PLATE_SHADOWS_LOCK = threading.Lock()
-# How far around the robot a plate's frame does not count as room (calib.background.margin_px's
-# default): the sim's median of its own room leaves out as much.
-PLATE_MARGIN_PX = 2
 _BUFFER_LOCK = threading.Lock()  # a shared model's offscreen buffer size is grown under it
 
 
@@ -448,14 +445,16 @@ class TabletopEnv:
         """``camera``'s pinhole image of the room as a plate taken at the recorded ``states``
         holds it (``r2s_eval.calib.background.plate_from_frames``): per pixel, the median of the
         sim's renders at those states, the task objects left out, over the states in which the
-        robot (widened by ``PLATE_MARGIN_PX``) does not cover it; where it always does, the room
-        with the arms at home."""
+        robot (widened as the plate's frames were: ``params.background_margin_px`` of the plate's
+        pixels) does not cover it; where it always does, the room with the arms at home."""
         import cv2
 
         d = self._data_at_home()
         objects = self._object_geoms()
         home = self._render_without(d, camera, size_hw, objects)
-        margin = np.ones((2 * PLATE_MARGIN_PX + 1,) * 2, np.uint8)
+        plate = self._read_plate(camera)
+        widen = self.params.background_margin_px * (1.0 if plate is None else size_hw[1] / plate.shape[1])
+        margin = np.ones((2 * round(widen) + 1,) * 2, np.uint8)
         renders, free = [], []
         for state in states:
             self._pose_data(d, state)
@@ -522,21 +521,29 @@ class TabletopEnv:
     def background_plate(self, camera: str, size_hw: tuple[int, int]) -> np.ndarray | None:
         """The world's background plate of ``camera`` (``params.background_plates``) at ``size_hw``,
         RGB uint8; None where the world has none. Read once per camera and size."""
-        path = self.params.background_plates.get(camera)
-        if path is None:
-            return None
         key = (camera, tuple(size_hw))
         if key not in self._plates:
             import cv2
 
-            raw = cv2.imread(str(path))
-            if raw is None:
-                raise ConfigError(f"background plate of camera {camera!r}: cannot read {path}")
-            plate = cv2.cvtColor(raw, cv2.COLOR_BGR2RGB)
+            plate = self._read_plate(camera)
+            if plate is None:
+                return None
             if plate.shape[:2] != tuple(size_hw):
                 plate = cv2.resize(plate, (int(size_hw[1]), int(size_hw[0])), interpolation=cv2.INTER_AREA)
             self._plates[key] = plate.astype(np.float32)
         return self._plates[key]
+
+    def _read_plate(self, camera: str) -> np.ndarray | None:
+        """``camera``'s background plate as its file holds it (RGB uint8), None where it has none."""
+        path = self.params.background_plates.get(camera)
+        if path is None:
+            return None
+        import cv2
+
+        raw = cv2.imread(str(path))
+        if raw is None:
+            raise ConfigError(f"background plate of camera {camera!r}: cannot read {path}")
+        return cv2.cvtColor(raw, cv2.COLOR_BGR2RGB)
 
     def foreground_mask(self, camera: str, size_hw: tuple[int, int], geoms: np.ndarray | None = None) -> np.ndarray:
         """bool[H, W]: where ``camera``'s pinhole image shows the robot or a task object (what a

@@ -61,6 +61,9 @@ class WorldParams:
     # shadows a plate lacks (an arm's at home, when the frames show that arm mostly at work) and
     # not those it holds. Empty -> a plate is taken to hold the shadows of the robot at home.
     background_states: tuple[tuple[float, ...], ...] = ()
+    # How far around the robot a plate's frame did not count as room (calib.background.margin_px,
+    # in the plate's pixels): the sim's median of its own room leaves out as much.
+    background_margin_px: int = 2
     # The key light casts shadows (the arm's and the objects' on the table, which the recordings
     # show and a plate, the room standing still, does not hold): over a plate the sim darkens it by
     # its own shadows' share (r2s_eval.sim.env). False: the world file's lights as they are.
@@ -80,7 +83,8 @@ class WorldParams:
 # hold it), and the sims a fidelity experiment crosses the checkpoints into besides the calibrated
 # one (fidelity.sims): the world as its files state it (nothing calibrated), the calibration
 # without its answers, the calibration without one answer.
-ANSWERS = {"lens": ("lens_distortion",), "background": ("background_plates", "background_states"),
+ANSWERS = {"lens": ("lens_distortion",),
+           "background": ("background_plates", "background_states", "background_margin_px"),
            "latency": ("command_latency_steps",), "shadows": ("shadows",)}
 NOMINAL_SIM = "nominal"
 WITHOUT_ANSWERS = "without_answers"

@@ -37,10 +37,12 @@ def main(args) -> None:
     cameras = read_json(args.cameras) if args.cameras else {"method": "none", "cameras": {}}
     joints = load_world_params(args.joints)
     background = read_json(f"{args.background}/background.json") if args.background else None
+    plates = {} if background is None else {
+        "background_plates": background["plates"], "background_states": tuple(map(tuple, background["states"])),
+        # a record from before it stated its margin was taken at the default
+        "background_margin_px": int(background.get("margin_px", WorldParams.background_margin_px))}
     params = WorldParams(joint_offset_rad=joints.joint_offset_rad, command_latency_steps=joints.command_latency_steps,
-                         background_plates=background["plates"] if background else {},
-                         background_states=tuple(map(tuple, background["states"])) if background else (),
-                         **camera_params(cameras))
+                         **plates, **camera_params(cameras))
     index, estimates = pd.read_parquet(args.index), pd.read_parquet(args.estimates)
     fitted, appearance = calibrate_appearance(index, args.frames, estimates, args.dataset, cfg["world"], params,
                                               cfg["calib.appearance"], cfg["calib.camera"])

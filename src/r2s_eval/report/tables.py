@@ -433,6 +433,19 @@ def validation_report(validations: Mapping[str, dict], audits: Mapping[str, dict
     return table, ranking
 
 
+def _signed(share: float, decimals: int) -> str:
+    """A difference of shares in percentage points, signed."""
+    return f"{100 * share:+.{decimals}f}"
+
+
+def _interval(bounds, decimals: int, signed: bool = False) -> str:
+    """[low, high] of shares in percent (signed: as differences), or a dash."""
+    if bounds is None:
+        return DASH
+    fmt = (lambda v: _signed(v, decimals)) if signed else (lambda v: f"{100 * v:.{decimals}f}")
+    return f"[{fmt(bounds[0])}, {fmt(bounds[1])}]"
+
+
 def stability_table(summary: Mapping, decimals: int = 1) -> str:
     """The repeated evaluations side by side (r2s_eval.stages.stability): per evaluation (a real
     one at m trials per task, each judge), how often its ranking equals the truth, its mean
@@ -446,8 +459,20 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         _row(["Kendall distance (pairs)", *(DASH if cards[n]["kendall_distance"] is None
                                             else f"{cards[n]['kendall_distance']:.{decimals}f}" for n in names)]),
         _row(["Pairs ordered as the truth", *(pct(cards[n]["agreement"]) for n in names)]),
-        _row(["Errors in most repetitions (pairs)", *(str(len(cards[n]["repeated_errors"])) for n in names)]),
     ]
+    beside = summary.get("beside_real")
+    if beside:  # what the shares rest on: their intervals, and each one beside the real evaluation's
+        level = f"{100 * beside['level']:g}"
+        differences = beside["differences"]
+        body += [
+            _row([rf"\quad {level} \% interval", *(_interval(cards[n].get("agreement_interval"), decimals)
+                                                    for n in names)]),
+            _row([rf"\quad minus {latex_escape(beside['reference'])} [{level} \%]",
+                  *(DASH if n not in differences else
+                    f"{_signed(differences[n]['difference'], decimals)} {_interval(differences[n]['interval'], decimals, True)}"
+                    for n in names)]),
+        ]
+    body.append(_row(["Errors in most repetitions (pairs)", *(str(len(cards[n]["repeated_errors"])) for n in names)]))
     def other_truth(title: str, view: Mapping) -> list[str]:
         """The evaluations in ``view`` held against another truth: a title row and two more."""
         return [
@@ -481,6 +506,8 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         *([r"The twin's truth of the networks ranked: the planted pairs and the twin's success of the checkpoints the sim",
            r"ranks (pi$^S$), over the other repetitions' inits; the real truth is pi$^R$'s, trained on the real data."]
           if in_twin else []),
+        *([rf"Intervals: {beside['n_boot']} resamples of each repetition's inits within each task, every ranking made again "
+           r"from the same draw, the truth held."] if beside else []),
         r"Flip rate: share of repetitions on the minority side of the pair's order (0: always the same; 50: a coin).",
     ]
     return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",

@@ -12,7 +12,9 @@ and its own. With the same checkpoints rolled out in the twin (``stability.netwo
 pi^S on the real side), the sim's and each judge's ranking against the twin's truth of the
 networks they rank, which splits the sim and the judges from what training on other data
 changes. Writes the summary JSON, the table and the figure of agreement with the truth against
-real trials spent.
+real trials spent. Each evaluation's share of the pairs ordered as the truth comes with its
+interval, and each one's difference from the real evaluation at ``real_trials_per_task`` with its
+own (the inits resampled: ``r2s_eval.stats.stability.agreement_intervals``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats.stability import stability_summary
 from r2s_eval.utils.io import write_json, write_text
 
-READS = ("stability", "rollout.inits_per_task", "report.stability")  # config paths the --cfg slice holds
+READS = ("stability", "rollout.inits_per_task", "report.stability", "stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds
 PROVIDED = ("planted_variants",)  # {variant: the candidate whose weights it runs}, from the line-up
 
 
@@ -43,7 +45,8 @@ def main(args) -> None:
         real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
         real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
         truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim,
-        networks_in_twin=networks)
+        networks_in_twin=networks, n_boot=int(cfg["stats.n_boot"]), level=float(cfg["stats.ci_level"]),
+        seed=int(cfg["seed"]))
     write_json(args.out, summary, provenance=True)
     report = cfg["report.stability"]
     write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")
@@ -52,6 +55,9 @@ def main(args) -> None:
         print(f"{name:>12}: equal to the truth {card['equal_share']}, Kendall distance {card['kendall_distance']}, "
               f"flip rates {[round(p['flip_rate'], 2) for p in card['pairs'].values()]}, "
               f"errors in most repetitions {card['repeated_errors']}")
+    beside = summary.get("beside_real") or {"differences": {}}
+    for name, diff in beside["differences"].items():
+        print(f"{name:>12} minus {beside['reference']}: {diff['difference']:+.3f} {[round(x, 3) for x in diff['interval']]}")
     for view, label in (("against_sim_truth", "the sim's own truth"),
                         ("against_networks_in_twin", "the twin's truth of the networks ranked")):
         for name, card in (summary.get(view) or {}).items():

@@ -175,55 +175,38 @@ def test_the_networks_ranked_in_the_twin_split_the_training_from_the_sim_and_the
     assert summary["against_networks_in_twin"]["kinematic"]["pairs"]["close vs weak"]["truth_decided"] == k
 
 
-def test_the_resampled_rankings_are_the_point_rankings_on_the_inits_as_drawn():
-    # Drawing every init once gives back each ranking's own order: the scores the bootstrap
-    # ranks by are the ones the repetition's ranking is made of.
-    from r2s_eval.stats.stability import bt_order, resampled_scores, shares_against, success_by_init, wins_by_init
-    inits, tasks, policies = range(10, 20), ["t1", "t2"], ["close", "good", "weak"]
-    verdicts = _close_above_good(40).assign(task=lambda v: np.where(v["init_id"] % 2 == 0, "t1", "t2"))
-    own = verdicts[verdicts["init_id"].isin(inits)]
-    identity = np.broadcast_to(np.arange(10), (1, 2, 10))
-    scores = resampled_scores("wins", wins_by_init(own, inits, tasks, policies), identity)
-    order, point = bt_order(own, policies)
-    assert scores[0] == pytest.approx([point[p] for p in policies], abs=1e-6)
-    real = _trials({"good": 0.6, "close": 0.3, "weak": 0.1}, inits=40)
-    rates = resampled_scores("success", success_by_init(real, inits, tasks, policies), identity)
-    assert rates[0] == pytest.approx([success_rates(real[real["init_id"].isin(inits)])[0][p] for p in policies])
-    # The vectorised share is agreement()'s, ties counted half.
-    truth = {("close", "good"): -1, ("close", "weak"): 1, ("good", "weak"): 0}
-    rows = np.array([[0.3, 0.6, 0.1], [0.6, 0.3, 0.1], [0.3, 0.3, 0.3]])
-    expected = [agreement(order_of(dict(zip(policies, row))), truth)["share"] for row in rows]
-    assert shares_against(rows, truth, policies) == pytest.approx(expected)
-    assert np.isnan(shares_against(rows, {pair: 0 for pair in truth}, policies)).all()
+def test_the_interval_of_a_share_is_students_t_over_the_repetitions():
+    from r2s_eval.stats.stability import repetition_interval
+    low, high = repetition_interval([0.8, 0.9, 1.0, None], level=0.95)  # a repetition that decides nothing: left out
+    assert low == pytest.approx(0.9 - 4.302653 * 0.1 / np.sqrt(3)) and high == 1.0  # clipped at 1
+    assert repetition_interval([-0.2, -0.2], level=0.95, bounds=(-1, 1)) == [-0.2, -0.2]
+    assert repetition_interval([0.7], level=0.95) is None  # one repetition has no spread to read
 
 
 def test_each_share_has_its_interval_and_its_difference_from_the_real_evaluation_is_paired():
-    k, per_block = 3, 10
+    k, per_block = 4, 10
     real = _trials({"good": 0.6, "close": 0.3, "weak": 0.1}, inits=k * per_block)
     real.loc[(real["policy"] == "weak") & (real["init_id"] % 10 == 9), "success"] = True  # weak 0.2: closer to close
     verdicts = _close_above_good(k * per_block)  # a judge that puts close above good, every time
     args = dict(inits_per_task=k * per_block, repetitions=k, real_trials_per_task=per_block, trials_curve=[5, 10],
-                truth_z=1.96, variants={}, n_boot=200, level=0.9, seed=3)
-    summary = stability_summary(real, {"kinematic": verdicts}, sim=real, **args)
-    cards, beside = summary["evaluations"], summary["beside_real"]
-    assert beside["reference"] == "real 10" and beside["n_boot"] == 200 and beside["level"] == 0.9
-    # The sim here is the real trials themselves: on every draw it ranks as the real evaluation does.
-    assert beside["differences"]["sim success"] == {"difference": 0.0, "interval": [0.0, 0.0]}
-    # The judge errs on close vs good on every draw of the inits; its interval says so.
-    judge = beside["differences"]["kinematic"]
-    assert cards["kinematic"]["agreement"] < cards["real 10"]["agreement"]
+                truth_z=1.96, variants={})
+    summary = stability_summary(real, {"kinematic": verdicts}, sim=real, level=0.9, **args)
+    cards, beside_real = summary["evaluations"], summary["beside_real"]
+    assert beside_real["reference"] == "real 10" and beside_real["level"] == 0.9
+    assert "real 10" not in beside_real["differences"]
+    # The sim here is the real trials themselves: in every repetition it ranks as the real evaluation does.
+    assert beside_real["differences"]["sim success"] == {"difference": 0.0, "repetitions": k, "interval": [0.0, 0.0]}
+    # The judge errs on close vs good in every repetition, by the same share: its interval says so.
+    judge = beside_real["differences"]["kinematic"]
+    shares = [c["share"] for c in cards["kinematic"]["per_repetition"]]
     assert judge["difference"] == pytest.approx(cards["kinematic"]["agreement"] - cards["real 10"]["agreement"])
-    assert judge["interval"][1] < 0
-    for card in cards.values():
-        low, high = card["agreement_interval"]
-        assert 0 <= low <= high <= 1
-    # Same seed, same intervals; none without n_boot.
-    assert stability_summary(real, {"kinematic": verdicts}, sim=real, **args)["beside_real"] == beside
-    plain = stability_summary(real, {"kinematic": verdicts}, sim=real, **{**args, "n_boot": 0})
+    assert judge["difference"] < 0
+    assert judge["interval"] == pytest.approx([judge["difference"]] * 2)
+    assert cards["kinematic"]["agreement_interval"] == pytest.approx([np.mean(shares)] * 2)
+    plain = stability_summary(real, {"kinematic": verdicts}, sim=real, **args)
     assert "beside_real" not in plain and "agreement_interval" not in plain["evaluations"]["kinematic"]
     from r2s_eval.report.tables import stability_table
     table = stability_table(summary)
     assert r"90 \% interval" in table and r"minus real 10 [90 \%]" in table
-    low, high = judge["interval"]
-    assert f"[{100 * low:+.1f}, {100 * high:+.1f}]" in table
+    assert f"{100 * judge['difference']:+.1f} [{100 * judge['difference']:+.1f}, {100 * judge['difference']:+.1f}]" in table
     assert r"90 \% interval" not in stability_table(plain)

@@ -506,8 +506,8 @@ def stability_table(summary: Mapping, decimals: int = 1) -> str:
         *([r"The twin's truth of the networks ranked: the planted pairs and the twin's success of the checkpoints the sim",
            r"ranks (pi$^S$), over the other repetitions' inits; the real truth is pi$^R$'s, trained on the real data."]
           if in_twin else []),
-        *([rf"Intervals: {beside['n_boot']} resamples of each repetition's inits within each task, every ranking made again "
-           r"from the same draw, the truth held."] if beside else []),
+        *([r"Intervals: Student's t over the repetitions' shares; the difference paired per repetition (the same inits)."]
+          if beside else []),
         r"Flip rate: share of repetitions on the minority side of the pair's order (0: always the same; 50: a coin).",
     ]
     return _tabular("l" + "c" * len(names), header, [*body, r"\midrule", _row([r"\emph{Flip rate, adjacent pairs}",

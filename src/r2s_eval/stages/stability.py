@@ -13,8 +13,8 @@ pi^S on the real side), the sim's and each judge's ranking against the twin's tr
 networks they rank, which splits the sim and the judges from what training on other data
 changes. Writes the summary JSON, the table and the figure of agreement with the truth against
 real trials spent. Each evaluation's share of the pairs ordered as the truth comes with its
-interval, and each one's difference from the real evaluation at ``real_trials_per_task`` with its
-own (the inits resampled: ``r2s_eval.stats.stability.agreement_intervals``).
+interval over the repetitions, and each one's difference from the real evaluation at
+``real_trials_per_task``, paired per repetition, with its own (``stats.ci_level``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats.stability import stability_summary
 from r2s_eval.utils.io import write_json, write_text
 
-READS = ("stability", "rollout.inits_per_task", "report.stability", "stats.n_boot", "stats.ci_level", "seed")  # config paths the --cfg slice holds
+READS = ("stability", "rollout.inits_per_task", "report.stability", "stats.ci_level")  # config paths the --cfg slice holds
 PROVIDED = ("planted_variants",)  # {variant: the candidate whose weights it runs}, from the line-up
 
 
@@ -45,8 +45,7 @@ def main(args) -> None:
         real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
         real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
         truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim,
-        networks_in_twin=networks, n_boot=int(cfg["stats.n_boot"]), level=float(cfg["stats.ci_level"]),
-        seed=int(cfg["seed"]))
+        networks_in_twin=networks, level=float(cfg["stats.ci_level"]))
     write_json(args.out, summary, provenance=True)
     report = cfg["report.stability"]
     write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")
@@ -57,7 +56,7 @@ def main(args) -> None:
               f"errors in most repetitions {card['repeated_errors']}")
     beside = summary.get("beside_real") or {"differences": {}}
     for name, diff in beside["differences"].items():
-        print(f"{name:>12} minus {beside['reference']}: {diff['difference']:+.3f} {[round(x, 3) for x in diff['interval']]}")
+        print(f"{name:>12} minus {beside['reference']}: {diff['difference']:+.3f}, interval {diff['interval']}")
     for view, label in (("against_sim_truth", "the sim's own truth"),
                         ("against_networks_in_twin", "the twin's truth of the networks ranked")):
         for name, card in (summary.get(view) or {}).items():

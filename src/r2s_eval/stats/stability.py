@@ -13,18 +13,18 @@ twin's success over many trials where the difference is beyond `z` standard erro
 are undecided and count neither way. The twin's trials behind the truth of repetition r are the
 other repetitions' (kept apart from the real evaluation it judges).
 
-How far a share of pairs ordered as the truth can be trusted: three repetitions are three draws,
-too few for an interval of their own. Within a repetition the distinct evidence is its inits, each
-with one rollout per policy in the sim, one real trial per policy and the judges' comparisons of
-the rollouts there, so each repetition's inits are resampled within each task (the truth held)
-and every ranking made again from the same draw: an interval per evaluation, and for each
-ranking its difference from the real evaluation at ``real_trials_per_task`` over the same inits
-(`agreement_intervals`).
+How far a share of pairs ordered as the truth can be trusted: the repetitions are the experiment's
+independent replicates (disjoint inits, each ranking made from its own block alone), so each
+evaluation's mean share gets a Student-t interval over the repetitions' shares, and each one's
+difference from the real evaluation at ``real_trials_per_task`` the same interval over the
+paired per-repetition differences (`repetition_interval`). Resampling the inits within a
+repetition instead would rank from fewer distinct inits than the repetition has, and so order
+fewer pairs as the truth on every resample: an interval biased low, the more so for a noisier
+ranking.
 """
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping, Sequence
 from itertools import combinations
 
@@ -32,8 +32,9 @@ import numpy as np
 import pandas as pd
 
 from r2s_eval.errors import DataError, StatsError
-from r2s_eval.stats.bradley_terry import (DisconnectedComparisonsError, bt_scores, fit_bradley_terry,
-                                         fit_bradley_terry_batch)
+from scipy import stats
+
+from r2s_eval.stats.bradley_terry import bt_scores, fit_bradley_terry
 
 Pair = tuple[str, str]  # (a, b), a before b in the line-up's sorted order
 Order = dict[Pair, int]  # +1: a above b, -1: b above a, 0: tied / undecided
@@ -166,97 +167,27 @@ def errors_by_pair(orders: Sequence[Order], truths: Sequence[Order]) -> dict[str
     return dict(sorted(counts.items(), key=lambda item: (-item[1], item[0])))
 
 
-def success_by_init(trials: pd.DataFrame, inits: Sequence[int], tasks: Sequence[str],
-                    policies: Sequence[str]) -> np.ndarray:
-    """float[tasks, inits, policies]: each policy's success at each of ``inits`` of each task
-    (NaN where it has no trial there)."""
-    own = trials[trials["init_id"].astype(int).isin(inits)].assign(success=lambda t: t["success"].astype(float))
-    table = own.pivot_table(index=["task", "init_id"], columns="policy", values="success", aggfunc="mean")
-    cells = pd.MultiIndex.from_product([list(tasks), [int(i) for i in inits]], names=["task", "init_id"])
-    table = table.reindex(index=cells, columns=list(policies))
-    return table.to_numpy(dtype=float).reshape(len(tasks), len(inits), len(policies))
+def repetition_interval(values: Sequence[float | None], level: float,
+                        bounds: tuple[float, float] = (0.0, 1.0)) -> list[float] | None:
+    """The Student-t ``level`` interval of the mean of ``values``, one per independent repetition
+    (None ones left out), clipped to ``bounds``; None with fewer than two values."""
+    x = np.asarray([v for v in values if v is not None], dtype=float)
+    if len(x) < 2:
+        return None
+    half = float(stats.t.ppf(0.5 + level / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+    return [max(bounds[0], float(x.mean()) - half), min(bounds[1], float(x.mean()) + half)]
 
 
-def wins_by_init(verdicts: pd.DataFrame, inits: Sequence[int], tasks: Sequence[str],
-                 policies: Sequence[str]) -> np.ndarray:
-    """float[tasks, inits, P, P]: at each of ``inits`` of each task, how often the judge preferred
-    policy i's rollout to policy j's (``verdicts``: policy_i, policy_j, winner, task, init_id)."""
-    own = verdicts[verdicts["init_id"].astype(int).isin(inits)]
-    strange = sorted(set(own["task"].astype(str)) - set(tasks))
-    if strange:
-        raise DataError(f"comparisons of tasks {strange} that no real trial has (tasks: {list(tasks)})")
-    policy = {p: k for k, p in enumerate(policies)}
-    winner = own["winner"].astype(str)
-    loser = np.where(winner == own["policy_i"].astype(str), own["policy_j"].astype(str), own["policy_i"].astype(str))
-    out = np.zeros((len(tasks), len(inits), len(policies), len(policies)))
-    np.add.at(out, (own["task"].astype(str).map({t: k for k, t in enumerate(tasks)}).to_numpy(),
-                    own["init_id"].astype(int).map({int(i): k for k, i in enumerate(inits)}).to_numpy(),
-                    winner.map(policy).to_numpy(), pd.Series(loser).map(policy).to_numpy()), 1.0)
-    return out
-
-
-def shares_against(scores: np.ndarray, truth: Order, policies: Sequence[str], tol: float = 1e-9) -> np.ndarray:
-    """float[B]: for each row of ``scores`` (B, P; higher is better) the share of the pairs
-    ``truth`` decides that it orders as the truth (a tie, within ``tol``, counting half: `agreement`);
-    NaN where the truth decides none."""
-    column = {p: k for k, p in enumerate(policies)}
-    decided = [(pair, sign) for pair, sign in truth.items() if sign]
-    if not decided:
-        return np.full(len(scores), np.nan)
-    against = np.zeros(len(scores))
-    for (a, b), sign in decided:
-        gap = scores[:, column[a]] - scores[:, column[b]]
-        against += np.where(np.abs(gap) <= tol, 0.5, np.where(np.sign(gap) == -sign, 1.0, 0.0))
-    return 1.0 - against / len(decided)
-
-
-def resampled_scores(kind: str, evidence: np.ndarray, draws: np.ndarray) -> np.ndarray:
-    """float[B, P]: the ranking's scores on each resample of the inits. ``kind`` "success":
-    ``evidence`` float[tasks, m, P], the mean over tasks of each task's success over the drawn
-    inits; "wins": float[tasks, m, P, P], the Bradley-Terry scores of the drawn inits' wins.
-    ``draws`` int[B, tasks, m]: the positions drawn within each task."""
-    picked = evidence[np.arange(evidence.shape[0])[None, :, None], draws]  # [B, tasks, m, ...]
-    if kind == "success":
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a policy with no trial in a task's draw
-            return np.nanmean(np.nanmean(picked, axis=2), axis=1)
-    return bt_scores(fit_bradley_terry_batch(picked.sum(axis=(1, 2))))
-
-
-def agreement_intervals(evidence: Mapping[str, Sequence[tuple[str, np.ndarray]]], truths: Sequence[Order],
-                        policies: Sequence[str], *, reference: str, n_boot: int, level: float, seed: int) -> dict:
-    """Intervals on each ranking's share of the pairs the truth decides (the mean over the
-    repetitions), resampling each repetition's inits within each task, the truth held.
-
-    ``evidence``: {ranking: per repetition (kind, array)} as `resampled_scores` reads them; the
-    rankings over the same number of inits share each repetition's draws, so a ranking and the
-    ``reference`` (a real evaluation) are compared on the same inits where they use as many.
-    Returns {"intervals": {ranking: [low, high] or None}, "differences": {ranking: [low, high]}}
-    (the differences: each ranking's share minus the reference's); None where a resample leaves a
-    judge's comparisons disconnected (no Bradley-Terry fit) or the truth decides no pair."""
-    shares = {}
-    for name, per_repetition in evidence.items():
-        rows = []
-        for r, ((kind, array), truth) in enumerate(zip(per_repetition, truths)):
-            tasks, m = array.shape[:2]
-            draws = np.random.default_rng([seed, r, m]).integers(0, m, (n_boot, tasks, m))
-            try:
-                rows.append(shares_against(resampled_scores(kind, array, draws), truth, policies))
-            except DisconnectedComparisonsError:
-                rows = None
-                break
-        if rows is not None and not np.all(np.isnan(rows)):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a repetition whose truth decides nothing
-                shares[name] = np.nanmean(np.stack(rows, axis=1), axis=1)
-    tail = 100 * (1 - level) / 2
-
-    def interval(x: np.ndarray) -> list[float]:
-        return [float(v) for v in np.percentile(x, [tail, 100 - tail])]
-
-    return {"intervals": {name: interval(shares[name]) if name in shares else None for name in evidence},
-            "differences": {name: interval(shares[name] - shares[reference]) for name in shares
-                            if name != reference and reference in shares}}
+def beside(card: Mapping, reference: Mapping, level: float) -> dict | None:
+    """An evaluation's mean share minus the ``reference``'s, over the repetitions whose truth decides
+    a pair, with the interval of the paired per-repetition differences; None where they share none."""
+    pairs = [(c["share"], r["share"]) for c, r in zip(card["per_repetition"], reference["per_repetition"])
+             if c["share"] is not None and r["share"] is not None]
+    if not pairs:
+        return None
+    differences = [c - r for c, r in pairs]
+    return {"difference": float(np.mean(differences)), "repetitions": len(differences),
+            "interval": repetition_interval(differences, level, bounds=(-1.0, 1.0))}
 
 
 def blocks(inits_per_task: int, repetitions: int) -> list[range]:
@@ -268,8 +199,7 @@ def blocks(inits_per_task: int, repetitions: int) -> list[range]:
 def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, inits_per_task: int,
                       repetitions: int, real_trials_per_task: int, trials_curve, truth_z: float,
                       variants: dict[str, str], sim: pd.DataFrame | None = None,
-                      networks_in_twin: pd.DataFrame | None = None, n_boot: int = 0, level: float = 0.95,
-                      seed: int = 0) -> dict:
+                      networks_in_twin: pd.DataFrame | None = None, level: float | None = None) -> dict:
     """``real``: every real trial (policy, task, init_id, success); ``verdicts``: per judge its
     verdicts (policy_i, policy_j, winner, task, init_id).
 
@@ -288,9 +218,9 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     where the two truths part, the candidates' order is the training's, which no sim or judge of
     pi^S can see.
 
-    With ``n_boot`` > 0, each evaluation's card gets ``agreement_interval`` (its ``level``
-    interval from `agreement_intervals`, ``seed`` its draws) and ``beside_real`` holds each one's
-    share minus that of the real evaluation at ``real_trials_per_task``, with its interval."""
+    With ``level``, each evaluation's card gets ``agreement_interval`` (`repetition_interval` of
+    its per-repetition shares) and ``beside_real`` holds each one's mean share minus that of the
+    real evaluation at ``real_trials_per_task``, with the interval of the paired differences."""
     policies = sorted(real["policy"].astype(str).unique())
     parts = blocks(inits_per_task, repetitions)
     size = len(parts[0])
@@ -305,9 +235,6 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     sim_truths, sim_orders, twin_truths = [], [], []
     judge_orders = {judge: [] for judge in verdicts}
     comparisons = {judge: [] for judge in verdicts}
-    task_names = sorted(real["task"].astype(str).unique())
-    evidence = {name: [] for name in (*(f"real {m}" for m in real_orders), *(["sim success"] if sim is not None else []),
-                                      *verdicts)}  # per repetition, what its rankings rest on (agreement_intervals)
     for part in parts:
         inside = real["init_id"].isin(part)
         truths.append(truth_order(real[~inside], variants, policies, truth_z))
@@ -321,37 +248,26 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
         for m in real_orders:
             first = real[real["init_id"].isin(part[:m])]
             real_orders[m].append(order_of(success_rates(first)[0].to_dict()))
-            evidence[f"real {m}"].append(("success", success_by_init(real, part[:m], task_names, policies)))
-        if sim is not None:
-            evidence["sim success"].append(("success", success_by_init(sim, part, task_names, policies)))
         for judge, table in verdicts.items():
             own = table[table["init_id"].astype(int).isin(part)]
             if own.empty:
                 raise DataError(f"judge {judge}: no comparison from inits {part.start}-{part.stop - 1}")
             judge_orders[judge].append(bt_order(own, policies)[0])
             comparisons[judge].append(len(own))
-            evidence[judge].append(("wins", wins_by_init(own, part, task_names, policies)))
     evaluations = {f"real {m}": repeated(orders, truths, pairs) for m, orders in real_orders.items()}
     if sim is not None:
         evaluations["sim success"] = repeated(sim_orders, truths, pairs)
     evaluations.update({judge: repeated(orders, truths, pairs) for judge, orders in judge_orders.items()})
-    reference = f"real {real_trials_per_task}"
     beside_real = None
-    if n_boot > 0:
-        found = agreement_intervals(evidence, truths, policies, reference=reference, n_boot=n_boot, level=level,
-                                    seed=seed)
-        for name, card in evaluations.items():
-            card["agreement_interval"] = found["intervals"][name]
-        beside_real = {
-            "reference": reference, "n_boot": n_boot, "level": level,
-            "resampled": "each repetition's inits within each task (their sim rollouts, real trials and the "
-                         "comparisons at them), every ranking made again from the same draw; the truth held",
-            "differences": {name: {"difference": evaluations[name]["agreement"] - evaluations[reference]["agreement"],
-                                   "interval": interval}
-                            for name, interval in found["differences"].items()
-                            if evaluations[name]["agreement"] is not None
-                            and evaluations[reference]["agreement"] is not None}}
-    tasks = len(task_names)
+    if level is not None:
+        reference = evaluations[f"real {real_trials_per_task}"]
+        for card in evaluations.values():
+            card["agreement_interval"] = repetition_interval([c["share"] for c in card["per_repetition"]], level)
+        beside_real = {"reference": f"real {real_trials_per_task}", "level": level,
+                       "paired": "per repetition, over the same inits; a Student-t interval over the repetitions",
+                       "differences": {name: diff for name, card in evaluations.items()
+                                       if card is not reference and (diff := beside(card, reference, level))}}
+    tasks = int(real["task"].nunique())
     out = {
         "repetitions": repetitions, "inits_per_repetition_and_task": size, "tasks": tasks, "policies": policies,
         "variants": variants, "real_trials_per_task": real_trials_per_task,

@@ -30,10 +30,9 @@ from itertools import combinations
 
 import numpy as np
 import pandas as pd
+from scipy.stats import t as student_t
 
 from r2s_eval.errors import DataError, StatsError
-from scipy import stats
-
 from r2s_eval.stats.bradley_terry import bt_scores, fit_bradley_terry
 
 Pair = tuple[str, str]  # (a, b), a before b in the line-up's sorted order
@@ -174,7 +173,7 @@ def repetition_interval(values: Sequence[float | None], level: float,
     x = np.asarray([v for v in values if v is not None], dtype=float)
     if len(x) < 2:
         return None
-    half = float(stats.t.ppf(0.5 + level / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
+    half = float(student_t.ppf(0.5 + level / 2, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x)))
     return [max(bounds[0], float(x.mean()) - half), min(bounds[1], float(x.mean()) + half)]
 
 
@@ -264,7 +263,7 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
         for card in evaluations.values():
             card["agreement_interval"] = repetition_interval([c["share"] for c in card["per_repetition"]], level)
         beside_real = {"reference": f"real {real_trials_per_task}", "level": level,
-                       "paired": "per repetition, over the same inits; a Student-t interval over the repetitions",
+                       "paired": "per repetition, over its own inits; a Student-t interval over the repetitions",
                        "differences": {name: diff for name, card in evaluations.items()
                                        if card is not reference and (diff := beside(card, reference, level))}}
     tasks = int(real["task"].nunique())

@@ -442,7 +442,7 @@ def _interval(bounds, decimals: int, signed: bool = False) -> str:
     """[low, high] of shares in percent (signed: as differences), or a dash."""
     if bounds is None:
         return DASH
-    fmt = (lambda v: _signed(v, decimals)) if signed else (lambda v: f"{100 * v:.{decimals}f}")
+    fmt = (lambda v: _signed(v, decimals)) if signed else (lambda v: _pct(v, decimals))
     return f"[{fmt(bounds[0])}, {fmt(bounds[1])}]"
 
 

@@ -98,13 +98,10 @@ def check_world_params(params: WorldParams, world_cfg: dict, source: str, world_
         if len(state) != robot.action_dim:
             raise ConfigError(f"{source}: background_states[{i}] has {len(state)} values, a state of {world_name} "
                               f"has {robot.action_dim}")
-    margin = params.background_margin_px
-    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 0:
-        raise ConfigError(f"{source}: background_margin_px must be a whole number of pixels >= 0, got {margin!r}")
-    latency = params.command_latency_steps
-    if isinstance(latency, bool) or not isinstance(latency, int) or latency < 0:
-        raise ConfigError(f"{source}: command_latency_steps must be a whole number of control steps >= 0, "
-                          f"got {latency!r}")
+    for key, unit in (("background_margin_px", "pixels"), ("command_latency_steps", "control steps")):
+        value = getattr(params, key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ConfigError(f"{source}: {key} must be a whole number of {unit} >= 0, got {value!r}")
     for key in ("object_mass_scale", "object_size_scale", "object_rgb_offset"):
         for name in getattr(params, key):
             if name not in objects:

@@ -137,10 +137,13 @@ def episode_table():
 class ChangedOperator:
     """The scripted operator (``tests.helpers.policies.OperatorPolicy``) with its commands changed:
     `jitter_rad` Gaussian noise on every arm-joint command (as the planted ``action_noise_std``
-    variant adds), or `open_gripper`, grippers held open (the arm moves as smoothly, the cup is
-    never grasped: a smooth failure)."""
+    variant adds), `open_gripper`, grippers held open (the arm moves as smoothly, the cup is
+    never grasped: a smooth failure), or `hesitate` (every_steps, pause_steps), the planted
+    variant's stops and restarts (``r2s_eval.policies.execution``)."""
 
-    def __init__(self, env, jitter_rad: float = 0.0, open_gripper: bool = False, seed: int = 0):
+    def __init__(self, env, jitter_rad: float = 0.0, open_gripper: bool = False, seed: int = 0,
+                 hesitate: tuple[int, int] | None = None):
+        from r2s_eval.policies.execution import Execution
         from tests.helpers.policies import OperatorPolicy
         from tests.helpers.worlds import bundled_robot
 
@@ -148,13 +151,19 @@ class ChangedOperator:
         features = bundled_robot().features
         self.joints = [i for i, f in enumerate(features) if f.joint is not None]
         self.grippers = [i for i, f in enumerate(features) if f.joint is None]
+        self.execution = None if hesitate is None else Execution.from_config(
+            {"hesitate": {"every_steps": hesitate[0], "pause_steps": hesitate[1]}}, self.joints, self.grippers)
 
     def reset(self):
         self.base.reset()
         self.rng = np.random.default_rng(self.seed)
+        self.commands = None if self.execution is None else self.execution.start(self.seed)
 
     def act(self, obs):
-        action = np.array(self.base.act(obs), dtype=float)
+        def operator() -> np.ndarray:
+            return np.array(self.base.act(obs), dtype=float)
+
+        action = operator() if self.commands is None else self.commands.next(operator)
         action[self.joints] += self.rng.normal(0.0, self.jitter_rad, len(self.joints)) if self.jitter_rad else 0.0
         if self.open_gripper:
             action[self.grippers] = 0.0
@@ -162,7 +171,8 @@ class ChangedOperator:
 
 
 OPERATOR_RUNS = {"clean": {}, "jittery": {"jitter_rad": 0.01}, "open_gripper": {"open_gripper": True},
-                 "open_gripper_jittery": {"jitter_rad": 0.01, "open_gripper": True}}
+                 "open_gripper_jittery": {"jitter_rad": 0.01, "open_gripper": True},
+                 "hesitant": {"hesitate": (10, 3)}}
 
 
 @pytest.fixture(scope="session")
@@ -170,8 +180,9 @@ def operator_runs(tmp_path_factory) -> dict[str, dict]:
     """Real simulator episodes of cup_on_plate from the same initial poses (as
     ``tests.helpers.videos.render_sim_episodes`` renders them: 128 px head_left, 10 fps): the
     scripted operator (``clean``, succeeds), the same with jittered arm commands (``jittery``,
-    succeeds), with its grippers held open (``open_gripper``, fails smoothly) and both
-    (``open_gripper_jittery``, fails as far, shaking). Per name:
+    succeeds), with its grippers held open (``open_gripper``, fails smoothly), both
+    (``open_gripper_jittery``, fails as far, shaking) and holding its command 3 control steps in
+    every 13 (``hesitant``, as the validation line-up's act_hesitant). Per name:
     ``instruction``, ``video_path`` (a frame per control step), ``video_5fps_path`` (every second
     frame, as the rollout stage records at its default ``video_fps: 5``), ``trajectory_path`` and
     the episode's ``success``."""

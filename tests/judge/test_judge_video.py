@@ -105,7 +105,8 @@ def _scored(judge, progress, label, reversals, idle, speed):
 
     return Description(criteria={
         "motion_smoothness": CriterionNote("m", {"flow_reversals_per_s": reversals}),
-        "action_continuity": CriterionNote("c", {"idle_fraction": idle, "pauses_per_100_frames": 0.0}),
+        "action_continuity": CriterionNote("c", {"idle_fraction": idle, "pauses_per_100_frames": 0.0,
+                                                 "slowdowns_per_s": 0.0}),
         "task_progress": CriterionNote("p", {"progress_score": progress}, label),
         "force_control": CriterionNote("f", {"peak_object_speed": speed, "object_speed_spikes": 0,
                                              "bystander_move": 0.0, "object_moved": True}),
@@ -320,3 +321,38 @@ def test_judge_video_prefers_the_success_that_got_there_sooner(operator_runs, tm
     assert judge.scores(soon)["task_progress"] > judge.scores(later)["task_progress"]
     assert judge.compare(soon, later, run["instruction"]).letter == "A"
     assert judge.compare(later, soon, run["instruction"]).letter == "B"
+
+
+def test_judge_video_sees_short_stops_as_slowdowns(operator_runs):
+    """The operator holding its command 3 control steps in every 13 (the planted act_hesitant's
+    stops): at 5 fps a stop spans a frame step or two and the arm settles only partly, so the
+    still-frame count misses it; the image speed dips, and continuity reads those dips."""
+    judge = video_judge()
+    instruction = operator_runs["clean"]["instruction"]
+    clean, hesitant = (judge.describe(RolloutInput(instruction, video_path=operator_runs[n]["video_5fps_path"]))
+                       for n in ("clean", "hesitant"))
+    ev_c, ev_h = clean.criteria["action_continuity"].evidence, hesitant.criteria["action_continuity"].evidence
+    assert operator_runs["hesitant"]["success"] and hesitant.progress_label == "successful"
+    assert ev_h["slowdowns_per_s"] > 1.3 * ev_c["slowdowns_per_s"] > 0  # 0.73 and 0.47 a second
+    assert judge.scores(hesitant)["action_continuity"] < judge.scores(clean)["action_continuity"]
+    assert "short slowdowns per second" in clean.criteria["action_continuity"].text
+    assert judge.compare(clean, hesitant, instruction).letter == "A"
+    assert judge.compare(hesitant, clean, instruction).letter == "B"
+
+
+def test_judge_video_slowdowns_count_dips_in_the_image_speed():
+    """A dip below slowdown_ratio of the motion on both sides counts, a slowing that stays above it
+    does not, nor a still scene; per second of moving time; the keys are checked."""
+    from r2s_eval.judge.video_judge import DEFAULTS, slowdowns_per_s
+
+    def flow(speeds):  # one cell moving right at each speed
+        return np.array(speeds, float).reshape(-1, 1, 1, 1) * np.array([1.0, 0.0])
+
+    fast = [0.05] * 4
+    assert slowdowns_per_s(flow(fast + [0.01] + fast + [0.01] + fast), 5.0, DEFAULTS) == pytest.approx(2 * 5.0 / 14)
+    assert slowdowns_per_s(flow(fast + [0.03] + fast), 5.0, DEFAULTS) == 0.0
+    assert slowdowns_per_s(flow([0.0] * 9), 5.0, DEFAULTS) == 0.0
+    assert slowdowns_per_s(np.zeros((0, 0, 0, 2)), 5.0, DEFAULTS) == 0.0
+    for bad in ({"slowdown_ratio": 1.0}, {"slowdown_window_s": 0}, {"slowdown_floor": -1}):
+        with pytest.raises(ValueError, match="slowdown"):
+            make_judge({"backend": "video", **bad})

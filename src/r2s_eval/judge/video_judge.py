@@ -25,7 +25,14 @@ Describe (per rollout, from pixels only):
     sensor noise out); a frame is moving when its energy exceeds ``moving_energy``;
   * action continuity: ``idle_fraction`` = share of still frames within the active span (first to
     last moving frame; a robot that never moves counts 1.0), ``pauses_per_100_frames`` = still
-    runs of at least ``min_pause_frames`` followed by motion, per 100 active frames;
+    runs of at least ``min_pause_frames`` followed by motion, per 100 active frames, and
+    ``slowdowns_per_s``: short stops, the frame steps whose image speed (the mean of the cell
+    flow) is a local minimum below ``slowdown_ratio`` of the fastest motion within
+    ``slowdown_window_s`` on either side (both faster than ``slowdown_floor``), per second of the
+    time the image moves faster than that floor. A stop of a few control steps spans one or two
+    frame steps at 5 fps, and the arm settles only partly in it: too short for a pause and too
+    busy for a still frame, it shows as a dip in the speed. A clean run slows down where its task
+    does (to grasp, to let go); one that stops and restarts dips between;
   * task progress: object masks per frame; the goal relation of the task in the frames of the
     final ``end_s`` seconds (at least one; "on"/"in"/"cover": the moved object's centroid within
     ``near_max`` target radii of the target's; "stack": within ``stack_near_max``; "out": at least ``out_min``
@@ -106,13 +113,23 @@ DEFAULTS: dict[str, Any] = {
     # frame at 128 px and 5 fps; in a still scene 99 % of the cells stay below a tenth of it.
     "reversal_min_speed": 0.02,
     "min_pause_frames": 3,
+    # Short stops (``slowdowns_per_s``): a dip below this share of the speed around it...
+    "slowdown_ratio": 0.35,
+    "slowdown_window_s": 0.6,  # ...the fastest motion within this many seconds on either side...
+    "slowdown_floor": 0.005,  # ...which must exceed this (image fractions per second; still scenes stay below)
     "min_visible_share": 0.5,  # a mask counts when its area is >= this share of the object's first-frame area
     # ...and down to this share for where an object ends up (a gripper may still cover what it set down)
     "part_visible_share": 0.1,
     # The end read for the goal: 0.3 s, the 3 control steps (at 10 Hz) a rollout's success must
     # hold before it ends: 2 frames at 5 fps, 3 at 10 fps.
     "end_s": 0.3,
-    "near_max": 0.8,
+    # The cup's mask sits above the plate's in an oblique view, so "on" holds a little beyond the
+    # plate's radius: in the validation line-up's cup_on_plate rollouts (inits 0-59 of nine
+    # repetitions' 180) 0.8 found 36 % of the successes, 0.95 86 % with 5.3 % of the failures read
+    # as successes (4.0 % at 0.8); the other 120 inits, not used to choose it, 87 % and 6.2 %.
+    # Over all 180: cover_ball 69 % -> 81 % of the successes (failures 4.7 % -> 5.7 %), ball_in_box
+    # 99 % -> 100 % (none of its failures comes within 0.95).
+    "near_max": 0.95,
     "stack_near_max": 1.2,
     "out_min": 1.5,
     "upright_aspect": 1.15,
@@ -135,6 +152,11 @@ DEFAULTS: dict[str, Any] = {
         "flow_reversals_per_s": 0.5,
         "idle_fraction": 0.2,
         "pauses_per_100_frames": 2.0,
+        # Validation line-up in the bundled world (25 successes each, 224 px at 5 fps): act
+        # slows down 0.30 times a second (median; quartiles 0.24-0.39), the same weights pausing
+        # 3 control steps in every 13 (act_hesitant) 0.72 (0.66-0.80), jittered 0.17 (the jitter
+        # fills the dips). At 0.7 act's number scores 0.70, the hesitant one's 0.49.
+        "slowdowns_per_s": 0.7,
         "peak_object_speed": 0.5,
         "object_speed_spikes": 1.0,
         "bystander_move": 0.5,
@@ -149,7 +171,7 @@ DEFAULTS: dict[str, Any] = {
 
 SCORED: dict[str, tuple[str, ...]] = {
     "motion_smoothness": ("flow_reversals_per_s",),
-    "action_continuity": ("idle_fraction", "pauses_per_100_frames"),
+    "action_continuity": ("idle_fraction", "pauses_per_100_frames", "slowdowns_per_s"),
     "force_control": ("peak_object_speed", "object_speed_spikes", "bystander_move"),
 }
 _WORDS = {
@@ -301,6 +323,23 @@ def smoothness(v: np.ndarray, fps: float, c: Mapping[str, Any]) -> dict[str, Any
         "flow_speed_rms": float(np.sqrt(np.mean(speed[fast] ** 2))) if fast.any() else 0.0,
         "moving_cell_share": float(fast.mean()) if fast.size else 0.0,
     }
+
+
+def slowdowns_per_s(v: np.ndarray, fps: float, c: Mapping[str, Any]) -> float:
+    """Short stops in a run's cell flow `v` (see the module docstring), per second of the time the
+    image moves faster than ``slowdown_floor``; 0 when it never does."""
+    speed = np.linalg.norm(v, axis=-1).mean(axis=(1, 2)) if v.size else np.zeros(0)
+    floor, ratio = float(c["slowdown_floor"]), float(c["slowdown_ratio"])
+    moving = np.flatnonzero(speed > floor)
+    if len(moving) == 0:
+        return 0.0
+    w = max(1, round(float(c["slowdown_window_s"]) * fps))
+    dips = 0
+    for i in range(1, len(speed) - 1):
+        around = min(speed[max(0, i - w):i].max(), speed[i + 1:i + 1 + w].max())
+        if speed[i] <= min(speed[i - 1], speed[i + 1]) and around > floor and speed[i] < ratio * around:
+            dips += 1
+    return float(dips * fps / (moving[-1] - moving[0] + 1))
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -488,7 +527,9 @@ def progress_force(frames: np.ndarray, fps: float, task, segmenter: Any, c: Mapp
 class VideoJudge(Judge):
     """Offline pixel-reading judge; NOT a VLM (see the module docstring for its rules)."""
 
-    prompt_version = "video-v2"  # v2: smoothness from optical-flow reversals; success before style
+    # v2: smoothness from optical-flow reversals; success before style. v3: short slowdowns in
+    # continuity; the goal "on"/"in"/"cover" within 0.95 target radii (was 0.8)
+    prompt_version = "video-v3"
     compare_version = "video-compare-v3"  # v3: failures and style differences count beyond a margin
     compare_keys = ("failures", "progress_margin", "style_margin")
     inputs = ("video",)
@@ -511,6 +552,11 @@ class VideoJudge(Judge):
                               f"{self.cfg['flow_cell_px']} and {self.cfg['flow_side_px']}")
         if not float(self.cfg["reversal_min_speed"]) > 0:
             raise ConfigError(f"video judge: reversal_min_speed must be > 0, got {self.cfg['reversal_min_speed']}")
+        if not 0 < float(self.cfg["slowdown_ratio"]) < 1:
+            raise ConfigError(f"video judge: slowdown_ratio must be in (0, 1), got {self.cfg['slowdown_ratio']}")
+        if not (float(self.cfg["slowdown_window_s"]) > 0 and float(self.cfg["slowdown_floor"]) > 0):
+            raise ConfigError(f"video judge: slowdown_window_s and slowdown_floor must be > 0, got "
+                              f"{self.cfg['slowdown_window_s']} and {self.cfg['slowdown_floor']}")
         if not float(self.cfg["end_s"]) > 0:
             raise ConfigError(f"video judge: end_s must be > 0 seconds, got {self.cfg['end_s']}")
         self._segmenters: dict[str, Any] = {}
@@ -561,7 +607,9 @@ class VideoJudge(Judge):
         luma = grey(frames)
         cont = continuity(motion_energy(luma, int(c["blur_px"]), float(c["diff_threshold"])), c)
         fps = video_fps(rollout.video_path)
-        smooth = smoothness(cell_flow(luma, fps, int(c["flow_side_px"]), int(c["flow_cell_px"])), fps, c)
+        flow = cell_flow(luma, fps, int(c["flow_side_px"]), int(c["flow_cell_px"]))
+        smooth = smoothness(flow, fps, c)
+        cont["slowdowns_per_s"] = slowdowns_per_s(flow, fps, c) if cont["robot_moved"] else 0.0
         if not cont["robot_moved"]:  # a still scene: what flow there is, is noise
             smooth["flow_reversals_per_s"] = None
         prog, label, force = progress_force(frames, fps, self.tasks[task_key], self.segmenter(task_key), c)
@@ -577,7 +625,8 @@ class VideoJudge(Judge):
             s_text = "No robot motion is visible, so smoothness cannot be judged."
         if cont["robot_moved"]:
             c_text = (f"Execution is {w['action_continuity']}: still {100 * cont['idle_fraction']:.0f}% of the "
-                      f"active span, {cont['pauses']} pauses, {cont['motion_bursts']} bursts of motion.")
+                      f"active span, {cont['pauses']} pauses, {cont['motion_bursts']} bursts of motion, "
+                      f"{fmt(cont['slowdowns_per_s'])} short slowdowns per second.")
         else:
             c_text = "Execution is stop-and-go at its worst: the robot never visibly moves."
         gap = "unknown" if prog["goal_gap"] is None else fmt(prog["goal_gap"])

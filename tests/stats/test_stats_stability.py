@@ -210,3 +210,20 @@ def test_each_share_has_its_interval_and_its_difference_from_the_real_evaluation
     assert r"90 \% interval" in table and r"minus real 10 [90 \%]" in table
     assert f"{100 * judge['difference']:+.1f} [{100 * judge['difference']:+.1f}, {100 * judge['difference']:+.1f}]" in table
     assert r"90 \% interval" not in stability_table(plain)
+    # The figure draws each ranking's interval, not the repetitions' range.
+    from pathlib import Path
+
+    from matplotlib.collections import LineCollection
+
+    from r2s_eval.config import compose_config
+    from r2s_eval.report.figures import stability_figure
+
+    opts = compose_config(Path(__file__).resolve().parents[2] / "conf", experiment="smoke")["report"]["stability"]
+    for card, title in ((summary, "90 % intervals"), (plain, "their range")):
+        ax = stability_figure(card, opts).axes[0]
+        assert title in ax.get_title()
+        bars = [c for c in ax.collections if isinstance(c, LineCollection)]  # the judges' error bars
+        low, high = (100 * v for v in card["evaluations"]["kinematic"].get("agreement_interval") or
+                     (min(shares), max(shares)))
+        ends = sorted(float(p[1]) for seg in bars[-1].get_segments() for p in seg)
+        assert ends == pytest.approx([low, high])

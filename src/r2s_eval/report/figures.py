@@ -260,16 +260,21 @@ def case_study_figure(rows: Sequence[tuple[str, Sequence[np.ndarray], Sequence[f
 def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
     """Agreement with the truth against the real trials an evaluation spends (per task and
     policy, after the teleop data): real evaluations at m trials (a line; the repetitions' mean,
-    their range as a band) and each judge's sim ranking at none (a marker with its range); where
-    the summary holds it, the same ranking against the twin's truth of the networks it ranks
-    (a hollow marker beside it)."""
+    its interval as a band) and each judge's sim ranking at none (a marker with its interval);
+    where the summary holds it, the same ranking against the twin's truth of the networks it
+    ranks (a hollow marker beside it). The interval is the summary's ``agreement_interval`` (the
+    Student-t interval over the repetitions); a card without one shows the repetitions' range."""
     cards = summary["evaluations"]
     real = sorted((int(name.split()[1]), card) for name, card in cards.items() if name.startswith("real "))
     judges = [(name, card) for name, card in cards.items() if not name.startswith("real ")]
 
     def spread(card):
         shares = [100 * c["share"] for c in card["per_repetition"] if c["share"] is not None]
-        return (np.mean(shares), min(shares), max(shares)) if shares else (np.nan, np.nan, np.nan)
+        if not shares:
+            return np.nan, np.nan, np.nan
+        interval = card.get("agreement_interval")
+        low, high = (100 * interval[0], 100 * interval[1]) if interval else (min(shares), max(shares))
+        return np.mean(shares), low, high
 
     with matplotlib.rc_context(_rc(opts)):
         fig = _figure(opts["width_in"], opts["height_in"])
@@ -295,7 +300,9 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
         ax.set_ylabel("pairs ordered as the truth (%)")
         ax.set_ylim(0, 102)
         ax.set_xlim(-1, (m.max() if len(m) else 20) + 1)
-        ax.set_title(f"{summary['repetitions']} repetitions, {len(summary['policies'])} candidates")
+        level = (summary.get("beside_real") or {}).get("level")
+        spans = f"{100 * level:g} % intervals over them" if level else "their range"
+        ax.set_title(f"{summary['repetitions']} repetitions ({spans}), {len(summary['policies'])} candidates")
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     return fig

@@ -124,8 +124,8 @@ DEFAULTS: dict[str, Any] = {
     # hold before it ends: 2 frames at 5 fps, 3 at 10 fps.
     "end_s": 0.3,
     # The cup's mask sits above the plate's in an oblique view, so "on" holds a little beyond the
-    # plate's radius: in the validation line-up's cup_on_plate rollouts (inits 0-59 of nine
-    # repetitions' 180) 0.8 found 36 % of the successes, 0.95 86 % with 5.3 % of the failures read
+    # plate's radius: in the unmodelled_fidelity experiment's cup_on_plate sim rollouts (its nine
+    # repetitions' run, inits 0-59 of 180) 0.8 found 36 % of the successes, 0.95 86 % with 5.3 % of the failures read
     # as successes (4.0 % at 0.8); the other 120 inits, not used to choose it, 87 % and 6.2 %.
     # Over all 180: cover_ball 69 % -> 81 % of the successes (failures 4.7 % -> 5.7 %), ball_in_box
     # 99 % -> 100 % (none of its failures comes within 0.95).
@@ -152,7 +152,7 @@ DEFAULTS: dict[str, Any] = {
         "flow_reversals_per_s": 0.5,
         "idle_fraction": 0.2,
         "pauses_per_100_frames": 2.0,
-        # Validation line-up in the bundled world (25 successes each, 224 px at 5 fps): act
+        # The unmodelled_fidelity experiment's sim rollouts (25 successes each, 224 px, 5 fps): act
         # slows down 0.30 times a second (median; quartiles 0.24-0.39), the same weights pausing
         # 3 control steps in every 13 (act_hesitant) 0.72 (0.66-0.80), jittered 0.17 (the jitter
         # fills the dips). At 0.7 act's number scores 0.70, the hesitant one's 0.49.

@@ -325,8 +325,9 @@ def test_judge_video_prefers_the_success_that_got_there_sooner(operator_runs, tm
 
 def test_judge_video_sees_short_stops_as_slowdowns(operator_runs):
     """The operator holding its command 3 control steps in every 13 (the planted act_hesitant's
-    stops): at 5 fps a stop spans a frame step or two and the arm settles only partly, so the
-    still-frame count misses it; the image speed dips, and continuity reads those dips."""
+    stops): at 5 fps a stop spans a frame step or two and the arm settles only partly, so few of
+    them make a still frame (one pause here); the image speed dips at each, and continuity reads
+    those dips."""
     judge = video_judge()
     instruction = operator_runs["clean"]["instruction"]
     clean, hesitant = (judge.describe(RolloutInput(instruction, video_path=operator_runs[n]["video_5fps_path"]))

@@ -210,7 +210,11 @@ def test_each_share_has_its_interval_and_its_difference_from_the_real_evaluation
     assert r"90 \% interval" in table and r"minus real 10 [90 \%]" in table
     assert f"{100 * judge['difference']:+.1f} [{100 * judge['difference']:+.1f}, {100 * judge['difference']:+.1f}]" in table
     assert r"90 \% interval" not in stability_table(plain)
-    # The figure draws each ranking's interval, not the repetitions' range.
+
+
+def test_the_stability_figure_draws_each_rankings_interval_or_else_its_range():
+    """The judges' bars span ``agreement_interval`` where the summary holds one (here wider than the
+    repetitions' range), else the range; the title says which."""
     from pathlib import Path
 
     from matplotlib.collections import LineCollection
@@ -218,12 +222,18 @@ def test_each_share_has_its_interval_and_its_difference_from_the_real_evaluation
     from r2s_eval.config import compose_config
     from r2s_eval.report.figures import stability_figure
 
+    def card(shares, interval=None):
+        return {"per_repetition": [{"share": s} for s in shares],
+                **({"agreement_interval": interval} if interval else {})}
+
     opts = compose_config(Path(__file__).resolve().parents[2] / "conf", experiment="smoke")["report"]["stability"]
-    for card, title in ((summary, "90 % intervals"), (plain, "their range")):
-        ax = stability_figure(card, opts).axes[0]
+    shares = [0.5, 0.7, 0.9]
+    for interval, level, title, expected in (([0.2, 1.0], 0.95, "95 % intervals", [20, 100]),
+                                             (None, None, "their range", [50, 90])):
+        summary = {"repetitions": 3, "policies": ["a", "b", "c"],
+                   "evaluations": {"real 5": card([0.6, 0.8, 1.0], interval), "kinematic": card(shares, interval)},
+                   **({"beside_real": {"level": level}} if level else {})}
+        ax = stability_figure(summary, opts).axes[0]
         assert title in ax.get_title()
-        bars = [c for c in ax.collections if isinstance(c, LineCollection)]  # the judges' error bars
-        low, high = (100 * v for v in card["evaluations"]["kinematic"].get("agreement_interval") or
-                     (min(shares), max(shares)))
-        ends = sorted(float(p[1]) for seg in bars[-1].get_segments() for p in seg)
-        assert ends == pytest.approx([low, high])
+        bars = [c for c in ax.collections if isinstance(c, LineCollection)]  # the judge's error bar
+        assert sorted(float(p[1]) for seg in bars[-1].get_segments() for p in seg) == pytest.approx(expected)

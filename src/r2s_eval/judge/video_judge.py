@@ -609,8 +609,10 @@ class VideoJudge(Judge):
         fps = video_fps(rollout.video_path)
         flow = cell_flow(luma, fps, int(c["flow_side_px"]), int(c["flow_cell_px"]))
         smooth = smoothness(flow, fps, c)
-        cont["slowdowns_per_s"] = slowdowns_per_s(flow, fps, c) if cont["robot_moved"] else 0.0
-        if not cont["robot_moved"]:  # a still scene: what flow there is, is noise
+        if cont["robot_moved"]:
+            cont["slowdowns_per_s"] = slowdowns_per_s(flow, fps, c)
+        else:  # a still scene: what flow there is, is noise
+            cont["slowdowns_per_s"] = 0.0
             smooth["flow_reversals_per_s"] = None
         prog, label, force = progress_force(frames, fps, self.tasks[task_key], self.segmenter(task_key), c)
 

@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from r2s_eval.errors import DataError
 from r2s_eval.stats.stability import (
     adjacent_pairs,
     agreement,
@@ -173,6 +174,43 @@ def test_the_networks_ranked_in_the_twin_split_the_training_from_the_sim_and_the
     assert summary["truth"]["networks_in_twin_left_out"] == []
     assert partial["against_networks_in_twin"]["kinematic"]["pairs"]["close vs weak"]["truth_decided"] == 0
     assert summary["against_networks_in_twin"]["kinematic"]["pairs"]["close vs weak"]["truth_decided"] == k
+
+
+def test_each_repetition_ranks_from_its_share_of_the_sim_only_inits_too():
+    # 30 inits per task on both sides, 30 more in the sim alone (rollout.real_inits_per_task 30 of
+    # 60): repetition r holds real block r (10 inits) and sim-only inits 30 + 10r .. 39 + 10r. On the
+    # real blocks' inits the judge prefers `weak` to `good` two times in three; on the sim-only ones
+    # `good` always, twice as many comparisons: only a judge that sees those orders the pair.
+    k, per_block = 3, 10
+    real = _trials({"good": 0.6, "weak": 0.1}, inits=k * per_block)
+    sim = _trials({"good": 0.6, "weak": 0.1}, inits=2 * k * per_block)
+    sim.loc[(sim["policy"] == "weak") & (sim["init_id"] < k * per_block), "success"] = True  # the real blocks' luck
+    verdicts = []
+    for init in range(2 * k * per_block):
+        sim_only = init >= k * per_block
+        for winner in (("good", "good", "good", "good") if sim_only else ("weak", "weak", "good")):
+            verdicts.append({"policy_i": "good", "policy_j": "weak", "winner": winner, "task": "t1", "init_id": init})
+    verdicts = pd.DataFrame(verdicts)
+    args = dict(repetitions=k, real_trials_per_task=per_block, trials_curve=[per_block], truth_z=1.96, variants={})
+    summary = stability_summary(real, {"kinematic": verdicts}, inits_per_task=2 * k * per_block, sim=sim,
+                                real_inits_per_task=k * per_block, **args)
+    assert summary["inits_per_repetition_and_task"] == per_block
+    assert summary["sim_inits_per_repetition_and_task"] == 2 * per_block
+    assert summary["behind_each_repetition"]["sim_rollouts_per_policy"] == 2 * 2 * per_block
+    assert summary["behind_each_repetition"]["comparisons"]["kinematic"] == [per_block * (3 + 4)] * k
+    assert summary["truth"]["real_trials_per_policy"] == 2 * per_block * (k - 1)  # the real side's blocks alone
+    assert summary["evaluations"]["kinematic"]["agreement"] == 1.0
+    # The sim's success over a repetition's 20 inits: `weak` 55 % (lucky on the real block's 10), `good` 60 %.
+    assert summary["evaluations"]["sim success"]["agreement"] == 1.0
+    # Without the sim-only inits, each repetition sees the real block's inits alone, and the judge errs.
+    alone = stability_summary(real, {"kinematic": verdicts}, inits_per_task=k * per_block, sim=sim, **args)
+    assert alone["sim_inits_per_repetition_and_task"] == per_block
+    assert alone["evaluations"]["kinematic"]["repeated_errors"] == {"good vs weak": 3.0}
+    assert alone["evaluations"]["sim success"]["agreement"] == 0.0
+    # A repetition without a comparison is named with its inits.
+    with pytest.raises(DataError, match=r"repetition 1 \(10-19, 40-49\)"):
+        stability_summary(real, {"kinematic": verdicts[~verdicts["init_id"].isin([*range(10, 20), *range(40, 50)])]},
+                          inits_per_task=2 * k * per_block, real_inits_per_task=k * per_block, **args)
 
 
 def test_the_interval_of_a_share_is_students_t_over_the_repetitions():

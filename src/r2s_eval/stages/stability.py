@@ -2,7 +2,8 @@
 
 Each task's rollout inits are split into ``stability.repetitions`` disjoint blocks; repetition r
 ranks the candidates from block r alone, the checkpoints fixed: each judge by a Bradley-Terry fit
-of the comparisons of block r's sim rollouts, and a real evaluation by the success of block r's
+of the comparisons of block r's sim rollouts (with the sim-only inits beyond
+``rollout.real_inits_per_task``, block r's share of those too), and a real evaluation by the success of block r's
 first ``stability.real_trials_per_task`` real trials per task and policy (and, for the figure,
 of its first m for each m of ``trials_curve``). The truth of repetition r: planted pairs by
 construction, every other pair by the twin's success over the real trials of the other blocks
@@ -30,7 +31,7 @@ from r2s_eval.stages import _cli
 from r2s_eval.stats.stability import stability_summary
 from r2s_eval.utils.io import write_json, write_text
 
-READS = ("stability", "rollout.inits_per_task", "report.stability", "stats.ci_level")  # config paths the --cfg slice holds
+READS = ("stability", "rollout.inits_per_task", "rollout.real_inits_per_task", "report.stability", "stats.ci_level")  # config paths the --cfg slice holds
 PROVIDED = ("planted_variants",)  # {variant: the candidate whose weights it runs}, from the line-up
 
 
@@ -45,7 +46,8 @@ def main(args) -> None:
         real, verdicts, inits_per_task=int(cfg["rollout.inits_per_task"]), repetitions=int(opts["repetitions"]),
         real_trials_per_task=int(opts["real_trials_per_task"]), trials_curve=[int(m) for m in opts["trials_curve"]],
         truth_z=float(opts["truth_z"]), variants=dict(cfg.get("planted_variants") or {}), sim=sim,
-        networks_in_twin=networks, level=float(cfg["stats.ci_level"]))
+        networks_in_twin=networks, level=float(cfg["stats.ci_level"]),
+        real_inits_per_task=cfg["rollout.real_inits_per_task"])
     write_json(args.out, summary, provenance=True)
     report = cfg["report.stability"]
     write_text(args.table, stability_table(summary, decimals=int(report["decimals"])), comment="%")

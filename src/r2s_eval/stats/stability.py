@@ -189,18 +189,46 @@ def beside(card: Mapping, reference: Mapping, level: float) -> dict | None:
             "interval": repetition_interval(differences, level, bounds=(-1.0, 1.0))}
 
 
-def blocks(inits_per_task: int, repetitions: int) -> list[range]:
-    """Each repetition's init ids: k disjoint blocks of inits_per_task // k (the rest unused)."""
+def blocks(inits_per_task: int, repetitions: int, start: int = 0) -> list[range]:
+    """Each repetition's init ids: k disjoint blocks of inits_per_task // k from ``start`` (the
+    rest unused)."""
     size = inits_per_task // repetitions
-    return [range(r * size, (r + 1) * size) for r in range(repetitions)]
+    return [range(start + r * size, start + (r + 1) * size) for r in range(repetitions)]
+
+
+def sim_blocks(parts: Sequence[range], inits_per_task: int, real_inits_per_task: int) -> list[list[int]]:
+    """Each repetition's sim inits: its real block and its share of the inits that only the sim
+    rolls out (``real_inits_per_task`` up to ``inits_per_task``), so a judge ranks from as many
+    sim rollouts as the experiment runs while the real side keeps its trials."""
+    extra = blocks(inits_per_task - real_inits_per_task, len(parts), start=real_inits_per_task)
+    return [[*part, *more] for part, more in zip(parts, extra)]
+
+
+def _spans(ids: Sequence[int]) -> str:
+    """Init ids as runs: [0..19, 180..219] -> '0-19, 180-219'."""
+    runs, start = [], None
+    for k, i in enumerate(ids):
+        if start is None:
+            start = i
+        if k + 1 == len(ids) or ids[k + 1] != i + 1:
+            runs.append(f"{start}-{i}")
+            start = None
+    return ", ".join(runs)
 
 
 def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, inits_per_task: int,
                       repetitions: int, real_trials_per_task: int, trials_curve, truth_z: float,
                       variants: dict[str, str], sim: pd.DataFrame | None = None,
-                      networks_in_twin: pd.DataFrame | None = None, level: float | None = None) -> dict:
+                      networks_in_twin: pd.DataFrame | None = None, level: float | None = None,
+                      real_inits_per_task: int | None = None) -> dict:
     """``real``: every real trial (policy, task, init_id, success); ``verdicts``: per judge its
     verdicts (policy_i, policy_j, winner, task, init_id).
+
+    ``real_inits_per_task`` (None: ``inits_per_task``): the inits the real side rolls out, the
+    first of the sim's. The real blocks split those; each repetition's sim block is its real block
+    plus its share of the sim-only inits beyond them (`sim_blocks`), as a lab runs many more sim
+    rollouts than real trials (the paper: 200 against 20 per task). The sim-only inits have no
+    real trials, so no truth rests on the inits a repetition's sim ranks from.
 
     With ``sim`` (the judged sim rollouts: policy, task, init_id, success) two more views split a
     judge's errors into the sim's and its own: ``sim success``, the ranking by the success of each
@@ -221,7 +249,9 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     its per-repetition shares) and ``beside_real`` holds each one's mean share minus that of the
     real evaluation at ``real_trials_per_task``, with the interval of the paired differences."""
     policies = sorted(real["policy"].astype(str).unique())
-    parts = blocks(inits_per_task, repetitions)
+    in_real = inits_per_task if real_inits_per_task is None else min(int(real_inits_per_task), inits_per_task)
+    parts = blocks(in_real, repetitions)
+    sim_parts = sim_blocks(parts, inits_per_task, in_real)
     size = len(parts[0])
     if real_trials_per_task > size or max(trials_curve) > size:
         raise DataError(f"a repetition has {size} inits per task, fewer than the real trials asked "
@@ -234,11 +264,11 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     sim_truths, sim_orders, twin_truths = [], [], []
     judge_orders = {judge: [] for judge in verdicts}
     comparisons = {judge: [] for judge in verdicts}
-    for part in parts:
+    for part, sim_part in zip(parts, sim_parts):
         inside = real["init_id"].isin(part)
         truths.append(truth_order(real[~inside], variants, policies, truth_z))
         if sim is not None:
-            in_sim = sim["init_id"].isin(part)
+            in_sim = sim["init_id"].isin(sim_part)
             sim_truths.append(truth_order(sim[~in_sim], variants, policies, truth_z))
             sim_orders.append(order_of(success_rates(sim[in_sim])[0].to_dict()))
         if networks_in_twin is not None:  # pairs with a candidate not crossed stay undecided there
@@ -248,9 +278,10 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
             first = real[real["init_id"].isin(part[:m])]
             real_orders[m].append(order_of(success_rates(first)[0].to_dict()))
         for judge, table in verdicts.items():
-            own = table[table["init_id"].astype(int).isin(part)]
+            own = table[table["init_id"].astype(int).isin(sim_part)]
             if own.empty:
-                raise DataError(f"judge {judge}: no comparison from inits {part.start}-{part.stop - 1}")
+                raise DataError(f"judge {judge}: no comparison from the inits of repetition {len(comparisons[judge])} "
+                                f"({_spans(sim_part)})")
             judge_orders[judge].append(bt_order(own, policies)[0])
             comparisons[judge].append(len(own))
     evaluations = {f"real {m}": repeated(orders, truths, pairs) for m, orders in real_orders.items()}
@@ -268,7 +299,8 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
                                        if card is not reference and (diff := beside(card, reference, level))}}
     tasks = int(real["task"].nunique())
     out = {
-        "repetitions": repetitions, "inits_per_repetition_and_task": size, "tasks": tasks, "policies": policies,
+        "repetitions": repetitions, "inits_per_repetition_and_task": size,
+        "sim_inits_per_repetition_and_task": len(sim_parts[0]), "tasks": tasks, "policies": policies,
         "variants": variants, "real_trials_per_task": real_trials_per_task,
         "truth": {"definition": "planted pairs by construction; others by the twin's success over the other "
                                 f"repetitions' real trials where it differs by more than {truth_z} standard errors",
@@ -276,7 +308,7 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
                   "success_all_trials": {p: float(all_rate[p]) for p in policies},
                   "decided_pairs": [sum(1 for s in t.values() if s) for t in truths],
                   "adjacent_pairs": [pair_label(pair) for pair in pairs]},
-        "behind_each_repetition": {"sim_rollouts_per_policy": tasks * size,
+        "behind_each_repetition": {"sim_rollouts_per_policy": tasks * len(sim_parts[0]),
                                    "real_trials_per_policy": {m: tasks * m for m in real_orders},
                                    "comparisons": {j: [int(n) for n in c] for j, c in comparisons.items()}},
         "evaluations": evaluations,

@@ -923,8 +923,9 @@ def _fidelity_sim_problems(cfg: dict) -> list[Problem]:
 
 
 def _stability_problems(cfg: dict) -> list[Problem]:
-    """Repetitions need the twin (its other trials are the truth) and blocks of inits large
-    enough for the real trials asked."""
+    """Repetitions need the twin (its other trials are the truth) and blocks of the real side's
+    inits large enough for the real trials asked (the sim may roll out more: each repetition
+    takes its share of the sim-only inits too)."""
     k = cfg["stability"]["repetitions"]
     if not k:
         return []
@@ -933,18 +934,15 @@ def _stability_problems(cfg: dict) -> list[Problem]:
     if cfg["real"]["source"] != "twin" or cfg.get("libero") is not None:
         return [Problem("stability.repetitions", "needs real.source twin: the twin's trials of the other "
                                                  "repetitions are the truth (set stability.repetitions=0)")]
-    per_block = cfg["rollout"]["inits_per_task"] // k
+    inits, real_inits = cfg["rollout"]["inits_per_task"], cfg["rollout"]["real_inits_per_task"]
+    in_real = inits if real_inits is None else min(real_inits, inits)
+    per_block = in_real // k
     wanted = max(cfg["stability"]["real_trials_per_task"], *cfg["stability"]["trials_curve"])
-    problems = []
     if per_block < wanted:
-        problems.append(Problem("stability.repetitions", f"{k} repetitions of rollout.inits_per_task "
-                                                         f"{cfg['rollout']['inits_per_task']} leave {per_block} inits per "
-                                                         f"task each, fewer than the {wanted} real trials asked"))
-    real_inits = cfg["rollout"]["real_inits_per_task"]
-    if real_inits is not None and real_inits < k * per_block:
-        problems.append(Problem("rollout.real_inits_per_task", f"the repetitions need real trials on all "
-                                                               f"{k * per_block} inits per task (null), got {real_inits}"))
-    return problems
+        key = "rollout.inits_per_task" if in_real == inits else "rollout.real_inits_per_task"
+        return [Problem("stability.repetitions", f"{k} repetitions of {key} {in_real} leave {per_block} real "
+                                                 f"inits per task each, fewer than the {wanted} real trials asked")]
+    return []
 
 
 def _resolution_problems(cfg: dict) -> list[Problem]:

@@ -308,6 +308,20 @@ def test_fidelity_settings_are_checked(overrides, message):
 
 
 @pytest.mark.parametrize(("overrides", "message"), [
+    (["stability.repetitions=1"], r"stability.repetitions .*must be 0 \(off\) or at least 2, got 1"),
+    (["rollout.inits_per_task=5"], r"stability.repetitions .*2 repetitions of rollout.inits_per_task 5 leave 2 real "
+                                   r"inits per task each, fewer than the 3 real trials asked"),
+    (["rollout.inits_per_task=12", "rollout.real_inits_per_task=5"],
+     r"2 repetitions of rollout.real_inits_per_task 5 leave 2 real inits"),
+])
+def test_stability_settings_are_checked(overrides, message):
+    with pytest.raises(ConfigError, match=message):
+        compose_config(CONF, "smoke", overrides)
+    # The sim may roll out more inits than the real side: each repetition takes its share of them.
+    compose_config(CONF, "smoke", ["rollout.inits_per_task=12", "rollout.real_inits_per_task=6"])
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
     (["resolution.policy=nope"], r"resolution.policy .*must name a candidate of this line-up that is not a variant"),
     (["resolution.policy=act_hesitant"], r"resolution.policy .*not a variant"),
     (["resolution.kinds=[jitter,wobble]"], r"resolution.kinds\[1\] .*must be a key of resolution.sweeps"),

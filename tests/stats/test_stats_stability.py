@@ -252,7 +252,7 @@ def test_each_share_has_its_interval_and_its_difference_from_the_real_evaluation
 
 def test_the_stability_figure_draws_each_rankings_interval_or_else_its_range():
     """The judges' bars span ``agreement_interval`` where the summary holds one (here wider than the
-    repetitions' range), else the range; the title says which."""
+    repetitions' range), else the range; the title says which, and what the sim's points rank from."""
     from pathlib import Path
 
     from matplotlib.collections import LineCollection
@@ -268,10 +268,10 @@ def test_the_stability_figure_draws_each_rankings_interval_or_else_its_range():
     shares = [0.5, 0.7, 0.9]
     for interval, level, title, expected in (([0.2, 1.0], 0.95, "95 % intervals", [20, 100]),
                                              (None, None, "their range", [50, 90])):
-        summary = {"repetitions": 3, "policies": ["a", "b", "c"],
+        summary = {"repetitions": 3, "policies": ["a", "b", "c"], "sim_inits_per_repetition_and_task": 15,
                    "evaluations": {"real 5": card([0.6, 0.8, 1.0], interval), "kinematic": card(shares, interval)},
                    **({"beside_real": {"level": level}} if level else {})}
         ax = stability_figure(summary, opts).axes[0]
-        assert title in ax.get_title()
+        assert title in ax.get_title() and "from 15 sim rollouts per task and policy" in ax.get_title()
         bars = [c for c in ax.collections if isinstance(c, LineCollection)]  # the judge's error bar
         assert sorted(float(p[1]) for seg in bars[-1].get_segments() for p in seg) == pytest.approx(expected)

@@ -302,7 +302,11 @@ def stability_figure(summary: Mapping, opts: Mapping) -> Figure:
         ax.set_xlim(-1, (m.max() if len(m) else 20) + 1)
         level = (summary.get("beside_real") or {}).get("level")
         spans = f"{100 * level:g} % intervals over them" if level else "their range"
-        ax.set_title(f"{summary['repetitions']} repetitions ({spans}), {len(summary['policies'])} candidates")
+        title = f"{summary['repetitions']} repetitions ({spans}), {len(summary['policies'])} candidates"
+        sim_inits = summary.get("sim_inits_per_repetition_and_task")
+        if sim_inits:  # what the points at 0 real trials rank from
+            title += f"\nthe sim's points from {sim_inits} sim rollouts per task and policy"
+        ax.set_title(title)
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     return fig

@@ -1,9 +1,9 @@
 """Stage: how stable each ranking is when the evaluation is repeated with fresh initial configurations.
 
-Each task's rollout inits are split into ``stability.repetitions`` disjoint blocks; repetition r
-ranks the candidates from block r alone, the checkpoints fixed: each judge by a Bradley-Terry fit
-of the comparisons of block r's sim rollouts (with the sim-only inits beyond
-``rollout.real_inits_per_task``, block r's share of those too), and a real evaluation by the success of block r's
+Each task's real-side inits are split into ``stability.repetitions`` disjoint blocks; repetition
+r ranks the candidates from block r alone, the checkpoints fixed: each judge by a Bradley-Terry
+fit of the comparisons of block r's sim rollouts (and of its share of the sim-only inits beyond
+``rollout.real_inits_per_task``), and a real evaluation by the success of block r's
 first ``stability.real_trials_per_task`` real trials per task and policy (and, for the figure,
 of its first m for each m of ``trials_curve``). The truth of repetition r: planted pairs by
 construction, every other pair by the twin's success over the real trials of the other blocks

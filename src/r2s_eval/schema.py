@@ -934,8 +934,10 @@ def _stability_problems(cfg: dict) -> list[Problem]:
     if cfg["real"]["source"] != "twin" or cfg.get("libero") is not None:
         return [Problem("stability.repetitions", "needs real.source twin: the twin's trials of the other "
                                                  "repetitions are the truth (set stability.repetitions=0)")]
-    inits, real_inits = cfg["rollout"]["inits_per_task"], cfg["rollout"]["real_inits_per_task"]
-    in_real = inits if real_inits is None else min(real_inits, inits)
+    from r2s_eval.stats.stability import real_side_inits
+
+    inits = cfg["rollout"]["inits_per_task"]
+    in_real = real_side_inits(inits, cfg["rollout"]["real_inits_per_task"])
     per_block = in_real // k
     wanted = max(cfg["stability"]["real_trials_per_task"], *cfg["stability"]["trials_curve"])
     if per_block < wanted:

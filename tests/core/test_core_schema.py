@@ -317,8 +317,12 @@ def test_fidelity_settings_are_checked(overrides, message):
 def test_stability_settings_are_checked(overrides, message):
     with pytest.raises(ConfigError, match=message):
         compose_config(CONF, "smoke", overrides)
-    # The sim may roll out more inits than the real side: each repetition takes its share of them.
-    compose_config(CONF, "smoke", ["rollout.inits_per_task=12", "rollout.real_inits_per_task=6"])
+
+
+def test_the_sim_may_roll_out_more_inits_than_the_real_side_of_the_repetitions():
+    # Each repetition takes its share of the sim-only inits; the real blocks hold the trials asked.
+    cfg = compose_config(CONF, "smoke", ["rollout.inits_per_task=12", "rollout.real_inits_per_task=6"])
+    assert (cfg["rollout"]["inits_per_task"], cfg["rollout"]["real_inits_per_task"]) == (12, 6)
 
 
 @pytest.mark.parametrize(("overrides", "message"), [

@@ -196,6 +196,12 @@ def blocks(inits_per_task: int, repetitions: int, start: int = 0) -> list[range]
     return [range(start + r * size, start + (r + 1) * size) for r in range(repetitions)]
 
 
+def real_side_inits(inits_per_task: int, real_inits_per_task: int | None) -> int:
+    """How many of each task's inits the real side rolls out (``rollout.real_inits_per_task``, a
+    prefix of the sim's; None: all of them)."""
+    return inits_per_task if real_inits_per_task is None else min(int(real_inits_per_task), inits_per_task)
+
+
 def sim_blocks(parts: Sequence[range], inits_per_task: int, real_inits_per_task: int) -> list[list[int]]:
     """Each repetition's sim inits: its real block and its share of the inits that only the sim
     rolls out (``real_inits_per_task`` up to ``inits_per_task``), so a judge ranks from as many
@@ -249,7 +255,7 @@ def stability_summary(real: pd.DataFrame, verdicts: dict[str, pd.DataFrame], *, 
     its per-repetition shares) and ``beside_real`` holds each one's mean share minus that of the
     real evaluation at ``real_trials_per_task``, with the interval of the paired differences."""
     policies = sorted(real["policy"].astype(str).unique())
-    in_real = inits_per_task if real_inits_per_task is None else min(int(real_inits_per_task), inits_per_task)
+    in_real = real_side_inits(inits_per_task, real_inits_per_task)
     parts = blocks(in_real, repetitions)
     sim_parts = sim_blocks(parts, inits_per_task, in_real)
     size = len(parts[0])
